@@ -1,0 +1,20 @@
+//! # matedit-datagen
+//!
+//! The synthetic-dataset factory's library. Its layout follows the scene description:
+//!
+//! * [`shapes`]: the analytic sphere and triangle meshes (OBJ through tobj), normalised to the
+//!   unit ball, with angle-weighted vertex normals where a file has none;
+//! * [`accel`]: the obvhs BVH for primary visibility and shadow rays;
+//! * [`gbuffer`]: per-pixel camera-space normals, mask and hit points of the orthographic view;
+//! * [`assets`]: embedded default data (procedural environment maps);
+//! * [`io`]: environment-map loading (.hdr, .exr), EXR and PNG writing, all writes atomic;
+//! * [`render`]: the one-scene preview renderer behind `datagen render`.
+//!
+//! The image formation itself (Eq. 2, BRDFs, environment maps) lives in `matedit-physics`.
+
+pub mod accel;
+pub mod assets;
+pub mod gbuffer;
+pub mod io;
+pub mod render;
+pub mod shapes;

@@ -1,0 +1,270 @@
+//! The one-scene preview renderer behind `datagen render`: shape → G-buffer → Eq. 2 → images.
+
+use crate::accel::Scene;
+use crate::gbuffer::GBuffer;
+use crate::io::{EnvSource, load_env, write_env_exr, write_exr_channels, write_png_preview};
+use crate::shapes::Shape;
+use anyhow::{Context, Result, bail};
+use glam::Vec3;
+use indicatif::{ProgressBar, ProgressStyle};
+use matedit_physics::shading::{Quality, VisibilityFn, make_shader, shade_image};
+use matedit_physics::{BrdfSpec, EnvMap};
+use std::path::Path;
+use std::time::Instant;
+
+/// Environment resolution used for shading.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EnvRes {
+    /// The file's own resolution.
+    Full,
+    /// H rows × 2H columns, area-averaged from the source.
+    Rows(usize),
+}
+
+impl std::str::FromStr for EnvRes {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "full" {
+            return Ok(EnvRes::Full);
+        }
+        let err = || format!("--env-res {s:?}: expected HxW with W = 2H (e.g. 64x128) or full");
+        let (h, w) = s.split_once('x').ok_or_else(err)?;
+        let (h, w): (usize, usize) = (h.parse().map_err(|_| err())?, w.parse().map_err(|_| err())?);
+        if h == 0 || w != 2 * h {
+            return Err(err());
+        }
+        Ok(EnvRes::Rows(h))
+    }
+}
+
+/// Whether shading traces visibility towards each environment texel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Shadows {
+    /// No visibility (the paper's rendering layer).
+    #[default]
+    Off,
+    /// Shadow ray per (pixel, texel) through the BVH. Skipped for the sphere, which is convex.
+    On,
+}
+
+impl std::str::FromStr for Shadows {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "off" => Ok(Shadows::Off),
+            "on" => Ok(Shadows::On),
+            _ => Err(format!("--shadows {s:?}: expected on or off")),
+        }
+    }
+}
+
+/// Everything that defines one preview image.
+#[derive(Clone, Debug)]
+pub struct RenderOptions {
+    /// `sphere` or an OBJ path.
+    pub shape: String,
+    /// The material.
+    pub brdf: BrdfSpec,
+    /// Environment: a .hdr/.exr path or `builtin:NAME`.
+    pub env: String,
+    /// Rotation of the environment about +y, degrees.
+    pub env_rotation_deg: f64,
+    /// Environment resolution for shading.
+    pub env_res: EnvRes,
+    /// Image side in pixels.
+    pub res: usize,
+    /// Shadow rays.
+    pub shadows: Shadows,
+    /// Eq. 2 implementation.
+    pub quality: Quality,
+    /// Show a progress bar on stderr.
+    pub progress: bool,
+}
+
+/// What was measured while rendering.
+#[derive(Clone, Debug, Default)]
+pub struct RenderStats {
+    /// Triangles after dropping degenerate ones (0 for the sphere).
+    pub triangles: usize,
+    /// Degenerate triangles dropped at load.
+    pub degenerate_dropped: usize,
+    /// Pixels that see the object.
+    pub covered_pixels: usize,
+    /// Texels the shading sums over (after dropping black ones, fast path).
+    pub texels: usize,
+    /// Whether shadow rays were traced.
+    pub shadows_traced: bool,
+    /// Non-finite results replaced (0 unless the inputs were absurd).
+    pub sanitized_pixels: usize,
+    /// Negative environment values clamped at load.
+    pub env_negatives_clamped: usize,
+    /// Seconds spent loading the mesh and building the BVH.
+    pub setup_s: f64,
+    /// Seconds for primary visibility.
+    pub gbuffer_s: f64,
+    /// Seconds for shading (and shadow rays).
+    pub shading_s: f64,
+}
+
+/// A rendered preview.
+pub struct Rendered {
+    /// Geometry buffer.
+    pub gbuffer: GBuffer,
+    /// Linear radiance per pixel.
+    pub radiance: Vec<[f32; 3]>,
+    /// The environment exactly as used (rotated and resampled).
+    pub env: EnvMap,
+    /// Where the environment came from.
+    pub env_source: EnvSource,
+    /// Measurements.
+    pub stats: RenderStats,
+}
+
+/// Renders one preview.
+pub fn render(opts: &RenderOptions) -> Result<Rendered> {
+    if opts.res == 0 || opts.res > 16384 {
+        bail!("--res {}: expected 1 to 16384 pixels", opts.res);
+    }
+    if !opts.env_rotation_deg.is_finite() {
+        bail!("--env-rotation must be finite");
+    }
+    let t0 = Instant::now();
+    let brdf = opts.brdf.build()?;
+    let (src, env_source) = load_env(&opts.env)?;
+    let rows = match opts.env_res {
+        EnvRes::Full => src.height(),
+        EnvRes::Rows(h) => h,
+    };
+    let env = src.resampled(rows, opts.env_rotation_deg);
+    let shape = Shape::load(&opts.shape)?;
+    let scene = match &shape {
+        Shape::Mesh(m) => Some(Scene::new(m)),
+        Shape::Sphere => None,
+    };
+    let mut stats = RenderStats {
+        env_negatives_clamped: env_source.negatives_clamped,
+        ..Default::default()
+    };
+    if let Shape::Mesh(m) = &shape {
+        stats.triangles = m.triangles.len();
+        stats.degenerate_dropped = m.degenerate_dropped;
+    }
+    stats.setup_s = t0.elapsed().as_secs_f64();
+
+    let t1 = Instant::now();
+    let g = GBuffer::trace(&shape, scene.as_ref(), opts.res);
+    stats.covered_pixels = g.covered();
+    stats.gbuffer_s = t1.elapsed().as_secs_f64();
+
+    let t2 = Instant::now();
+    let shader = make_shader(&brdf, &env, opts.quality);
+    stats.texels = shader.light_dirs().len();
+    // The sphere is convex: no point on it can shadow another, so shadow rays would be wasted.
+    let trace = opts.shadows == Shadows::On && scene.is_some();
+    stats.shadows_traced = trace;
+    let visibility = |p: usize, dirs: &[[f32; 3]], out: &mut [f32]| {
+        let Some(scene) = scene.as_ref() else { return };
+        let ng = Vec3::from(g.geometric_normal[p]);
+        let ns = Vec3::from(g.normal[p]);
+        let origin = Vec3::from(g.position[p]) + ng * 1e-4;
+        for (o, d) in out.iter_mut().zip(dirs) {
+            let d = Vec3::from(*d);
+            // Below the geometric surface the object itself blocks the light; texels behind
+            // the shading normal contribute nothing, so neither needs a ray.
+            let open = d.dot(ng) > 0.0 && d.dot(ns) > 0.0 && !scene.occluded(origin, d, 0.0);
+            *o = if open { 1.0 } else { 0.0 };
+        }
+    };
+
+    let res = opts.res;
+    let band = 4;
+    let bar = if opts.progress {
+        ProgressBar::new(res as u64)
+    } else {
+        ProgressBar::hidden()
+    };
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{msg} [{bar:40}] {pos}/{len} rows, {elapsed} elapsed, ETA {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    bar.set_message("shading");
+    let mut radiance = Vec::with_capacity(res * res);
+    for r0 in (0..res).step_by(band) {
+        let r1 = (r0 + band).min(res);
+        let (a, b) = (r0 * res, r1 * res);
+        let offset_vis =
+            move |p: usize, dirs: &[[f32; 3]], out: &mut [f32]| visibility(a + p, dirs, out);
+        let vis: Option<&VisibilityFn<'_>> = if trace { Some(&offset_vis) } else { None };
+        let (rgb, bad) = shade_image(shader.as_ref(), &g.normal[a..b], &g.mask[a..b], vis);
+        radiance.extend(rgb);
+        stats.sanitized_pixels += bad;
+        bar.inc((r1 - r0) as u64);
+    }
+    bar.finish_and_clear();
+    stats.shading_s = t2.elapsed().as_secs_f64();
+    Ok(Rendered {
+        gbuffer: g,
+        radiance,
+        env,
+        env_source,
+        stats,
+    })
+}
+
+impl Rendered {
+    /// Writes the EXR (channels R, G, B, normal.X, normal.Y, normal.Z, mask).
+    pub fn write_exr(&self, path: &Path) -> Result<()> {
+        let g = &self.gbuffer;
+        let rad = |c: usize| self.radiance.iter().map(|p| p[c]).collect::<Vec<f32>>();
+        let nrm = |c: usize| g.normal.iter().map(|p| p[c]).collect::<Vec<f32>>();
+        write_exr_channels(
+            path,
+            g.res,
+            g.res,
+            vec![
+                ("R", rad(0)),
+                ("G", rad(1)),
+                ("B", rad(2)),
+                ("normal.X", nrm(0)),
+                ("normal.Y", nrm(1)),
+                ("normal.Z", nrm(2)),
+                ("mask", g.mask.clone()),
+            ],
+        )
+        .with_context(|| format!("writing {}", path.display()))
+    }
+
+    /// Writes the tone-mapped preview PNG.
+    pub fn write_png(&self, path: &Path, exposure: f32) -> Result<()> {
+        write_png_preview(
+            path,
+            self.gbuffer.res,
+            &self.radiance,
+            &self.gbuffer.mask,
+            exposure,
+        )
+    }
+
+    /// Writes the environment as used (after rotation and resampling).
+    pub fn write_env(&self, path: &Path) -> Result<()> {
+        write_env_exr(path, &self.env)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn option_strings_parse_or_explain() {
+        assert_eq!("64x128".parse::<EnvRes>(), Ok(EnvRes::Rows(64)));
+        assert_eq!("full".parse::<EnvRes>(), Ok(EnvRes::Full));
+        assert!("64x64".parse::<EnvRes>().unwrap_err().contains("W = 2H"));
+        assert!("0x0".parse::<EnvRes>().is_err());
+        assert_eq!("on".parse::<Shadows>(), Ok(Shadows::On));
+        assert!("yes".parse::<Shadows>().is_err());
+    }
+}

@@ -1,0 +1,157 @@
+//! Eq. 2 of the paper: per pixel, a sum over environment texels of
+//! f(ω_i, ω_o) · L(ω_i) · max(0, n·ω_i) · dω_i, with ω_o = +z (orthographic camera).
+//!
+//! Two paths implement the same [`Shader`] interface:
+//!
+//! * [`exact::ExactShader`]: `f64`, evaluates the [`Brdf`](crate::Brdf) trait in a local frame built
+//!   around each normal, Neumaier-compensated sums over every texel. Slow; the reference.
+//! * [`fast::FastShader`]: `f32`, vectorised. Because ω_o is fixed, the half vector, θ_d, the
+//!   Fresnel term and the DSBRDF lobe parameters depend on the texel only, so they are computed
+//!   once per texel; per pixel only n·ω_i and n·h remain. Texels of zero radiance are dropped.
+//!
+//! Both apply the same [normal policy](shading_normal) and never return NaN or Inf.
+
+pub mod exact;
+pub mod fast;
+
+use crate::{AnalyticBrdf, EnvMap};
+use glam::DVec3;
+use rayon::prelude::*;
+
+/// Normals whose z component (n·ω_o) is below this are bent towards the viewer until
+/// n·ω_o equals it (see [`shading_normal`]).
+pub const MIN_FACING: f64 = 1e-4;
+
+/// The normal the shading uses for a stored normal `n`:
+///
+/// * NaN, infinite or (near-)zero normals give `None`: the pixel shades to black;
+/// * otherwise `n` is normalised; interpolated normals at silhouettes may face away from the
+///   viewer (n·ω_o ≤ 0), which the BRDFs cannot evaluate, so a normal with n_z < [`MIN_FACING`]
+///   keeps its azimuth and is tilted to n_z = [`MIN_FACING`] (grazing); one pointing straight
+///   away (no azimuth) gives `None`.
+pub fn shading_normal(n: [f32; 3]) -> Option<DVec3> {
+    let v = DVec3::new(n[0] as f64, n[1] as f64, n[2] as f64);
+    let len = v.length();
+    if !len.is_finite() || len < 1e-6 {
+        return None;
+    }
+    let v = v / len;
+    if v.z >= MIN_FACING {
+        return Some(v);
+    }
+    let xy = (v.x * v.x + v.y * v.y).sqrt();
+    if xy < 1e-12 {
+        return None;
+    }
+    let s = (1.0 - MIN_FACING * MIN_FACING).sqrt() / xy;
+    Some(DVec3::new(v.x * s, v.y * s, MIN_FACING))
+}
+
+/// Which implementation of Eq. 2 to use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Quality {
+    /// `f64` reference ([`exact::ExactShader`]).
+    Exact,
+    /// `f32` vectorised ([`fast::FastShader`]).
+    #[default]
+    Fast,
+}
+
+impl std::str::FromStr for Quality {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "exact" => Ok(Quality::Exact),
+            "fast" => Ok(Quality::Fast),
+            _ => Err(format!("quality {s:?}: expected exact or fast")),
+        }
+    }
+}
+
+/// A prepared evaluator of Eq. 2 for one material and one environment.
+pub trait Shader: Send + Sync {
+    /// Unit directions ω_i of the texels summed over, in the order a visibility slice uses.
+    fn light_dirs(&self) -> &[[f32; 3]];
+
+    /// Outgoing radiance for stored normal `n`. `visibility[t]` ∈ {0, 1} masks texel `t` of
+    /// [`light_dirs`](Shader::light_dirs) (shadows); `None` means all visible.
+    fn shade(&self, n: [f32; 3], visibility: Option<&[f32]>) -> [f32; 3];
+}
+
+/// Builds the shader of the requested quality.
+pub fn make_shader(brdf: &AnalyticBrdf, env: &EnvMap, quality: Quality) -> Box<dyn Shader> {
+    match quality {
+        Quality::Exact => Box::new(exact::ExactShader::new(brdf.clone(), env)),
+        Quality::Fast => Box::new(fast::FastShader::new(brdf, env)),
+    }
+}
+
+/// Fills a visibility slice (aligned with [`Shader::light_dirs`]) for one pixel.
+pub type VisibilityFn<'a> = dyn Fn(usize, &[[f32; 3]], &mut [f32]) + Sync + 'a;
+
+/// Shades every pixel with `mask[p] > 0` in parallel; other pixels are 0. With `visibility`, it is
+/// called per shaded pixel index to fill the texel visibility. Any non-finite result (possible
+/// only for absurd inputs such as radiance near `f32::MAX`) is replaced: +Inf by `f32::MAX`,
+/// NaN by 0, and counted in the returned number.
+pub fn shade_image(
+    shader: &dyn Shader,
+    normals: &[[f32; 3]],
+    mask: &[f32],
+    visibility: Option<&VisibilityFn<'_>>,
+) -> (Vec<[f32; 3]>, usize) {
+    let dirs = shader.light_dirs();
+    let out: Vec<([f32; 3], usize)> = normals
+        .par_iter()
+        .zip(mask.par_iter())
+        .enumerate()
+        .map_init(
+            || vec![1.0_f32; dirs.len()],
+            |vis, (p, (n, &m))| {
+                if m <= 0.0 {
+                    return ([0.0; 3], 0);
+                }
+                let v = visibility.map(|f| {
+                    f(p, dirs, vis);
+                    &vis[..]
+                });
+                let mut rgb = shader.shade(*n, v);
+                let mut bad = 0;
+                for c in rgb.iter_mut() {
+                    if !c.is_finite() {
+                        bad = 1;
+                        *c = if c.is_nan() {
+                            0.0
+                        } else {
+                            f32::MAX.copysign(*c).max(0.0)
+                        };
+                    }
+                }
+                (rgb, bad)
+            },
+        )
+        .collect();
+    let bad = out.iter().map(|o| o.1).sum();
+    (out.into_iter().map(|o| o.0).collect(), bad)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn normal_policy_handles_hard_normals() {
+        assert_eq!(shading_normal([0.0, 0.0, 0.0]), None);
+        assert_eq!(shading_normal([f32::NAN, 0.0, 1.0]), None);
+        assert_eq!(shading_normal([f32::INFINITY, 0.0, 1.0]), None);
+        assert_eq!(shading_normal([0.0, 0.0, -1.0]), None);
+        assert_eq!(shading_normal([1e-9, 0.0, 0.0]), None);
+        let n = shading_normal([0.0, 0.0, 3.0]).unwrap();
+        assert_eq!(n, DVec3::Z);
+        // Back-facing interpolated normal: azimuth kept, tilted to grazing.
+        let n = shading_normal([1.0, 1.0, -0.5]).unwrap();
+        assert!((n.length() - 1.0).abs() < 1e-12);
+        assert!((n.z - MIN_FACING).abs() < 1e-15 && (n.x - n.y).abs() < 1e-15 && n.x > 0.0);
+        // Exactly grazing.
+        assert_eq!(shading_normal([0.0, 1.0, 0.0]).unwrap().z, MIN_FACING);
+    }
+}
