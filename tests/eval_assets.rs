@@ -49,11 +49,7 @@ fn every_eval_mesh_renders_or_is_refused_by_name() {
         });
         match r {
             Ok(r) => {
-                assert!(
-                    r.stats.covered_pixels > 0,
-                    "{}: nothing visible",
-                    m.display()
-                );
+                assert!(r.stats.covered_pixels > 0, "{}: nothing visible", m.display());
                 assert!(r.radiance.iter().flatten().all(|v| v.is_finite()));
                 rendered += 1;
             }
@@ -87,8 +83,7 @@ fn every_eval_envmap_loads_and_resampling_keeps_its_power() {
         return;
     }
     for m in &maps {
-        let (env, _) =
-            load_env(&m.to_string_lossy()).unwrap_or_else(|e| panic!("{}: {e:#}", m.display()));
+        let (env, _) = load_env(&m.to_string_lossy()).unwrap_or_else(|e| panic!("{}: {e:#}", m.display()));
         let p0 = env.power();
         let p = env.resampled(64, 0.0).power();
         for c in 0..3 {

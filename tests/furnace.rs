@@ -53,11 +53,7 @@ fn furnace_pixels_outside_the_object_are_black_and_mask_matches() {
         if r.gbuffer.mask[p] == 0.0 {
             assert_eq!(r.radiance[p], [0.0; 3]);
         } else {
-            assert!(
-                r.radiance[p][0] > 0.45,
-                "covered pixel {p}: {:?}",
-                r.radiance[p]
-            );
+            assert!(r.radiance[p][0] > 0.45, "covered pixel {p}: {:?}", r.radiance[p]);
         }
     }
 }
@@ -75,11 +71,7 @@ fn white_ggx_and_plastic_never_reflect_more_than_arrives() {
             Quality::Fast,
         );
         for p in fully_covered(32) {
-            assert!(
-                r.radiance[p][0] <= 1.0 + 2e-3,
-                "{spec}: {:?}",
-                r.radiance[p]
-            );
+            assert!(r.radiance[p][0] <= 1.0 + 2e-3, "{spec}: {:?}", r.radiance[p]);
             assert!(r.radiance[p][0] > 0.3, "{spec}: {:?}", r.radiance[p]);
         }
     }

@@ -22,14 +22,8 @@ fn brdfs() -> Vec<(&'static str, AnalyticBrdf)> {
             AnalyticBrdf::Ggx(Ggx::new(0.05, Fresnel::Schlick([0.95, 0.64, 0.54]))),
         ),
         ("ggx-0.3", AnalyticBrdf::Ggx(Ggx::new(0.3, Fresnel::None))),
-        (
-            "ggx-1",
-            AnalyticBrdf::Ggx(Ggx::new(1.0, Fresnel::Schlick([0.04; 3]))),
-        ),
-        (
-            "plastic",
-            AnalyticBrdf::Plastic(Plastic::new(0.15, [0.7, 0.1, 0.1])),
-        ),
+        ("ggx-1", AnalyticBrdf::Ggx(Ggx::new(1.0, Fresnel::Schlick([0.04; 3])))),
+        ("plastic", AnalyticBrdf::Plastic(Plastic::new(0.15, [0.7, 0.1, 0.1]))),
         (
             "dsbrdf",
             AnalyticBrdf::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(

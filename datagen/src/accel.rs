@@ -2,10 +2,7 @@
 
 use crate::shapes::Mesh;
 use glam::{Vec3, Vec3A};
-use obvhs::{
-    BvhBuildParams, cwbvh::CwBvh, cwbvh::builder::build_cwbvh_from_tris, ray::Ray,
-    triangle::Triangle,
-};
+use obvhs::{BvhBuildParams, cwbvh::CwBvh, cwbvh::builder::build_cwbvh_from_tris, ray::Ray, triangle::Triangle};
 use std::time::Duration;
 
 /// A closest hit.
@@ -38,11 +35,7 @@ impl Scene {
                 Triangle { v0, v1, v2 }
             })
             .collect();
-        let bvh = build_cwbvh_from_tris(
-            &tris,
-            BvhBuildParams::medium_build(),
-            &mut Duration::default(),
-        );
+        let bvh = build_cwbvh_from_tris(&tris, BvhBuildParams::medium_build(), &mut Duration::default());
         Self { bvh, tris }
     }
 
@@ -129,20 +122,12 @@ mod tests {
     #[test]
     fn closest_hit_and_barycentrics() {
         let s = Scene::new(&two_triangles());
-        let h = s
-            .intersect(Vec3::new(0.0, -0.5, 2.0), Vec3::NEG_Z, 0.0)
-            .unwrap();
+        let h = s.intersect(Vec3::new(0.0, -0.5, 2.0), Vec3::NEG_Z, 0.0).unwrap();
         assert_eq!(h.triangle, 1);
         assert!((h.t - 2.0).abs() < 1e-6);
         // Point (0, −0.5) = v0 + u e1 + v e2 with e1 = (2, 0), e2 = (1, 2): v = 0.25, u = 0.375.
-        assert!(
-            (h.u - 0.375).abs() < 1e-6 && (h.v - 0.25).abs() < 1e-6,
-            "{h:?}"
-        );
-        assert!(
-            s.intersect(Vec3::new(5.0, 0.0, 2.0), Vec3::NEG_Z, 0.0)
-                .is_none()
-        );
+        assert!((h.u - 0.375).abs() < 1e-6 && (h.v - 0.25).abs() < 1e-6, "{h:?}");
+        assert!(s.intersect(Vec3::new(5.0, 0.0, 2.0), Vec3::NEG_Z, 0.0).is_none());
         assert!(s.occluded(Vec3::new(0.0, -0.5, -0.25), Vec3::Z, 1e-4));
         assert!(!s.occluded(Vec3::new(0.0, -0.5, 0.25), Vec3::Z, 1e-4));
     }

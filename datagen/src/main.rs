@@ -114,15 +114,10 @@ fn run_render(a: RenderArgs) -> Result<()> {
         );
     }
     if opts.shadows == Shadows::On && !s.shadows_traced {
-        eprintln!(
-            "note: the sphere is convex, so shadow rays were skipped (the image is unchanged)"
-        );
+        eprintln!("note: the sphere is convex, so shadow rays were skipped (the image is unchanged)");
     }
     if s.sanitized_pixels > 0 {
-        eprintln!(
-            "warning: {} pixels overflowed f32 and were clamped",
-            s.sanitized_pixels
-        );
+        eprintln!("warning: {} pixels overflowed f32 and were clamped", s.sanitized_pixels);
     }
     eprintln!(
         "time: setup {:.3} s, visibility {:.3} s, shading {:.3} s",

@@ -184,19 +184,16 @@ pub fn render(opts: &RenderOptions) -> Result<Rendered> {
         ProgressBar::hidden()
     };
     bar.set_style(
-        ProgressStyle::with_template(
-            "{msg} [{bar:40}] {pos}/{len} rows, {elapsed} elapsed, ETA {eta}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
+        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} rows, {elapsed} elapsed, ETA {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
     );
     bar.set_message("shading");
     let mut radiance = Vec::with_capacity(res * res);
     for r0 in (0..res).step_by(band) {
         let r1 = (r0 + band).min(res);
         let (a, b) = (r0 * res, r1 * res);
-        let offset_vis =
-            move |p: usize, dirs: &[[f32; 3]], out: &mut [f32]| visibility(a + p, dirs, out);
+        let offset_vis = move |p: usize, dirs: &[[f32; 3]], out: &mut [f32]| visibility(a + p, dirs, out);
         let vis: Option<&VisibilityFn<'_>> = if trace { Some(&offset_vis) } else { None };
         let (rgb, bad) = shade_image(shader.as_ref(), &g.normal[a..b], &g.mask[a..b], vis);
         radiance.extend(rgb);
@@ -239,13 +236,7 @@ impl Rendered {
 
     /// Writes the tone-mapped preview PNG.
     pub fn write_png(&self, path: &Path, exposure: f32) -> Result<()> {
-        write_png_preview(
-            path,
-            self.gbuffer.res,
-            &self.radiance,
-            &self.gbuffer.mask,
-            exposure,
-        )
+        write_png_preview(path, self.gbuffer.res, &self.radiance, &self.gbuffer.mask, exposure)
     }
 
     /// Writes the environment as used (after rotation and resampling).

@@ -33,19 +33,12 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 fn main() {
-    let args: Vec<usize> = std::env::args()
-        .skip(1)
-        .filter_map(|a| a.parse().ok())
-        .collect();
+    let args: Vec<usize> = std::env::args().skip(1).filter_map(|a| a.parse().ok()).collect();
     let res = args.first().copied().unwrap_or(256);
     let rows = args.get(1).copied().unwrap_or(64);
     let repeats = args.get(2).copied().unwrap_or(5);
     let env = EnvMap::from_fn(rows, |d| {
-        [
-            (1.2 + d.x) as f32,
-            (1.5 + d.y) as f32,
-            (1.1 - 0.5 * d.z) as f32,
-        ]
+        [(1.2 + d.x) as f32, (1.5 + d.y) as f32, (1.1 - 0.5 * d.z) as f32]
     });
     let (normals, mask) = sphere(res);
     let covered = mask.iter().filter(|m| **m > 0.0).count();
@@ -60,10 +53,7 @@ fn main() {
             "ggx",
             AnalyticBrdf::Ggx(Ggx::new(0.3, Fresnel::Schlick([0.9, 0.6, 0.3]))),
         ),
-        (
-            "plastic",
-            AnalyticBrdf::Plastic(Plastic::new(0.2, [0.6, 0.2, 0.1])),
-        ),
+        ("plastic", AnalyticBrdf::Plastic(Plastic::new(0.2, [0.6, 0.2, 0.1]))),
         (
             "dsbrdf",
             AnalyticBrdf::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
@@ -108,8 +98,7 @@ fn main() {
             .enumerate()
             .map(|(i, m)| if i % 16 == 0 { *m } else { 0.0 })
             .collect();
-        let sub_pairs =
-            (sub.iter().filter(|m| **m > 0.0).count() * exact.light_dirs().len()) as f64;
+        let sub_pairs = (sub.iter().filter(|m| **m > 0.0).count() * exact.light_dirs().len()) as f64;
         let te = time(&|| one.install(|| drop(shade_image(exact.as_ref(), &normals, &sub, None))));
         println!(
             "| {name} | {:.3e} | {:.3e} | {:.3e} | {tn:.3} |",

@@ -13,10 +13,7 @@ pub const VIEW_DIR: DVec3 = DVec3::Z;
 /// Camera-space (x, y) of the centre of pixel (`col`, `row`) in an `n × n` image.
 pub fn pixel_center(col: usize, row: usize, n: usize) -> (f64, f64) {
     let nf = n as f64;
-    (
-        -1.0 + (2 * col + 1) as f64 / nf,
-        1.0 - (2 * row + 1) as f64 / nf,
-    )
+    (-1.0 + (2 * col + 1) as f64 / nf, 1.0 - (2 * row + 1) as f64 / nf)
 }
 
 #[cfg(test)]

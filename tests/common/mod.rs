@@ -7,14 +7,7 @@ use matedit_physics::shading::Quality;
 use std::path::PathBuf;
 
 /// Renders through the same library entry point as `datagen render`.
-pub fn render_scene(
-    shape: &str,
-    brdf: &str,
-    env: &str,
-    env_res: EnvRes,
-    res: usize,
-    quality: Quality,
-) -> Rendered {
+pub fn render_scene(shape: &str, brdf: &str, env: &str, env_res: EnvRes, res: usize, quality: Quality) -> Rendered {
     render(&RenderOptions {
         shape: shape.into(),
         brdf: brdf.parse::<BrdfSpec>().expect("valid spec"),
@@ -76,12 +69,7 @@ pub fn write_uv_sphere(path: &std::path::Path, stacks: usize, slices: usize) {
         let th = std::f64::consts::PI * i as f64 / stacks as f64;
         for j in 0..slices {
             let ph = 2.0 * std::f64::consts::PI * j as f64 / slices as f64;
-            s += &format!(
-                "v {} {} {}\n",
-                th.sin() * ph.cos(),
-                th.cos(),
-                th.sin() * ph.sin()
-            );
+            s += &format!("v {} {} {}\n", th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin());
         }
     }
     for i in 0..stacks {

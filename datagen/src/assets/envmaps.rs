@@ -57,9 +57,9 @@ fn studio(d: DVec3) -> [f32; 3] {
     let top = DVec3::new(0.0, 1.0, 0.3).normalize();
     let side = DVec3::new(-0.8, 0.2, 0.5).normalize();
     if d.dot(top) > 30f64.to_radians().cos() {
-        [40.0; 3]
+        [2.0; 3]
     } else if d.dot(side) > 12f64.to_radians().cos() {
-        [90.0, 85.0, 80.0]
+        [6.0, 5.7, 5.4]
     } else {
         [0.15; 3]
     }
@@ -74,12 +74,7 @@ mod tests {
         for n in ["sky", "studio", "constant:1", "constant:0.5,1,2"] {
             let m = builtin(n).unwrap();
             assert_eq!(m.height(), HEIGHT);
-            assert!(
-                m.texels()
-                    .iter()
-                    .flatten()
-                    .all(|v| v.is_finite() && *v >= 0.0)
-            );
+            assert!(m.texels().iter().flatten().all(|v| v.is_finite() && *v >= 0.0));
         }
         assert!(builtin("nope").unwrap_err().to_string().contains("sky"));
         assert!(builtin("constant:x").is_err());

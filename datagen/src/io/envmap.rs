@@ -30,10 +30,7 @@ pub fn load_env(spec: &str) -> Result<(EnvMap, EnvSource)> {
         ));
     }
     let path = Path::new(spec);
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
     let (w, h, texels) = match ext.as_deref() {
         Some("hdr") => read_hdr(path)?,
         Some("exr") => read_exr_rgb(path)?,
@@ -67,9 +64,5 @@ fn read_exr_rgb(path: &Path) -> Result<(usize, usize, Vec<[f32; 3]>)> {
     )
     .with_context(|| format!("cannot read {}", path.display()))?;
     let size = image.layer_data.size;
-    Ok((
-        size.width(),
-        size.height(),
-        image.layer_data.channel_data.pixels.1,
-    ))
+    Ok((size.width(), size.height(), image.layer_data.channel_data.pixels.1))
 }

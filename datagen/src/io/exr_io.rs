@@ -10,18 +10,10 @@ use std::path::Path;
 /// Writes one EXR part of `width × height` with the given named `f32` channels (ZIP compressed),
 /// atomically. Names with a dot (`normal.X`) are layer-qualified, as tools such as Blender and
 /// OpenImageIO expect.
-pub fn write_exr_channels(
-    path: &Path,
-    width: usize,
-    height: usize,
-    channels: Vec<(&str, Vec<f32>)>,
-) -> Result<()> {
+pub fn write_exr_channels(path: &Path, width: usize, height: usize, channels: Vec<(&str, Vec<f32>)>) -> Result<()> {
     for (name, data) in &channels {
         if data.len() != width * height {
-            bail!(
-                "channel {name}: {} samples for a {width}×{height} image",
-                data.len()
-            );
+            bail!("channel {name}: {} samples for a {width}×{height} image", data.len());
         }
         if let Some(i) = data.iter().position(|v| !v.is_finite()) {
             bail!(
@@ -63,15 +55,11 @@ pub fn write_env_exr(path: &Path, env: &EnvMap) -> Result<()> {
 
 /// Reads every channel of the first layer as `f32`, keyed by name, with the image size.
 pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, Vec<f32>>)> {
-    let image = read_first_flat_layer_from_file(path)
-        .with_context(|| format!("cannot read {}", path.display()))?;
+    let image = read_first_flat_layer_from_file(path).with_context(|| format!("cannot read {}", path.display()))?;
     let size = image.layer_data.size;
     let mut out = BTreeMap::new();
     for ch in &image.layer_data.channel_data.list {
-        out.insert(
-            ch.name.to_string(),
-            ch.sample_data.values_as_f32().collect(),
-        );
+        out.insert(ch.name.to_string(), ch.sample_data.values_as_f32().collect());
     }
     Ok((size.width(), size.height(), out))
 }
@@ -85,13 +73,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("matedit-exr-{}", std::process::id()));
         let p = dir.join("t.exr");
         let r: Vec<f32> = (0..12).map(|i| i as f32 * 0.1 + 1e-7).collect();
-        write_exr_channels(
-            &p,
-            4,
-            3,
-            vec![("R", r.clone()), ("normal.X", vec![-0.5; 12])],
-        )
-        .unwrap();
+        write_exr_channels(&p, 4, 3, vec![("R", r.clone()), ("normal.X", vec![-0.5; 12])]).unwrap();
         let (w, h, ch) = read_exr_channels(&p).unwrap();
         assert_eq!((w, h), (4, 3));
         assert_eq!(ch["R"], r);
@@ -99,10 +81,6 @@ mod tests {
         let mut bad = r.clone();
         bad[3] = f32::NAN;
         assert!(write_exr_channels(&p, 4, 3, vec![("R", bad)]).is_err());
-        assert_eq!(
-            read_exr_channels(&p).unwrap().2["R"],
-            r,
-            "previous file intact"
-        );
+        assert_eq!(read_exr_channels(&p).unwrap().2["R"], r, "previous file intact");
     }
 }

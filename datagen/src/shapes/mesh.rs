@@ -151,9 +151,7 @@ fn angle_weighted_normals(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec
             }
         }
     }
-    acc.into_iter()
-        .map(|n| n.normalize_or_zero().as_vec3())
-        .collect()
+    acc.into_iter().map(|n| n.normalize_or_zero().as_vec3()).collect()
 }
 
 #[cfg(test)]
@@ -189,10 +187,7 @@ mod tests {
             }
         }
         // Normalised: bbox centre at the origin, farthest vertex at 1.
-        let r = m.positions[..4]
-            .iter()
-            .map(|p| p.length())
-            .fold(0.0, f32::max);
+        let r = m.positions[..4].iter().map(|p| p.length()).fold(0.0, f32::max);
         assert!((r - 1.0).abs() < 1e-6);
         assert!(m.positions[0].z.abs() < 1e-6);
     }
@@ -208,10 +203,7 @@ mod tests {
         let mut m = quad_mesh();
         m.triangles = vec![[0, 4, 2]];
         m.corner_normals.truncate(1);
-        assert!(matches!(
-            m.finish(vec![false]),
-            Err(MeshError::Empty { .. })
-        ));
+        assert!(matches!(m.finish(vec![false]), Err(MeshError::Empty { .. })));
         let mut m = quad_mesh();
         m.triangles[0][1] = 99;
         assert!(matches!(
@@ -233,11 +225,6 @@ mod tests {
         ];
         let one = angle_weighted_normals(&p, &[[0, 1, 2], [0, 2, 3]]);
         let split = angle_weighted_normals(&p, &[[0, 1, 2], [0, 2, 4], [0, 4, 3]]);
-        assert!(
-            (one[0] - split[0]).length() < 1e-6,
-            "{} vs {}",
-            one[0],
-            split[0]
-        );
+        assert!((one[0] - split[0]).length() < 1e-6, "{} vs {}", one[0], split[0]);
     }
 }

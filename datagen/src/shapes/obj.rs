@@ -16,11 +16,10 @@ impl Mesh {
             ignore_points: true,
             ignore_lines: true,
         };
-        let (models, _materials) =
-            tobj::load_obj(path, &options).map_err(|e| MeshError::Parse {
-                path: name.clone(),
-                message: e.to_string(),
-            })?;
+        let (models, _materials) = tobj::load_obj(path, &options).map_err(|e| MeshError::Parse {
+            path: name.clone(),
+            message: e.to_string(),
+        })?;
         let mut mesh = Mesh {
             source: name,
             ..Default::default()
@@ -29,16 +28,11 @@ impl Mesh {
         for model in &models {
             let m = &model.mesh;
             let base = mesh.positions.len() as u32;
-            mesh.positions.extend(
-                m.positions
-                    .chunks_exact(3)
-                    .map(|p| Vec3::new(p[0], p[1], p[2])),
-            );
-            let with_normals =
-                !m.normal_indices.is_empty() && m.normal_indices.len() == m.indices.len();
+            mesh.positions
+                .extend(m.positions.chunks_exact(3).map(|p| Vec3::new(p[0], p[1], p[2])));
+            let with_normals = !m.normal_indices.is_empty() && m.normal_indices.len() == m.indices.len();
             for (t, tri) in m.indices.chunks_exact(3).enumerate() {
-                mesh.triangles
-                    .push([tri[0] + base, tri[1] + base, tri[2] + base]);
+                mesh.triangles.push([tri[0] + base, tri[1] + base, tri[2] + base]);
                 let corner = |k: usize| {
                     let i = m.normal_indices[3 * t + k] as usize * 3;
                     m.normals
@@ -92,18 +86,13 @@ mod tests {
         let p = write("empty.obj", "# nothing\n");
         let e = Mesh::from_obj(&p).unwrap_err().to_string();
         assert!(e.contains("empty.obj"), "{e}");
-        let e = Mesh::from_obj(Path::new("/nonexistent/x.obj"))
-            .unwrap_err()
-            .to_string();
+        let e = Mesh::from_obj(Path::new("/nonexistent/x.obj")).unwrap_err().to_string();
         assert!(e.contains("/nonexistent/x.obj"), "{e}");
     }
 
     #[test]
     fn file_normals_are_used_when_present() {
-        let p = write(
-            "n.obj",
-            "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 2\nf 1//1 2//1 3//1\n",
-        );
+        let p = write("n.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 2\nf 1//1 2//1 3//1\n");
         let m = Mesh::from_obj(&p).unwrap();
         assert_eq!(m.normals_computed, 0);
         assert_eq!(m.corner_normals[0][0], Vec3::Z);

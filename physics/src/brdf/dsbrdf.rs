@@ -70,7 +70,7 @@ pub fn param_index(channel: usize, lobe: usize, p: LobeParam, knot: usize) -> us
 /// (channel, lobe, parameter, knot) of a flat index.
 pub fn param_meaning(index: usize) -> (usize, usize, LobeParam, usize) {
     let knot = index % KNOTS;
-    let p = if (index / KNOTS) % 2 == 0 {
+    let p = if (index / KNOTS).is_multiple_of(2) {
         LobeParam::Kappa
     } else {
         LobeParam::Gamma
@@ -175,10 +175,8 @@ impl Dsbrdf {
         for (c, ch) in lobes.iter().enumerate() {
             for (k, &(kappa, gamma)) in ch.iter().enumerate() {
                 for j in 0..KNOTS {
-                    params[param_index(c, k, LobeParam::Kappa, j)] =
-                        clamp_param(kappa, KAPPA_RANGE);
-                    params[param_index(c, k, LobeParam::Gamma, j)] =
-                        clamp_param(gamma, GAMMA_RANGE);
+                    params[param_index(c, k, LobeParam::Kappa, j)] = clamp_param(kappa, KAPPA_RANGE);
+                    params[param_index(c, k, LobeParam::Gamma, j)] = clamp_param(gamma, GAMMA_RANGE);
                 }
             }
         }
@@ -189,13 +187,7 @@ impl Dsbrdf {
     /// the other two off. (cos^γ with γ = 1e-3 is within 0.5 % of 1 for θ_h < 89.4°.)
     pub fn near_lambertian(albedo: [f64; 3]) -> Self {
         let off = (KAPPA_RANGE.0, GAMMA_RANGE.1);
-        let lobes = albedo.map(|a| {
-            [
-                ((a / std::f64::consts::PI).ln_1p(), GAMMA_RANGE.0),
-                off,
-                off,
-            ]
-        });
+        let lobes = albedo.map(|a| [((a / std::f64::consts::PI).ln_1p(), GAMMA_RANGE.0), off, off]);
         Self::isotropic_in_theta_d(lobes)
     }
 
@@ -209,8 +201,7 @@ impl Dsbrdf {
         let mut x = [0.0; PARAMS];
         for (i, v) in self.params.iter().enumerate() {
             let (lo, hi) = param_meaning(i).2.range();
-            x[i] = -NORMALISED_BOUND
-                + 2.0 * NORMALISED_BOUND * (v.ln() - lo.ln()) / (hi.ln() - lo.ln());
+            x[i] = -NORMALISED_BOUND + 2.0 * NORMALISED_BOUND * (v.ln() - lo.ln()) / (hi.ln() - lo.ln());
         }
         x
     }
@@ -260,11 +251,7 @@ impl Dsbrdf {
     pub fn eval_half(&self, cos_h: f64, theta_d: f64) -> [f64; 3] {
         let lobes = self.lobes_at(theta_d);
         let c = cos_h.clamp(0.0, 1.0);
-        lobes.map(|ch| {
-            ch.iter()
-                .map(|&(kappa, gamma)| (kappa * c.powf(gamma)).exp_m1())
-                .sum()
-        })
+        lobes.map(|ch| ch.iter().map(|&(kappa, gamma)| (kappa * c.powf(gamma)).exp_m1()).sum())
     }
 
     /// Reads a material file (see [`DsbrdfFile`]).
@@ -289,19 +276,13 @@ impl Dsbrdf {
             message,
         };
         if f.model != "dsbrdf" {
-            return Err(header(
-                "model",
-                format!("expected \"dsbrdf\", got {:?}", f.model),
-            ));
+            return Err(header("model", format!("expected \"dsbrdf\", got {:?}", f.model)));
         }
         if f.version != 1 {
             return Err(header("version", format!("expected 1, got {}", f.version)));
         }
         if f.theta_d_knots_deg != THETA_D_KNOTS_DEG {
-            return Err(header(
-                "theta_d_knots_deg",
-                format!("expected {THETA_D_KNOTS_DEG:?}"),
-            ));
+            return Err(header("theta_d_knots_deg", format!("expected {THETA_D_KNOTS_DEG:?}")));
         }
         let mut params = [0.0; PARAMS];
         for c in 0..CHANNELS {
@@ -313,12 +294,7 @@ impl Dsbrdf {
             }
         }
         Self::from_params(&params).map_err(|e| match e {
-            DsbrdfError::OutOfRange {
-                name,
-                value,
-                lo,
-                hi,
-            } => DsbrdfError::OutOfRange {
+            DsbrdfError::OutOfRange { name, value, lo, hi } => DsbrdfError::OutOfRange {
                 name: format!("{origin}: {name}"),
                 value,
                 lo,
@@ -393,9 +369,7 @@ mod tests {
         for (i, v) in p.iter_mut().enumerate() {
             let (c, k, q, j) = param_meaning(i);
             *v = match q {
-                LobeParam::Kappa => {
-                    [0.05, 0.8, 3.0][k] * (1.0 + 0.1 * c as f64) * (1.0 + 0.2 * j as f64)
-                }
+                LobeParam::Kappa => [0.05, 0.8, 3.0][k] * (1.0 + 0.1 * c as f64) * (1.0 + 0.2 * j as f64),
                 LobeParam::Gamma => [0.01, 20.0, 800.0][k] * (1.0 + 0.05 * j as f64),
             };
         }
@@ -459,8 +433,7 @@ mod tests {
         let m = sample();
         let text = m.to_json();
         assert_eq!(Dsbrdf::from_json(&text, "m.json").unwrap(), m);
-        let e = Dsbrdf::from_json(&text.replace("\"version\": 1", "\"version\": 2"), "m.json")
-            .unwrap_err();
+        let e = Dsbrdf::from_json(&text.replace("\"version\": 1", "\"version\": 2"), "m.json").unwrap_err();
         assert!(e.to_string().contains("version"), "{e}");
         let e = Dsbrdf::from_json(&text.replace("\"model\"", "\"modle\""), "m.json").unwrap_err();
         assert!(

@@ -113,8 +113,8 @@ mod tests {
                 let b = Ggx::new(alpha, fresnel);
                 testing::check_basic(&b);
                 if alpha >= 0.2 {
-                    for cos_o in [1.0, 0.7, 0.2, 0.02] {
-                        let wo = DVec3::new((1.0 - cos_o * cos_o as f64).sqrt(), 0.0, cos_o);
+                    for cos_o in [1.0_f64, 0.7, 0.2, 0.02] {
+                        let wo = DVec3::new((1.0 - cos_o * cos_o).sqrt(), 0.0, cos_o);
                         let a = testing::albedo(&b, wo, 2000, 400);
                         for v in a {
                             assert!(v <= 1.0 + 2e-3, "alpha {alpha} cos_o {cos_o}: albedo {v}");

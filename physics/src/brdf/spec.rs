@@ -69,9 +69,7 @@ impl std::str::FromStr for BrdfSpec {
         let rgb = |s: &str, what: &str| -> Result<[f64; 3], SpecError> {
             let parts: Vec<&str> = s.split(',').collect();
             if parts.len() != 3 {
-                return Err(bad(format!(
-                    "{what} needs three comma-separated values, got {s:?}"
-                )));
+                return Err(bad(format!("{what} needs three comma-separated values, got {s:?}")));
             }
             Ok([
                 number(parts[0], what, 0.0, 1.0)?,
@@ -83,17 +81,12 @@ impl std::str::FromStr for BrdfSpec {
             let (a, c) = rest
                 .split_once(':')
                 .ok_or_else(|| bad(format!("expected ALPHA:{what}")))?;
-            Ok((
-                number(a, "ALPHA", super::ggx::ALPHA_MIN, 1.0)?,
-                rgb(c, what)?,
-            ))
+            Ok((number(a, "ALPHA", super::ggx::ALPHA_MIN, 1.0)?, rgb(c, what)?))
         };
         match kind {
             "lambert" => Ok(BrdfSpec::Lambert(rgb(rest, "albedo")?)),
             "ggx" => alpha_and(rest, "F0").map(|(alpha, f0)| BrdfSpec::Ggx { alpha, f0 }),
-            "plastic" => {
-                alpha_and(rest, "albedo").map(|(alpha, albedo)| BrdfSpec::Plastic { alpha, albedo })
-            }
+            "plastic" => alpha_and(rest, "albedo").map(|(alpha, albedo)| BrdfSpec::Plastic { alpha, albedo }),
             "dsbrdf" if !rest.is_empty() => Ok(BrdfSpec::Dsbrdf(PathBuf::from(rest))),
             "dsbrdf" => Err(bad("missing material file path".into())),
             other => Err(bad(format!("unknown model {other:?}"))),
@@ -106,12 +99,8 @@ impl BrdfSpec {
     pub fn build(&self) -> Result<AnalyticBrdf, SpecError> {
         Ok(match self {
             BrdfSpec::Lambert(albedo) => AnalyticBrdf::Lambert(Lambert { albedo: *albedo }),
-            BrdfSpec::Ggx { alpha, f0 } => {
-                AnalyticBrdf::Ggx(Ggx::new(*alpha, Fresnel::Schlick(*f0)))
-            }
-            BrdfSpec::Plastic { alpha, albedo } => {
-                AnalyticBrdf::Plastic(Plastic::new(*alpha, *albedo))
-            }
+            BrdfSpec::Ggx { alpha, f0 } => AnalyticBrdf::Ggx(Ggx::new(*alpha, Fresnel::Schlick(*f0))),
+            BrdfSpec::Plastic { alpha, albedo } => AnalyticBrdf::Plastic(Plastic::new(*alpha, *albedo)),
             BrdfSpec::Dsbrdf(path) => AnalyticBrdf::Dsbrdf(Box::new(Dsbrdf::load(path)?)),
         })
     }
@@ -141,11 +130,7 @@ mod tests {
                 albedo: [0.8, 0.1, 0.1]
             }
         );
-        let b = "ggx:0.3:1,1,1"
-            .parse::<BrdfSpec>()
-            .unwrap()
-            .build()
-            .unwrap();
+        let b = "ggx:0.3:1,1,1".parse::<BrdfSpec>().unwrap().build().unwrap();
         assert!(matches!(
             b,
             AnalyticBrdf::Ggx(Ggx {

@@ -91,14 +91,7 @@ impl EnvMap {
                 }
             }
         }
-        Ok((
-            Self {
-                width,
-                height,
-                texels,
-            },
-            Sanitized { negatives_clamped },
-        ))
+        Ok((Self { width, height, texels }, Sanitized { negatives_clamped }))
     }
 
     /// A map of constant radiance `value` (the furnace test's environment).
@@ -119,11 +112,7 @@ impl EnvMap {
             .flat_map(|j| (0..width).map(move |i| (i, j)))
             .map(|(i, j)| f(texel_direction(i, j, width, height)))
             .collect();
-        Self {
-            width,
-            height,
-            texels,
-        }
+        Self { width, height, texels }
     }
 
     /// Width W in texels.

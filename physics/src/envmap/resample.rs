@@ -34,10 +34,7 @@ impl EnvMap {
 
         let mut texels = vec![[0.0_f32; 3]; width * height];
         for r in 0..height {
-            let (a, b) = (
-                PI * r as f64 / height as f64,
-                PI * (r + 1) as f64 / height as f64,
-            );
+            let (a, b) = (PI * r as f64 / height as f64, PI * (r + 1) as f64 / height as f64);
             let band = a.cos() - b.cos();
             let j0 = ((a / PI) * self.height as f64).floor() as usize;
             let j1 = (((b / PI) * self.height as f64).ceil() as usize).min(self.height);
@@ -60,11 +57,7 @@ impl EnvMap {
                 texels[r * width + c] = [acc[0] as f32, acc[1] as f32, acc[2] as f32];
             }
         }
-        EnvMap {
-            width,
-            height,
-            texels,
-        }
+        EnvMap { width, height, texels }
     }
 }
 
@@ -127,13 +120,7 @@ mod tests {
     #[test]
     fn rotation_moves_features_about_plus_y() {
         // A bright texel at +z moves to +x under a +90° rotation: L_rot(+x) = L(R_y(−90°)·x) = L(+z).
-        let src = EnvMap::from_fn(32, |d| {
-            if d.dot(DVec3::Z) > 0.99 {
-                [10.0; 3]
-            } else {
-                [0.0; 3]
-            }
-        });
+        let src = EnvMap::from_fn(32, |d| if d.dot(DVec3::Z) > 0.99 { [10.0; 3] } else { [0.0; 3] });
         let rot = src.resampled(32, 90.0);
         assert!(rot.lookup(DVec3::X)[0] > 5.0);
         assert_eq!(rot.lookup(DVec3::Z)[0], 0.0);

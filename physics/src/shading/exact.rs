@@ -30,10 +30,7 @@ impl ExactShader {
                 radiance_sa.push(env.texel(i, j).map(|v| v as f64 * sa));
             }
         }
-        let dirs32 = dirs
-            .iter()
-            .map(|d| [d.x as f32, d.y as f32, d.z as f32])
-            .collect();
+        let dirs32 = dirs.iter().map(|d| [d.x as f32, d.y as f32, d.z as f32]).collect();
         Self {
             brdf,
             dirs,

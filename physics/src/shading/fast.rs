@@ -38,11 +38,7 @@ impl HalfVectors {
     /// (cos θ_h clamped to ≥ 0, 1 − cos θ_h clamped to [0, 1]) for 8 texels.
     #[inline(always)]
     fn cos_h(&self, n: [f64; 3], b: usize) -> ([f32; LANES], [f32; LANES]) {
-        let (x, y, z) = (
-            lanes64(&self.x, b),
-            lanes64(&self.y, b),
-            lanes64(&self.z, b),
-        );
+        let (x, y, z) = (lanes64(&self.x, b), lanes64(&self.y, b), lanes64(&self.z, b));
         let (mut c, mut omc) = ([0.0; LANES], [0.0; LANES]);
         for l in 0..LANES {
             let d = n[0] * x[l] + n[1] * y[l] + n[2] * z[l];
@@ -62,6 +58,8 @@ struct DsbrdfTexels {
     gamma: [Vec<f32>; 9],
 }
 
+// One `Kernel` exists per shader, so the variants' size difference costs nothing.
+#[allow(clippy::large_enum_variant)]
 enum Kernel {
     /// Lambert and/or GGX parts (Lambert, GGX and plastic).
     Microfacet {
@@ -142,12 +140,7 @@ impl FastShader {
             GgxTexels {
                 a2: (g.alpha * g.alpha) as f32,
                 h: half_vectors(&texels),
-                w: [0, 1, 2].map(|c| {
-                    padded(
-                        texels.iter().zip(&f).map(|(t, f)| t.lsa[c] * f[c] * 0.25),
-                        n,
-                    )
-                }),
+                w: [0, 1, 2].map(|c| padded(texels.iter().zip(&f).map(|(t, f)| t.lsa[c] * f[c] * 0.25), n)),
             }
         };
         let diffuse = |albedo: [f64; 3]| [0, 1, 2].map(|c| col(&|t| t.lsa[c] * albedo[c] / PI));
@@ -347,13 +340,7 @@ impl FastShader {
     }
 
     #[inline(always)]
-    fn dsbrdf<const VIS: bool>(
-        &self,
-        n: [f32; 3],
-        n64: [f64; 3],
-        vis: &[f32],
-        s: &DsbrdfTexels,
-    ) -> [f32; 3] {
+    fn dsbrdf<const VIS: bool>(&self, n: [f32; 3], n64: [f64; 3], vis: &[f32], s: &DsbrdfTexels) -> [f32; 3] {
         let mut acc = [[0.0_f32; LANES]; 3];
         for chunk in 0..self.chunks() {
             let b = chunk * LANES;
@@ -453,10 +440,7 @@ mod tests {
         let s = FastShader::new(&AnalyticBrdf::Lambert(Lambert { albedo: [1.0; 3] }), &env);
         assert_eq!(s.texel_count(), 8 * 16 / 2);
         let vis = vec![1.0; s.texel_count()];
-        assert_eq!(
-            s.shade([0.0, 1.0, 1.0], None),
-            s.shade([0.0, 1.0, 1.0], Some(&vis))
-        );
+        assert_eq!(s.shade([0.0, 1.0, 1.0], None), s.shade([0.0, 1.0, 1.0], Some(&vis)));
         let dark = vec![0.0; s.texel_count()];
         assert_eq!(s.shade([0.0, 1.0, 1.0], Some(&dark)), [0.0; 3]);
     }

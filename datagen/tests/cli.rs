@@ -1,0 +1,162 @@
+//! `datagen render` as a user runs it: outputs, messages and failure behaviour.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn datagen() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_datagen"))
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("matedit-cli-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn render_writes_an_exr_with_radiance_normals_and_mask_and_a_png() {
+    let d = scratch("ok");
+    let (exr, png, env) = (d.join("s.exr"), d.join("s.png"), d.join("env.exr"));
+    let out = datagen()
+        .args([
+            "render",
+            "--shape",
+            "sphere",
+            "--brdf",
+            "ggx:0.3:1,1,1",
+            "--env",
+            "builtin:sky",
+            "--res",
+            "32",
+        ])
+        .args(["--env-rotation", "-45", "--out"])
+        .arg(&exr)
+        .arg("--png")
+        .arg(&png)
+        .arg("--env-out")
+        .arg(&env)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (w, h, ch) = matedit_datagen::io::read_exr_channels(&exr).unwrap();
+    assert_eq!((w, h), (32, 32));
+    for name in ["R", "G", "B", "normal.X", "normal.Y", "normal.Z", "mask"] {
+        assert!(ch.contains_key(name), "missing channel {name}");
+        assert!(ch[name].iter().all(|v| v.is_finite()));
+    }
+    let covered = ch["mask"].iter().filter(|m| **m > 0.0).count();
+    assert!(covered > 700 && covered < 820, "{covered}");
+    let img = image::open(&png).unwrap();
+    assert_eq!((img.width(), img.height()), (32, 32));
+    let (ew, eh, _) = matedit_datagen::io::read_exr_channels(&env).unwrap();
+    assert_eq!((ew, eh), (128, 64));
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(log.contains("time:") && log.contains("wrote"), "{log}");
+}
+
+#[test]
+fn bad_arguments_name_the_problem_and_leave_existing_output_alone() {
+    let d = scratch("bad");
+    let exr = d.join("keep.exr");
+    std::fs::write(&exr, b"previous").unwrap();
+    let cases: &[(&[&str], &str)] = &[
+        (&["--brdf", "lambert:2,0,0", "--env", "builtin:sky"], "outside"),
+        (&["--brdf", "phong:1", "--env", "builtin:sky"], "unknown model"),
+        (
+            &["--brdf", "lambert:0.5,0.5,0.5", "--env", "/nonexistent/sky.hdr"],
+            "/nonexistent/sky.hdr",
+        ),
+        (&["--brdf", "lambert:0.5,0.5,0.5", "--env", "sky.png"], ".hdr or .exr"),
+        (
+            &[
+                "--brdf",
+                "lambert:0.5,0.5,0.5",
+                "--env",
+                "builtin:sky",
+                "--env-res",
+                "64x64",
+            ],
+            "W = 2H",
+        ),
+        (
+            &[
+                "--brdf",
+                "lambert:0.5,0.5,0.5",
+                "--env",
+                "builtin:sky",
+                "--shape",
+                "/nonexistent/m.obj",
+            ],
+            "/nonexistent/m.obj",
+        ),
+        (
+            &["--brdf", "dsbrdf:/nonexistent/m.json", "--env", "builtin:sky"],
+            "/nonexistent/m.json",
+        ),
+        (
+            &["--brdf", "lambert:0.5,0.5,0.5", "--env", "builtin:sky", "--res", "0"],
+            "--res",
+        ),
+    ];
+    for (args, needle) in cases {
+        let out = datagen()
+            .arg("render")
+            .args(*args)
+            .arg("--out")
+            .arg(&exr)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} succeeded");
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert_eq!(std::fs::read(&exr).unwrap(), b"previous", "{args:?} touched the output");
+    }
+}
+
+#[test]
+fn a_dsbrdf_material_file_renders_and_nan_in_an_hdr_is_refused_by_name() {
+    let d = scratch("files");
+    let mat = d.join("m.json");
+    let m = matedit_physics::brdf::Dsbrdf::near_lambertian([0.5, 0.4, 0.3]);
+    std::fs::write(&mat, m.to_json()).unwrap();
+    let out = datagen()
+        .args(["render", "--brdf"])
+        .arg(format!("dsbrdf:{}", mat.display()))
+        .args(["--env", "builtin:constant:1", "--res", "16", "--out"])
+        .arg(d.join("m.exr"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (_, _, ch) = matedit_datagen::io::read_exr_channels(&d.join("m.exr")).unwrap();
+    let centre = 8 * 16 + 8;
+    assert!((ch["R"][centre] - 0.5).abs() < 0.01, "{}", ch["R"][centre]);
+
+    // An EXR environment with a NaN texel.
+    let env = d.join("nan.exr");
+    let mut r = vec![1.0_f32; 8];
+    r[3] = f32::NAN;
+    // The writer refuses non-finite data, so build the file through the exr crate directly.
+    use exr::prelude::*;
+    let ch = |v: Vec<f32>| AnyChannel::new("R", FlatSamples::F32(v));
+    let layer = Layer::new(
+        (4, 2),
+        LayerAttributes::default(),
+        Encoding::UNCOMPRESSED,
+        AnyChannels::sort(SmallVec::from_vec(vec![
+            ch(r.clone()),
+            AnyChannel::new("G", FlatSamples::F32(r.clone())),
+            AnyChannel::new("B", FlatSamples::F32(r)),
+        ])),
+    );
+    Image::from_layer(layer).write().to_file(&env).unwrap();
+    let out = datagen()
+        .args(["render", "--brdf", "lambert:0.5,0.5,0.5", "--env"])
+        .arg(&env)
+        .arg("--out")
+        .arg(d.join("n.exr"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(err.contains("nan.exr") && err.contains("not finite"), "{err}");
+}
