@@ -6,7 +6,7 @@
 
 use glam::DVec3;
 use matedit_physics::EnvMap;
-use matedit_physics::brdf::{AnalyticBrdf, Lambert};
+use matedit_physics::brdf::{BrdfModel, Lambert};
 use matedit_physics::shading::{Quality, make_shader};
 
 fn linear_env(a: DVec3, k: f64, rows: usize) -> EnvMap {
@@ -15,7 +15,7 @@ fn linear_env(a: DVec3, k: f64, rows: usize) -> EnvMap {
 
 fn check(env: &EnvMap, expected_axis: DVec3, k: f64) {
     let rho = 0.8;
-    let brdf = AnalyticBrdf::Lambert(Lambert { albedo: [rho; 3] });
+    let brdf = BrdfModel::Lambert(Lambert { albedo: [rho; 3] });
     for q in [Quality::Fast, Quality::Exact] {
         let shader = make_shader(&brdf, env, q);
         for n in [

@@ -10,6 +10,7 @@ fn render_with_threads(threads: usize, shape: &str, out: &std::path::Path) -> Ve
     pool.install(|| {
         let r = render(&RenderOptions {
             shape: shape.into(),
+            up: Default::default(),
             brdf: format!(
                 "dsbrdf:{}/assets/materials/red_plastic.dsbrdf.json",
                 env!("CARGO_MANIFEST_DIR")

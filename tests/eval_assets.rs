@@ -38,6 +38,7 @@ fn every_eval_mesh_renders_or_is_refused_by_name() {
     for m in &meshes {
         let r = render(&RenderOptions {
             shape: m.to_string_lossy().into(),
+            up: Default::default(),
             brdf: "ggx:0.3:0.9,0.9,0.9".parse().unwrap(),
             env: "builtin:studio".into(),
             env_rotation_deg: 0.0,
@@ -50,6 +51,19 @@ fn every_eval_mesh_renders_or_is_refused_by_name() {
         match r {
             Ok(r) => {
                 assert!(r.stats.covered_pixels > 0, "{}: nothing visible", m.display());
+                if m.ends_with("tinyobjloader/cornell_box.obj") {
+                    // Five materials in its .mtl: white, red, green, blue, light.
+                    assert_eq!(r.stats.regions.len(), 5, "{:?}", r.stats.regions);
+                    let seen: std::collections::BTreeSet<u32> = r
+                        .gbuffer
+                        .region
+                        .iter()
+                        .zip(&r.gbuffer.mask)
+                        .filter(|(_, m)| **m > 0.0)
+                        .map(|(r, _)| *r)
+                        .collect();
+                    assert!(seen.len() >= 3, "visible regions {seen:?}");
+                }
                 assert!(r.radiance.iter().flatten().all(|v| v.is_finite()));
                 rendered += 1;
             }

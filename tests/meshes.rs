@@ -48,6 +48,7 @@ fn shadows_on_a_convex_mesh_change_little_and_a_wall_casts_a_shadow() {
     write_uv_sphere(&obj, 48, 96);
     let opts = |shape: &str, shadows| RenderOptions {
         shape: shape.into(),
+        up: Default::default(),
         brdf: "lambert:0.8,0.8,0.8".parse().unwrap(),
         env: "builtin:constant:1".into(),
         env_rotation_deg: 0.0,

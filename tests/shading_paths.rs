@@ -6,37 +6,37 @@ use glam::DVec3;
 use matedit_datagen::assets::envmaps::builtin;
 use matedit_physics::EnvMap;
 use matedit_physics::brdf::dsbrdf::{GAMMA_RANGE, KAPPA_RANGE};
-use matedit_physics::brdf::{AnalyticBrdf, Dsbrdf, Fresnel, Ggx, Lambert, Plastic};
+use matedit_physics::brdf::{BrdfModel, Dsbrdf, Fresnel, Ggx, Lambert, Plastic};
 use matedit_physics::shading::{Quality, Shader, make_shader};
 
-fn brdfs() -> Vec<(&'static str, AnalyticBrdf)> {
+fn brdfs() -> Vec<(&'static str, BrdfModel)> {
     vec![
         (
             "lambert",
-            AnalyticBrdf::Lambert(Lambert {
+            BrdfModel::Lambert(Lambert {
                 albedo: [0.9, 0.5, 0.05],
             }),
         ),
         (
             "ggx-0.05",
-            AnalyticBrdf::Ggx(Ggx::new(0.05, Fresnel::Schlick([0.95, 0.64, 0.54]))),
+            BrdfModel::Ggx(Ggx::new(0.05, Fresnel::Schlick([0.95, 0.64, 0.54]))),
         ),
-        ("ggx-0.3", AnalyticBrdf::Ggx(Ggx::new(0.3, Fresnel::None))),
-        ("ggx-1", AnalyticBrdf::Ggx(Ggx::new(1.0, Fresnel::Schlick([0.04; 3])))),
-        ("plastic", AnalyticBrdf::Plastic(Plastic::new(0.15, [0.7, 0.1, 0.1]))),
+        ("ggx-0.3", BrdfModel::Ggx(Ggx::new(0.3, Fresnel::None))),
+        ("ggx-1", BrdfModel::Ggx(Ggx::new(1.0, Fresnel::Schlick([0.04; 3])))),
+        ("plastic", BrdfModel::Plastic(Plastic::new(0.15, [0.7, 0.1, 0.1]))),
         (
             "dsbrdf",
-            AnalyticBrdf::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
+            BrdfModel::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
                 [[(0.1, 0.01), (1.5, 30.0), (5.0, 900.0)]; 3],
             ))),
         ),
         (
             "dsbrdf-lambertian",
-            AnalyticBrdf::Dsbrdf(Box::new(Dsbrdf::near_lambertian([0.5, 0.3, 0.1]))),
+            BrdfModel::Dsbrdf(Box::new(Dsbrdf::near_lambertian([0.5, 0.3, 0.1]))),
         ),
         (
             "dsbrdf-extremes",
-            AnalyticBrdf::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
+            BrdfModel::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
                 [[
                     (KAPPA_RANGE.1, GAMMA_RANGE.1),
                     (KAPPA_RANGE.0, GAMMA_RANGE.0),
@@ -156,7 +156,7 @@ fn garbage_normals_shade_to_black_without_nan() {
 #[test]
 fn huge_radiance_never_produces_inf_or_nan_in_an_image() {
     let env = EnvMap::constant(8, [3e37, 3e37, 3e37]);
-    let brdf = AnalyticBrdf::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
+    let brdf = BrdfModel::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
         [[(KAPPA_RANGE.1, GAMMA_RANGE.0); 3]; 3],
     )));
     let s = make_shader(&brdf, &env, Quality::Fast);

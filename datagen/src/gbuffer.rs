@@ -20,6 +20,8 @@ pub struct GBuffer {
     pub position: Vec<[f32; 3]>,
     /// Geometric normal, oriented towards the camera.
     pub geometric_normal: Vec<[f32; 3]>,
+    /// Semantic region id of the visible surface (0 outside the mask and for the sphere).
+    pub region: Vec<u32>,
 }
 
 /// Camera ray origins start at z = 2, outside the unit ball every normalised shape fits in.
@@ -46,9 +48,11 @@ impl GBuffer {
             mask: vec![0.0; res * res],
             position: vec![[0.0; 3]; res * res],
             geometric_normal: vec![[0.0; 3]; res * res],
+            region: vec![0; res * res],
         };
         for (p, hit) in px.into_iter().enumerate() {
-            if let Some((pos, ng, ns)) = hit {
+            if let Some((pos, ng, ns, region)) = hit {
+                g.region[p] = region;
                 g.normal[p] = ns.to_array();
                 g.mask[p] = 1.0;
                 g.position[p] = pos.to_array();
@@ -64,7 +68,8 @@ impl GBuffer {
     }
 }
 
-type PixelHit = Option<(Vec3, Vec3, Vec3)>;
+/// Position, geometric normal, shading normal, region.
+type PixelHit = Option<(Vec3, Vec3, Vec3, u32)>;
 
 fn sphere_pixel(x: f32, y: f32) -> PixelHit {
     // f64 so that the normal is unit to full f32 precision up to the silhouette.
@@ -73,7 +78,7 @@ fn sphere_pixel(x: f32, y: f32) -> PixelHit {
         return None;
     }
     let n = Vec3::new(x, y, (1.0 - r2).sqrt() as f32);
-    Some((n, n, n))
+    Some((n, n, n, 0))
 }
 
 fn mesh_pixel(mesh: &Mesh, scene: &Scene, x: f32, y: f32) -> PixelHit {
@@ -96,7 +101,7 @@ fn mesh_pixel(mesh: &Mesh, scene: &Scene, x: f32, y: f32) -> PixelHit {
     if ns == Vec3::ZERO {
         ns = ng;
     }
-    Some((pos, ng, ns))
+    Some((pos, ng, ns, mesh.triangle_region[hit.triangle as usize]))
 }
 
 #[cfg(test)]

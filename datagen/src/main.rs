@@ -3,6 +3,7 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use matedit_datagen::render::{EnvRes, RenderOptions, Shadows, render};
+use matedit_datagen::shapes::UpAxis;
 use matedit_physics::BrdfSpec;
 use matedit_physics::shading::Quality;
 use std::io::IsTerminal;
@@ -31,6 +32,9 @@ struct RenderArgs {
     /// `sphere` (analytic unit sphere) or the path of an OBJ file.
     #[arg(long, default_value = "sphere")]
     shape: String,
+    /// Which axis of the mesh file points up (x, -x, y, -y, z, -z); it becomes +y.
+    #[arg(long, default_value = "y")]
+    up: UpAxis,
     /// Material: lambert:R,G,B | ggx:ALPHA:F0R,F0G,F0B | plastic:ALPHA:R,G,B | dsbrdf:PATH.
     #[arg(long)]
     brdf: BrdfSpec,
@@ -52,7 +56,7 @@ struct RenderArgs {
     /// Eq. 2 implementation: fast (f32, vectorised) or exact (f64 reference, slow).
     #[arg(long, default_value = "fast")]
     quality: Quality,
-    /// Output EXR: R, G, B radiance, normal.X/Y/Z (camera space) and mask.
+    /// Output EXR: R, G, B radiance, normal.X/Y/Z (camera space), mask and region id.
     #[arg(long)]
     out: PathBuf,
     /// Also write a tone-mapped PNG (exposure, clamp to [0, 1], sRGB; alpha = mask).
@@ -69,6 +73,7 @@ struct RenderArgs {
 fn run_render(a: RenderArgs) -> Result<()> {
     let opts = RenderOptions {
         shape: a.shape,
+        up: a.up,
         brdf: a.brdf,
         env: a.env,
         env_rotation_deg: a.env_rotation,
@@ -104,6 +109,17 @@ fn run_render(a: RenderArgs) -> Result<()> {
         s.texels,
         if s.shadows_traced { "traced" } else { "off" },
     );
+    if s.regions.len() > 1 {
+        eprintln!(
+            "regions: {}",
+            s.regions
+                .iter()
+                .enumerate()
+                .map(|(i, r)| format!("{i}={r}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     if s.degenerate_dropped > 0 {
         eprintln!("note: {} zero-area triangles dropped", s.degenerate_dropped);
     }

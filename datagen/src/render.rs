@@ -3,7 +3,7 @@
 use crate::accel::Scene;
 use crate::gbuffer::GBuffer;
 use crate::io::{EnvSource, load_env, write_env_exr, write_exr_channels, write_png_preview};
-use crate::shapes::Shape;
+use crate::shapes::{Shape, UpAxis};
 use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -63,6 +63,8 @@ impl std::str::FromStr for Shadows {
 pub struct RenderOptions {
     /// `sphere` or an OBJ path.
     pub shape: String,
+    /// Which axis of the mesh file points up.
+    pub up: UpAxis,
     /// The material.
     pub brdf: BrdfSpec,
     /// Environment: a .hdr/.exr path or `builtin:NAME`.
@@ -88,6 +90,8 @@ pub struct RenderStats {
     pub triangles: usize,
     /// Degenerate triangles dropped at load.
     pub degenerate_dropped: usize,
+    /// Names of the mesh's semantic regions (ids index this list).
+    pub regions: Vec<String>,
     /// Pixels that see the object.
     pub covered_pixels: usize,
     /// Texels the shading sums over (after dropping black ones, fast path).
@@ -136,7 +140,7 @@ pub fn render(opts: &RenderOptions) -> Result<Rendered> {
         EnvRes::Rows(h) => h,
     };
     let env = src.resampled(rows, opts.env_rotation_deg);
-    let shape = Shape::load(&opts.shape)?;
+    let shape = Shape::load(&opts.shape, opts.up)?;
     let scene = match &shape {
         Shape::Mesh(m) => Some(Scene::new(m)),
         Shape::Sphere => None,
@@ -148,6 +152,7 @@ pub fn render(opts: &RenderOptions) -> Result<Rendered> {
     if let Shape::Mesh(m) = &shape {
         stats.triangles = m.triangles.len();
         stats.degenerate_dropped = m.degenerate_dropped;
+        stats.regions = m.regions.clone();
     }
     stats.setup_s = t0.elapsed().as_secs_f64();
 
@@ -212,7 +217,7 @@ pub fn render(opts: &RenderOptions) -> Result<Rendered> {
 }
 
 impl Rendered {
-    /// Writes the EXR (channels R, G, B, normal.X, normal.Y, normal.Z, mask).
+    /// Writes the EXR (channels R, G, B, normal.X, normal.Y, normal.Z, mask, region).
     pub fn write_exr(&self, path: &Path) -> Result<()> {
         let g = &self.gbuffer;
         let rad = |c: usize| self.radiance.iter().map(|p| p[c]).collect::<Vec<f32>>();
@@ -229,6 +234,7 @@ impl Rendered {
                 ("normal.Y", nrm(1)),
                 ("normal.Z", nrm(2)),
                 ("mask", g.mask.clone()),
+                ("region", g.region.iter().map(|&r| r as f32).collect()),
             ],
         )
         .with_context(|| format!("writing {}", path.display()))

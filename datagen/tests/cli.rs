@@ -40,7 +40,7 @@ fn render_writes_an_exr_with_radiance_normals_and_mask_and_a_png() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let (w, h, ch) = matedit_datagen::io::read_exr_channels(&exr).unwrap();
     assert_eq!((w, h), (32, 32));
-    for name in ["R", "G", "B", "normal.X", "normal.Y", "normal.Z", "mask"] {
+    for name in ["R", "G", "B", "normal.X", "normal.Y", "normal.Z", "mask", "region"] {
         assert!(ch.contains_key(name), "missing channel {name}");
         assert!(ch[name].iter().all(|v| v.is_finite()));
     }

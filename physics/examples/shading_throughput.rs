@@ -7,7 +7,7 @@
 //! with no black texels, so every pixel sums over every texel. Prints the median of REPEATS runs.
 
 use matedit_physics::EnvMap;
-use matedit_physics::brdf::{AnalyticBrdf, Dsbrdf, Fresnel, Ggx, Lambert, Plastic};
+use matedit_physics::brdf::{BrdfModel, Dsbrdf, Fresnel, Ggx, Lambert, Plastic};
 use matedit_physics::shading::{Quality, make_shader, shade_image};
 use std::time::Instant;
 
@@ -45,18 +45,15 @@ fn main() {
     let brdfs = [
         (
             "lambert",
-            AnalyticBrdf::Lambert(Lambert {
+            BrdfModel::Lambert(Lambert {
                 albedo: [0.5, 0.4, 0.3],
             }),
         ),
-        (
-            "ggx",
-            AnalyticBrdf::Ggx(Ggx::new(0.3, Fresnel::Schlick([0.9, 0.6, 0.3]))),
-        ),
-        ("plastic", AnalyticBrdf::Plastic(Plastic::new(0.2, [0.6, 0.2, 0.1]))),
+        ("ggx", BrdfModel::Ggx(Ggx::new(0.3, Fresnel::Schlick([0.9, 0.6, 0.3])))),
+        ("plastic", BrdfModel::Plastic(Plastic::new(0.2, [0.6, 0.2, 0.1]))),
         (
             "dsbrdf",
-            AnalyticBrdf::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
+            BrdfModel::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
                 [[(0.15, 0.01), (1.5, 40.0), (6.0, 900.0)]; 3],
             ))),
         ),

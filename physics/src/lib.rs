@@ -29,5 +29,5 @@ pub mod frame;
 pub mod shading;
 pub mod tonemap;
 
-pub use brdf::{AnalyticBrdf, Brdf, BrdfSpec};
+pub use brdf::{Brdf, BrdfModel, BrdfSpec};
 pub use envmap::EnvMap;

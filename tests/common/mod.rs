@@ -10,6 +10,7 @@ use std::path::PathBuf;
 pub fn render_scene(shape: &str, brdf: &str, env: &str, env_res: EnvRes, res: usize, quality: Quality) -> Rendered {
     render(&RenderOptions {
         shape: shape.into(),
+        up: Default::default(),
         brdf: brdf.parse::<BrdfSpec>().expect("valid spec"),
         env: env.into(),
         env_rotation_deg: 0.0,

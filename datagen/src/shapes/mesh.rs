@@ -11,6 +11,10 @@ pub struct Mesh {
     pub triangles: Vec<[u32; 3]>,
     /// Shading normal at each corner of each triangle (unit, or zero where undefined).
     pub corner_normals: Vec<[Vec3; 3]>,
+    /// Semantic region of each triangle, an index into `regions`.
+    pub triangle_region: Vec<u32>,
+    /// Region names, in order of first appearance (OBJ material, else object/group name).
+    pub regions: Vec<String>,
     /// Triangles dropped at load because their area is zero.
     pub degenerate_dropped: usize,
     /// Triangles whose normals were computed (the file had none for them).
@@ -83,8 +87,15 @@ impl Mesh {
             }
         }
         let computed = angle_weighted_normals(&self.positions, &self.triangles);
+        if self.triangle_region.len() != self.triangles.len() {
+            self.triangle_region = vec![0; self.triangles.len()];
+        }
+        if self.regions.is_empty() {
+            self.regions.push("default".into());
+        }
         let mut keep = Vec::with_capacity(self.triangles.len());
         let mut normals = Vec::with_capacity(self.triangles.len());
+        let mut regions = Vec::with_capacity(self.triangles.len());
         for (t, tri) in self.triangles.iter().enumerate() {
             let [a, b, c] = tri.map(|i| self.positions[i as usize].as_dvec3());
             if (b - a).cross(c - a).length_squared() == 0.0 {
@@ -92,6 +103,7 @@ impl Mesh {
                 continue;
             }
             keep.push(*tri);
+            regions.push(self.triangle_region[t]);
             if has_normals[t] {
                 normals.push(self.corner_normals[t].map(|n| n.normalize_or_zero()));
             } else {
@@ -104,6 +116,7 @@ impl Mesh {
         }
         self.triangles = keep;
         self.corner_normals = normals;
+        self.triangle_region = regions;
         self.normalise();
         Ok(self)
     }
@@ -128,6 +141,68 @@ impl Mesh {
         for p in &mut self.positions {
             *p = ((p.as_dvec3() - centre) * scale).as_vec3();
         }
+    }
+}
+
+/// Which axis of a file points up. Meshes are turned so that it becomes +y (camera up).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum UpAxis {
+    /// +x is up.
+    PosX,
+    /// −x is up.
+    NegX,
+    /// +y is up (no change; OBJ's usual convention and ShapeNet's).
+    #[default]
+    PosY,
+    /// −y is up.
+    NegY,
+    /// +z is up (CAD and many scans).
+    PosZ,
+    /// −z is up.
+    NegZ,
+}
+
+impl std::str::FromStr for UpAxis {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Ok(match s {
+            "x" | "+x" => UpAxis::PosX,
+            "-x" => UpAxis::NegX,
+            "y" | "+y" => UpAxis::PosY,
+            "-y" => UpAxis::NegY,
+            "z" | "+z" => UpAxis::PosZ,
+            "-z" => UpAxis::NegZ,
+            _ => return Err(format!("up axis {s:?}: expected x, -x, y, -y, z or -z")),
+        })
+    }
+}
+
+impl UpAxis {
+    /// The proper rotation (an axis permutation with signs) taking this axis to +y.
+    pub fn to_y_up(self, v: Vec3) -> Vec3 {
+        match self {
+            UpAxis::PosX => Vec3::new(-v.y, v.x, v.z),
+            UpAxis::NegX => Vec3::new(v.y, -v.x, v.z),
+            UpAxis::PosY => v,
+            UpAxis::NegY => Vec3::new(v.x, -v.y, -v.z),
+            UpAxis::PosZ => Vec3::new(v.x, v.z, -v.y),
+            UpAxis::NegZ => Vec3::new(v.x, -v.z, v.y),
+        }
+    }
+}
+
+impl Mesh {
+    /// Turns the mesh so that `up` points along +y. Distances and the normalisation are kept.
+    pub fn reoriented(mut self, up: UpAxis) -> Mesh {
+        for p in &mut self.positions {
+            *p = up.to_y_up(*p);
+        }
+        for ns in &mut self.corner_normals {
+            for n in ns {
+                *n = up.to_y_up(*n);
+            }
+        }
+        self
     }
 }
 
@@ -210,6 +285,25 @@ mod tests {
             m.finish(vec![false; 3]),
             Err(MeshError::BadIndex { index: 99, .. })
         ));
+    }
+
+    #[test]
+    fn up_axes_are_proper_rotations_to_plus_y() {
+        for up in ["x", "-x", "y", "-y", "z", "-z"] {
+            let a: UpAxis = up.parse().unwrap();
+            let axis = match up {
+                "x" => Vec3::X,
+                "-x" => Vec3::NEG_X,
+                "y" => Vec3::Y,
+                "-y" => Vec3::NEG_Y,
+                "z" => Vec3::Z,
+                _ => Vec3::NEG_Z,
+            };
+            assert_eq!(a.to_y_up(axis), Vec3::Y, "{up}");
+            // Right-handed: x × y = z is preserved.
+            assert_eq!(a.to_y_up(Vec3::X).cross(a.to_y_up(Vec3::Y)), a.to_y_up(Vec3::Z), "{up}");
+        }
+        assert!("w".parse::<UpAxis>().is_err());
     }
 
     #[test]

@@ -3,7 +3,7 @@
 mod mesh;
 mod obj;
 
-pub use mesh::{Mesh, MeshError};
+pub use mesh::{Mesh, MeshError, UpAxis};
 
 use std::path::Path;
 
@@ -17,11 +17,11 @@ pub enum Shape {
 }
 
 impl Shape {
-    /// `sphere`, or the path of an OBJ file.
-    pub fn load(spec: &str) -> Result<Shape, MeshError> {
+    /// `sphere`, or the path of an OBJ file whose `up` axis becomes +y.
+    pub fn load(spec: &str, up: UpAxis) -> Result<Shape, MeshError> {
         if spec == "sphere" {
             return Ok(Shape::Sphere);
         }
-        Ok(Shape::Mesh(Mesh::from_obj(Path::new(spec))?))
+        Ok(Shape::Mesh(Mesh::from_obj(Path::new(spec))?.reoriented(up)))
     }
 }

@@ -16,23 +16,44 @@ impl Mesh {
             ignore_points: true,
             ignore_lines: true,
         };
-        let (models, _materials) = tobj::load_obj(path, &options).map_err(|e| MeshError::Parse {
-            path: name.clone(),
-            message: e.to_string(),
+        let (models, materials) = tobj::load_obj(path, &options).map_err(|e| {
+            let message = match locate_error(path, &e) {
+                Some((line, text)) => format!("{e} at line {line}: {text:?}"),
+                None => e.to_string(),
+            };
+            MeshError::Parse {
+                path: name.clone(),
+                message,
+            }
         })?;
         let mut mesh = Mesh {
             source: name,
             ..Default::default()
         };
         let mut has_normals = Vec::new();
+        // A missing or broken .mtl leaves material ids unresolved: fall back to object names.
+        let materials = materials.unwrap_or_default();
         for model in &models {
             let m = &model.mesh;
+            let key = match m.material_id.and_then(|i| materials.get(i)) {
+                Some(mat) => mat.name.clone(),
+                None if model.name.is_empty() => "default".to_string(),
+                None => model.name.clone(),
+            };
+            let region = match mesh.regions.iter().position(|r| *r == key) {
+                Some(i) => i,
+                None => {
+                    mesh.regions.push(key);
+                    mesh.regions.len() - 1
+                }
+            } as u32;
             let base = mesh.positions.len() as u32;
             mesh.positions
                 .extend(m.positions.chunks_exact(3).map(|p| Vec3::new(p[0], p[1], p[2])));
             let with_normals = !m.normal_indices.is_empty() && m.normal_indices.len() == m.indices.len();
             for (t, tri) in m.indices.chunks_exact(3).enumerate() {
                 mesh.triangles.push([tri[0] + base, tri[1] + base, tri[2] + base]);
+                mesh.triangle_region.push(region);
                 let corner = |k: usize| {
                     let i = m.normal_indices[3 * t + k] as usize * 3;
                     m.normals
@@ -53,6 +74,37 @@ impl Mesh {
         }
         mesh.finish(has_normals)
     }
+}
+
+/// tobj reports what failed but not where: find the first line of that kind that does not parse.
+fn locate_error(path: &Path, e: &tobj::LoadError) -> Option<(usize, String)> {
+    use tobj::LoadError as E;
+    let (prefix, min, max) = match e {
+        E::PositionParseError => ("v", 3, 7),
+        E::NormalParseError => ("vn", 3, 3),
+        E::TexcoordParseError => ("vt", 1, 3),
+        E::FaceParseError | E::InvalidPolygon => ("f", 3, usize::MAX),
+        _ => return None,
+    };
+    let text = std::fs::read_to_string(path).ok()?;
+    text.lines().enumerate().find_map(|(i, line)| {
+        let mut words = line.split_whitespace();
+        if words.next() != Some(prefix) {
+            return None;
+        }
+        let fields: Vec<&str> = words.collect();
+        let ok = (min..=max).contains(&fields.len())
+            && fields.iter().all(|w| {
+                if prefix == "f" {
+                    w.split('/')
+                        .next()
+                        .is_some_and(|i| i.parse::<i64>().is_ok_and(|i| i != 0))
+                } else {
+                    w.parse::<f32>().is_ok()
+                }
+            });
+        (!ok).then(|| (i + 1, line.to_string()))
+    })
 }
 
 #[cfg(test)]
@@ -88,6 +140,41 @@ mod tests {
         assert!(e.contains("empty.obj"), "{e}");
         let e = Mesh::from_obj(Path::new("/nonexistent/x.obj")).unwrap_err().to_string();
         assert!(e.contains("/nonexistent/x.obj"), "{e}");
+    }
+
+    #[test]
+    fn materials_and_objects_become_regions() {
+        std::fs::write(
+            std::env::temp_dir()
+                .join(format!("matedit-obj-{}", std::process::id()))
+                .join("two.mtl"),
+            "newmtl frame\nKd 1 0 0\nnewmtl seat\nKd 0 1 0\n",
+        )
+        .ok();
+        let p = write(
+            "two.obj",
+            "mtllib two.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\no a\nusemtl frame\nf 1 2 3\nusemtl seat\nf 2 4 3\no b\nusemtl frame\nf 1 3 4\n",
+        );
+        let m = Mesh::from_obj(&p).unwrap();
+        assert_eq!(m.regions, vec!["frame".to_string(), "seat".to_string()]);
+        assert_eq!(m.triangle_region, vec![0, 1, 0]);
+        // Without the .mtl, object names are the regions.
+        let p = write(
+            "objs.obj",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\no left\nf 1 2 3\no right\nf 2 4 3\n",
+        );
+        let m = Mesh::from_obj(&p).unwrap();
+        assert_eq!(m.regions, vec!["left".to_string(), "right".to_string()]);
+    }
+
+    #[test]
+    fn parse_errors_name_the_line() {
+        let p = write(
+            "badvn.obj",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nvn  -1.2 -13.8\nf 1//1 2//1 3//1\n",
+        );
+        let e = Mesh::from_obj(&p).unwrap_err().to_string();
+        assert!(e.contains("badvn.obj") && e.contains("line 5"), "{e}");
     }
 
     #[test]

@@ -6,18 +6,20 @@
 //! * [`plastic::Plastic`]: Lambert plus a GGX coat with F0 = 0.04;
 //! * [`dsbrdf::Dsbrdf`]: the paper's 108-parameter Directional Statistics BRDF.
 //!
-//! [`AnalyticBrdf`] is the closed set the fast shading path specialises for; [`BrdfSpec`] parses
+//! [`BrdfModel`] is the closed set the fast shading path specialises for; [`BrdfSpec`] parses
 //! the `--brdf` strings of the command line.
 
 pub mod dsbrdf;
 pub mod ggx;
 pub mod lambert;
+pub mod merl;
 pub mod plastic;
 mod spec;
 
 pub use dsbrdf::Dsbrdf;
 pub use ggx::{Fresnel, Ggx};
 pub use lambert::Lambert;
+pub use merl::MerlBrdf;
 pub use plastic::Plastic;
 pub use spec::{BrdfSpec, SpecError};
 
@@ -33,9 +35,9 @@ pub trait Brdf: Send + Sync {
     fn eval(&self, wi: DVec3, wo: DVec3) -> [f64; 3];
 }
 
-/// The analytic BRDFs the renderer knows how to shade fast.
+/// Every BRDF the renderer can shade.
 #[derive(Clone, Debug, PartialEq)]
-pub enum AnalyticBrdf {
+pub enum BrdfModel {
     /// Ideal diffuse.
     Lambert(Lambert),
     /// GGX microfacet.
@@ -44,15 +46,19 @@ pub enum AnalyticBrdf {
     Plastic(Plastic),
     /// Directional Statistics BRDF (108 parameters).
     Dsbrdf(Box<Dsbrdf>),
+    /// A measured MERL table, shaded through the exact path (a 3-D table has no per-texel
+    /// factorisation).
+    Measured(std::sync::Arc<MerlBrdf>),
 }
 
-impl Brdf for AnalyticBrdf {
+impl Brdf for BrdfModel {
     fn eval(&self, wi: DVec3, wo: DVec3) -> [f64; 3] {
         match self {
-            AnalyticBrdf::Lambert(b) => b.eval(wi, wo),
-            AnalyticBrdf::Ggx(b) => b.eval(wi, wo),
-            AnalyticBrdf::Plastic(b) => b.eval(wi, wo),
-            AnalyticBrdf::Dsbrdf(b) => b.eval(wi, wo),
+            BrdfModel::Lambert(b) => b.eval(wi, wo),
+            BrdfModel::Ggx(b) => b.eval(wi, wo),
+            BrdfModel::Plastic(b) => b.eval(wi, wo),
+            BrdfModel::Dsbrdf(b) => b.eval(wi, wo),
+            BrdfModel::Measured(b) => b.eval(wi, wo),
         }
     }
 }

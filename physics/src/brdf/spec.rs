@@ -1,7 +1,7 @@
 //! The `--brdf SPEC` strings: `lambert:R,G,B`, `ggx:ALPHA:F0R,F0G,F0B`, `plastic:ALPHA:R,G,B`,
-//! `dsbrdf:PATH`.
+//! `dsbrdf:PATH`, `merl:PATH`.
 
-use super::{AnalyticBrdf, Dsbrdf, Fresnel, Ggx, Lambert, Plastic, dsbrdf::DsbrdfError};
+use super::{BrdfModel, Dsbrdf, Fresnel, Ggx, Lambert, Plastic, dsbrdf::DsbrdfError};
 use std::path::PathBuf;
 
 /// A parsed `--brdf` argument.
@@ -25,6 +25,8 @@ pub enum BrdfSpec {
     },
     /// `dsbrdf:PATH`: a 108-parameter material file.
     Dsbrdf(PathBuf),
+    /// `merl:PATH`: a measured MERL `.binary` file.
+    Merl(PathBuf),
 }
 
 /// A `--brdf` string that cannot be used.
@@ -43,6 +45,9 @@ pub enum SpecError {
     /// The material file could not be loaded.
     #[error(transparent)]
     Material(#[from] DsbrdfError),
+    /// The MERL file could not be loaded.
+    #[error(transparent)]
+    Merl(#[from] super::merl::MerlError),
 }
 
 impl std::str::FromStr for BrdfSpec {
@@ -89,6 +94,8 @@ impl std::str::FromStr for BrdfSpec {
             "plastic" => alpha_and(rest, "albedo").map(|(alpha, albedo)| BrdfSpec::Plastic { alpha, albedo }),
             "dsbrdf" if !rest.is_empty() => Ok(BrdfSpec::Dsbrdf(PathBuf::from(rest))),
             "dsbrdf" => Err(bad("missing material file path".into())),
+            "merl" if !rest.is_empty() => Ok(BrdfSpec::Merl(PathBuf::from(rest))),
+            "merl" => Err(bad("missing MERL file path".into())),
             other => Err(bad(format!("unknown model {other:?}"))),
         }
     }
@@ -96,12 +103,13 @@ impl std::str::FromStr for BrdfSpec {
 
 impl BrdfSpec {
     /// Builds the BRDF, loading the material file if there is one.
-    pub fn build(&self) -> Result<AnalyticBrdf, SpecError> {
+    pub fn build(&self) -> Result<BrdfModel, SpecError> {
         Ok(match self {
-            BrdfSpec::Lambert(albedo) => AnalyticBrdf::Lambert(Lambert { albedo: *albedo }),
-            BrdfSpec::Ggx { alpha, f0 } => AnalyticBrdf::Ggx(Ggx::new(*alpha, Fresnel::Schlick(*f0))),
-            BrdfSpec::Plastic { alpha, albedo } => AnalyticBrdf::Plastic(Plastic::new(*alpha, *albedo)),
-            BrdfSpec::Dsbrdf(path) => AnalyticBrdf::Dsbrdf(Box::new(Dsbrdf::load(path)?)),
+            BrdfSpec::Lambert(albedo) => BrdfModel::Lambert(Lambert { albedo: *albedo }),
+            BrdfSpec::Ggx { alpha, f0 } => BrdfModel::Ggx(Ggx::new(*alpha, Fresnel::Schlick(*f0))),
+            BrdfSpec::Plastic { alpha, albedo } => BrdfModel::Plastic(Plastic::new(*alpha, *albedo)),
+            BrdfSpec::Dsbrdf(path) => BrdfModel::Dsbrdf(Box::new(Dsbrdf::load(path)?)),
+            BrdfSpec::Merl(path) => BrdfModel::Measured(std::sync::Arc::new(super::MerlBrdf::read(path)?)),
         })
     }
 }
@@ -133,7 +141,7 @@ mod tests {
         let b = "ggx:0.3:1,1,1".parse::<BrdfSpec>().unwrap().build().unwrap();
         assert!(matches!(
             b,
-            AnalyticBrdf::Ggx(Ggx {
+            BrdfModel::Ggx(Ggx {
                 fresnel: Fresnel::None,
                 ..
             })

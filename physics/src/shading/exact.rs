@@ -1,7 +1,7 @@
 //! The `f64` reference implementation of Eq. 2.
 
 use super::{Shader, shading_normal};
-use crate::brdf::{AnalyticBrdf, Brdf};
+use crate::brdf::{Brdf, BrdfModel};
 use crate::camera::VIEW_DIR;
 use crate::envmap::{EnvMap, texel_direction, texel_solid_angle};
 use crate::frame::Frame;
@@ -10,7 +10,7 @@ use glam::DVec3;
 /// Evaluates the BRDF through [`Brdf::eval`] in a per-pixel local frame, for every texel, with
 /// compensated (Neumaier) summation. Independent of the fast path's per-texel factorisation.
 pub struct ExactShader {
-    brdf: AnalyticBrdf,
+    brdf: BrdfModel,
     dirs: Vec<DVec3>,
     dirs32: Vec<[f32; 3]>,
     /// L(ω_i) · dω_i per texel.
@@ -19,7 +19,7 @@ pub struct ExactShader {
 
 impl ExactShader {
     /// Prepares the texel directions and L·dω of `env`.
-    pub fn new(brdf: AnalyticBrdf, env: &EnvMap) -> Self {
+    pub fn new(brdf: BrdfModel, env: &EnvMap) -> Self {
         let (w, h) = (env.width(), env.height());
         let mut dirs = Vec::with_capacity(w * h);
         let mut radiance_sa = Vec::with_capacity(w * h);

@@ -9,7 +9,7 @@
 //! perform the same IEEE operations in the same order and give identical bits.
 
 use super::{Shader, shading_normal};
-use crate::brdf::{AnalyticBrdf, Ggx};
+use crate::brdf::{BrdfModel, Ggx};
 use crate::envmap::{EnvMap, texel_direction, texel_solid_angle};
 use crate::fastmath;
 use glam::DVec3;
@@ -108,8 +108,9 @@ fn half_vectors(texels: &[Texel]) -> HalfVectors {
 
 impl FastShader {
     /// Precomputes the per-texel data. Texels of zero radiance are dropped, and so is a texel
-    /// whose direction is exactly −z (it cannot light a surface the camera sees).
-    pub fn new(brdf: &AnalyticBrdf, env: &EnvMap) -> Self {
+    /// whose direction is exactly −z (it cannot light a surface the camera sees). `None` for a
+    /// measured BRDF, which has no per-texel factorisation.
+    pub fn new(brdf: &BrdfModel, env: &EnvMap) -> Option<Self> {
         let (w, h) = (env.width(), env.height());
         let mut texels = Vec::new();
         for j in 0..h {
@@ -145,19 +146,19 @@ impl FastShader {
         };
         let diffuse = |albedo: [f64; 3]| [0, 1, 2].map(|c| col(&|t| t.lsa[c] * albedo[c] / PI));
         let kernel = match brdf {
-            AnalyticBrdf::Lambert(b) => Kernel::Microfacet {
+            BrdfModel::Lambert(b) => Kernel::Microfacet {
                 diffuse: Some(diffuse(b.albedo)),
                 spec: None,
             },
-            AnalyticBrdf::Ggx(g) => Kernel::Microfacet {
+            BrdfModel::Ggx(g) => Kernel::Microfacet {
                 diffuse: None,
                 spec: Some(ggx(g)),
             },
-            AnalyticBrdf::Plastic(p) => Kernel::Microfacet {
+            BrdfModel::Plastic(p) => Kernel::Microfacet {
                 diffuse: Some(diffuse(p.base.albedo)),
                 spec: Some(ggx(&p.coat)),
             },
-            AnalyticBrdf::Dsbrdf(m) => {
+            BrdfModel::Dsbrdf(m) => {
                 let lobes: Vec<_> = texels.iter().map(|t| m.lobes_at(t.cos_d.acos())).collect();
                 let lobe_col = |ck: usize, kappa: bool| {
                     padded(
@@ -175,12 +176,13 @@ impl FastShader {
                     gamma: std::array::from_fn(|ck| lobe_col(ck, false)),
                 })
             }
+            BrdfModel::Measured(_) => return None,
         };
         #[cfg(target_arch = "x86_64")]
         let avx2 = std::is_x86_feature_detected!("avx2");
         #[cfg(not(target_arch = "x86_64"))]
         let avx2 = false;
-        Self {
+        Some(Self {
             dirs: texels
                 .iter()
                 .map(|t| [t.d.x as f32, t.d.y as f32, t.d.z as f32])
@@ -190,7 +192,7 @@ impl FastShader {
             dz: col(&|t| t.d.z),
             kernel,
             avx2,
-        }
+        })
     }
 
     /// Forces the portable (non-AVX2) code path; for tests that compare the two.
@@ -437,7 +439,7 @@ mod tests {
     #[test]
     fn zero_radiance_texels_are_dropped_and_padding_is_inert() {
         let env = EnvMap::from_fn(8, |d| if d.y > 0.0 { [1.0; 3] } else { [0.0; 3] });
-        let s = FastShader::new(&AnalyticBrdf::Lambert(Lambert { albedo: [1.0; 3] }), &env);
+        let s = FastShader::new(&BrdfModel::Lambert(Lambert { albedo: [1.0; 3] }), &env).unwrap();
         assert_eq!(s.texel_count(), 8 * 16 / 2);
         let vis = vec![1.0; s.texel_count()];
         assert_eq!(s.shade([0.0, 1.0, 1.0], None), s.shade([0.0, 1.0, 1.0], Some(&vis)));
@@ -449,13 +451,13 @@ mod tests {
     fn simd_dispatch_gives_identical_bits() {
         let env = EnvMap::from_fn(16, |d| [(1.0 + d.x) as f32, (2.0 + d.y) as f32, 0.3]);
         for brdf in [
-            AnalyticBrdf::Plastic(Plastic::new(0.3, [0.2, 0.5, 0.7])),
-            AnalyticBrdf::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
+            BrdfModel::Plastic(Plastic::new(0.3, [0.2, 0.5, 0.7])),
+            BrdfModel::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
                 [[(0.1, 0.01), (1.0, 30.0), (4.0, 900.0)]; 3],
             ))),
         ] {
-            let a = FastShader::new(&brdf, &env);
-            let b = FastShader::new(&brdf, &env).without_simd_dispatch();
+            let a = FastShader::new(&brdf, &env).unwrap();
+            let b = FastShader::new(&brdf, &env).unwrap().without_simd_dispatch();
             for n in [[0.0, 0.0, 1.0], [0.3, -0.2, 0.5], [0.9, 0.1, 0.01]] {
                 let (x, y) = (a.shade(n, None), b.shade(n, None));
                 assert_eq!(x.map(f32::to_bits), y.map(f32::to_bits));

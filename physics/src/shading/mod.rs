@@ -14,7 +14,7 @@
 pub mod exact;
 pub mod fast;
 
-use crate::{AnalyticBrdf, EnvMap};
+use crate::{BrdfModel, EnvMap};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -79,10 +79,11 @@ pub trait Shader: Send + Sync {
 }
 
 /// Builds the shader of the requested quality.
-pub fn make_shader(brdf: &AnalyticBrdf, env: &EnvMap, quality: Quality) -> Box<dyn Shader> {
-    match quality {
-        Quality::Exact => Box::new(exact::ExactShader::new(brdf.clone(), env)),
-        Quality::Fast => Box::new(fast::FastShader::new(brdf, env)),
+/// Measured (tabulated) BRDFs always use the exact path.
+pub fn make_shader(brdf: &BrdfModel, env: &EnvMap, quality: Quality) -> Box<dyn Shader> {
+    match (quality, fast::FastShader::new(brdf, env)) {
+        (Quality::Fast, Some(fast)) => Box::new(fast),
+        _ => Box::new(exact::ExactShader::new(brdf.clone(), env)),
     }
 }
 
