@@ -52,8 +52,9 @@ fn every_eval_mesh_renders_or_is_refused_by_name() {
             Ok(r) => {
                 assert!(r.stats.covered_pixels > 0, "{}: nothing visible", m.display());
                 if m.ends_with("tinyobjloader/cornell_box.obj") {
-                    // Five materials in its .mtl: white, red, green, blue, light.
-                    assert_eq!(r.stats.regions.len(), 5, "{:?}", r.stats.regions);
+                    // Five materials in its .mtl, but the blue front wall's only face is commented
+                    // out in the file: four regions carry geometry.
+                    assert_eq!(r.stats.regions, ["white", "light", "green", "red"], "{:?}", r.stats.regions);
                     let seen: std::collections::BTreeSet<u32> = r
                         .gbuffer
                         .region
