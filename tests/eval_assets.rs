@@ -54,7 +54,12 @@ fn every_eval_mesh_renders_or_is_refused_by_name() {
                 if m.ends_with("tinyobjloader/cornell_box.obj") {
                     // Five materials in its .mtl, but the blue front wall's only face is commented
                     // out in the file: four regions carry geometry.
-                    assert_eq!(r.stats.regions, ["white", "light", "green", "red"], "{:?}", r.stats.regions);
+                    assert_eq!(
+                        r.stats.regions,
+                        ["white", "light", "green", "red"],
+                        "{:?}",
+                        r.stats.regions
+                    );
                     let seen: std::collections::BTreeSet<u32> = r
                         .gbuffer
                         .region

@@ -88,3 +88,28 @@ fn shadows_on_a_convex_mesh_change_little_and_a_wall_casts_a_shadow() {
     );
     assert!(on.radiance.iter().flatten().all(|v| v.is_finite()));
 }
+
+#[test]
+fn regions_reach_the_image() {
+    let dir = scratch("regions");
+    std::fs::write(dir.join("r.mtl"), "newmtl frame\nKd 1 0 0\nnewmtl seat\nKd 0 1 0\n").unwrap();
+    let obj = dir.join("r.obj");
+    std::fs::write(
+        &obj,
+        "mtllib r.mtl\nv -1 -1 0\nv 0 -1 0\nv 0 1 0\nv -1 1 0\nv 1 -1 0\nv 1 1 0\n\
+         usemtl frame\nf 1 2 3 4\nusemtl seat\nf 2 5 6 3\n",
+    )
+    .unwrap();
+    let r = render_scene(
+        obj.to_str().unwrap(),
+        "lambert:0.5,0.5,0.5",
+        "builtin:studio",
+        EnvRes::Rows(8),
+        16,
+        Quality::Fast,
+    );
+    assert_eq!(r.stats.regions, ["frame", "seat"]);
+    let (left, right) = (8 * 16 + 3, 8 * 16 + 12);
+    assert_eq!((r.gbuffer.mask[left], r.gbuffer.mask[right]), (1.0, 1.0));
+    assert_eq!((r.gbuffer.region[left], r.gbuffer.region[right]), (0, 1));
+}
