@@ -60,15 +60,6 @@ fn every_eval_mesh_renders_or_is_refused_by_name() {
                         "{:?}",
                         r.stats.regions
                     );
-                    let seen: std::collections::BTreeSet<u32> = r
-                        .gbuffer
-                        .region
-                        .iter()
-                        .zip(&r.gbuffer.mask)
-                        .filter(|(_, m)| **m > 0.0)
-                        .map(|(r, _)| *r)
-                        .collect();
-                    assert!(seen.len() >= 3, "visible regions {seen:?}");
                 }
                 assert!(r.radiance.iter().flatten().all(|v| v.is_finite()));
                 rendered += 1;
