@@ -25,6 +25,52 @@ struct Cli {
 enum Command {
     /// Render one object under an environment map (preview and check renderer).
     Render(RenderArgs),
+    /// Generate the embedded procedural assets as files, with contact sheets.
+    #[command(subcommand)]
+    Assets(AssetsCommand),
+}
+
+#[derive(Subcommand)]
+enum AssetsCommand {
+    /// Procedural environment maps: COUNT seeds of each family (sunsky, overcast, softbox,
+    /// window) as EXR, plus envmaps.png, a tone-mapped contact sheet (one row per family).
+    Envmaps {
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Maps per family.
+        #[arg(long, default_value_t = 4)]
+        count: usize,
+        /// First seed.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Rows of each map (width is twice this).
+        #[arg(long, default_value_t = 256)]
+        height: usize,
+    },
+}
+
+fn run_assets(c: AssetsCommand) -> Result<()> {
+    match c {
+        AssetsCommand::Envmaps {
+            out,
+            count,
+            seed,
+            height,
+        } => {
+            if height == 0 || height > 8192 {
+                anyhow::bail!("--height {height}: expected 1 to 8192 rows");
+            }
+            let paths = matedit_datagen::assets::envmaps::write_family_set(&out, count, seed, height)?;
+            eprintln!(
+                "wrote {} files to {} (contact sheet: {})",
+                paths.len(),
+                out.display(),
+                out.join("envmaps.png").display()
+            );
+        }
+    }
+    Ok(())
 }
 
 #[derive(clap::Args)]
@@ -147,6 +193,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(a) => run_render(a),
+        Command::Assets(c) => run_assets(c),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

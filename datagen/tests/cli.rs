@@ -160,3 +160,46 @@ fn a_dsbrdf_material_file_renders_and_nan_in_an_hdr_is_refused_by_name() {
     assert!(!out.status.success());
     assert!(err.contains("nan.exr") && err.contains("not finite"), "{err}");
 }
+
+#[test]
+fn assets_envmaps_writes_deterministic_exrs_and_a_contact_sheet() {
+    let (a, b) = (scratch("env-a"), scratch("env-b"));
+    for d in [&a, &b] {
+        let out = datagen()
+            .args([
+                "assets", "envmaps", "--count", "2", "--seed", "5", "--height", "32", "--out",
+            ])
+            .arg(d)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    }
+    for name in [
+        "sunsky_5.exr",
+        "sunsky_6.exr",
+        "overcast_5.exr",
+        "softbox_6.exr",
+        "window_5.exr",
+    ] {
+        let (w, h, ch) = matedit_datagen::io::read_exr_channels(&a.join(name)).unwrap();
+        assert_eq!((w, h), (64, 32));
+        assert!(ch["R"].iter().all(|v| v.is_finite() && *v >= 0.0));
+        assert_eq!(
+            std::fs::read(a.join(name)).unwrap(),
+            std::fs::read(b.join(name)).unwrap(),
+            "{name}"
+        );
+    }
+    let sheet = image::open(a.join("envmaps.png")).unwrap();
+    assert_eq!((sheet.width(), sheet.height()), (256, 256));
+    // The maps load back as environments.
+    let spec = a.join("window_6.exr");
+    let out = datagen()
+        .args(["render", "--brdf", "lambert:0.5,0.5,0.5", "--res", "8", "--env"])
+        .arg(&spec)
+        .arg("--out")
+        .arg(a.join("r.exr"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}

@@ -1,3 +1,5 @@
-//! Embedded default data, so that every command runs on a fresh machine.
+//! Embedded default data, so that every command runs on a fresh machine: procedural environment
+//! maps, generated deterministically from a seed.
 
 pub mod envmaps;
+pub mod random;

@@ -18,3 +18,33 @@ pub fn write_png_preview(path: &Path, res: usize, rgb: &[[f32; 3]], mask: &[f32]
             .with_context(|| format!("cannot write {}", path.display()))
     })
 }
+
+/// Writes tiles of `tile × tile_h` RGBA pixels in a grid of `cols` columns, on a dark grey
+/// background, atomically.
+pub fn write_contact_sheet(
+    path: &Path,
+    tiles: &[Vec<[u8; 4]>],
+    tile_w: usize,
+    tile_h: usize,
+    cols: usize,
+) -> Result<()> {
+    let cols = cols.max(1);
+    let rows = tiles.len().div_ceil(cols).max(1);
+    let (w, h) = (cols * tile_w, rows * tile_h);
+    let mut img = image::RgbaImage::from_pixel(w as u32, h as u32, image::Rgba([40, 40, 40, 255]));
+    for (k, tile) in tiles.iter().enumerate() {
+        let (ox, oy) = ((k % cols) * tile_w, (k / cols) * tile_h);
+        for (p, px) in tile.iter().enumerate().take(tile_w * tile_h) {
+            let (x, y) = ((ox + p % tile_w) as u32, (oy + p / tile_w) as u32);
+            // Alpha-blend over the background so masked renders show their silhouette.
+            let a = px[3] as u32;
+            let bg = img.get_pixel(x, y).0;
+            let blend = |c: usize| ((px[c] as u32 * a + bg[c] as u32 * (255 - a)) / 255) as u8;
+            img.put_pixel(x, y, image::Rgba([blend(0), blend(1), blend(2), 255]));
+        }
+    }
+    write_atomically(path, |tmp| {
+        img.save_with_format(tmp, image::ImageFormat::Png)
+            .with_context(|| format!("cannot write {}", path.display()))
+    })
+}
