@@ -11,6 +11,8 @@ fn render_with_threads(threads: usize, shape: &str, out: &std::path::Path) -> Ve
         let r = render(&RenderOptions {
             shape: shape.into(),
             up: Default::default(),
+            yaw_deg: 0.0,
+            pitch_deg: 0.0,
             brdf: format!(
                 "dsbrdf:{}/assets/materials/red_plastic.dsbrdf.json",
                 env!("CARGO_MANIFEST_DIR")

@@ -39,6 +39,8 @@ fn every_eval_mesh_renders_or_is_refused_by_name() {
         let r = render(&RenderOptions {
             shape: m.to_string_lossy().into(),
             up: Default::default(),
+            yaw_deg: 0.0,
+            pitch_deg: 0.0,
             brdf: "ggx:0.3:0.9,0.9,0.9".parse().unwrap(),
             env: "builtin:studio".into(),
             env_rotation_deg: 0.0,

@@ -49,6 +49,8 @@ fn shadows_on_a_convex_mesh_change_little_and_a_wall_casts_a_shadow() {
     let opts = |shape: &str, shadows| RenderOptions {
         shape: shape.into(),
         up: Default::default(),
+        yaw_deg: 0.0,
+        pitch_deg: 0.0,
         brdf: "lambert:0.8,0.8,0.8".parse().unwrap(),
         env: "builtin:constant:1".into(),
         env_rotation_deg: 0.0,

@@ -32,6 +32,20 @@ enum Command {
 
 #[derive(Subcommand)]
 enum AssetsCommand {
+    /// Procedural shapes: COUNT seeds of each category (car, chair, sofa, monitor) as OBJ + MTL
+    /// (one material per semantic region), plus shapes.png, a contact sheet with both regions
+    /// coloured (one row per category).
+    Shapes {
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Shapes per category.
+        #[arg(long, default_value_t = 4)]
+        count: usize,
+        /// First seed.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
     /// Procedural environment maps: COUNT seeds of each family (sunsky, overcast, softbox,
     /// window) as EXR, plus envmaps.png, a tone-mapped contact sheet (one row per family).
     Envmaps {
@@ -52,6 +66,15 @@ enum AssetsCommand {
 
 fn run_assets(c: AssetsCommand) -> Result<()> {
     match c {
+        AssetsCommand::Shapes { out, count, seed } => {
+            let paths = matedit_datagen::assets::shapes::write_category_set(&out, count, seed)?;
+            eprintln!(
+                "wrote {} files to {} (contact sheet: {})",
+                paths.len(),
+                out.display(),
+                out.join("shapes.png").display()
+            );
+        }
         AssetsCommand::Envmaps {
             out,
             count,
@@ -75,9 +98,15 @@ fn run_assets(c: AssetsCommand) -> Result<()> {
 
 #[derive(clap::Args)]
 struct RenderArgs {
-    /// `sphere` (analytic unit sphere) or the path of an OBJ file.
+    /// `sphere` (analytic unit sphere), `procedural:car|chair|sofa|monitor:SEED`, or an OBJ path.
     #[arg(long, default_value = "sphere")]
     shape: String,
+    /// Object yaw about +y, degrees.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    yaw: f32,
+    /// Object pitch about +x, degrees (positive tips the top towards the camera).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pitch: f32,
     /// Which axis of the mesh file points up (x, -x, y, -y, z, -z); it becomes +y.
     #[arg(long, default_value = "y")]
     up: UpAxis,
@@ -120,6 +149,8 @@ fn run_render(a: RenderArgs) -> Result<()> {
     let opts = RenderOptions {
         shape: a.shape,
         up: a.up,
+        yaw_deg: a.yaw,
+        pitch_deg: a.pitch,
         brdf: a.brdf,
         env: a.env,
         env_rotation_deg: a.env_rotation,

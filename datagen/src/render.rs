@@ -65,6 +65,10 @@ pub struct RenderOptions {
     pub shape: String,
     /// Which axis of the mesh file points up.
     pub up: UpAxis,
+    /// Object yaw about +y, degrees (applied after `up`).
+    pub yaw_deg: f32,
+    /// Object pitch about +x, degrees (applied after yaw; positive shows the top).
+    pub pitch_deg: f32,
     /// The material.
     pub brdf: BrdfSpec,
     /// Environment: a .hdr/.exr path or `builtin:NAME`.
@@ -140,7 +144,7 @@ pub fn render(opts: &RenderOptions) -> Result<Rendered> {
         EnvRes::Rows(h) => h,
     };
     let env = src.resampled(rows, opts.env_rotation_deg);
-    let shape = Shape::load(&opts.shape, opts.up)?;
+    let shape = Shape::load(&opts.shape, opts.up)?.posed(opts.yaw_deg, opts.pitch_deg);
     let scene = match &shape {
         Shape::Mesh(m) => Some(Scene::new(m)),
         Shape::Sphere => None,

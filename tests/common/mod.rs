@@ -11,6 +11,8 @@ pub fn render_scene(shape: &str, brdf: &str, env: &str, env_res: EnvRes, res: us
     render(&RenderOptions {
         shape: shape.into(),
         up: Default::default(),
+        yaw_deg: 0.0,
+        pitch_deg: 0.0,
         brdf: brdf.parse::<BrdfSpec>().expect("valid spec"),
         env: env.into(),
         env_rotation_deg: 0.0,

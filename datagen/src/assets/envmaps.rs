@@ -234,6 +234,59 @@ fn studio(d: DVec3) -> [f32; 3] {
     }
 }
 
+/// A tone-mapped thumbnail of a map (for contact sheets): resampled to `rows × 2·rows`, exposed
+/// so that the median texel is mid-grey (0.18), then the preview tone map.
+pub fn thumbnail(map: &EnvMap, rows: usize) -> Vec<[u8; 4]> {
+    let small = map.resampled(rows, 0.0);
+    let mut lum: Vec<f32> = small.texels().iter().map(|t| (t[0] + t[1] + t[2]) / 3.0).collect();
+    lum.sort_by(|a, b| a.total_cmp(b));
+    let median = lum[lum.len() / 2].max(1e-6);
+    let exposure = 0.18 / median;
+    small
+        .texels()
+        .iter()
+        .map(|t| {
+            let c = t.map(|v| matedit_physics::tonemap::tonemap_u8(v, exposure));
+            [c[0], c[1], c[2], 255]
+        })
+        .collect()
+}
+
+/// Writes `count` maps of every family (`<family>_<seed>.exr`, seeds `seed .. seed+count`) at
+/// `height` rows, and `envmaps.png`, a contact sheet with one row per family. Returns the paths.
+pub fn write_family_set(
+    dir: &std::path::Path,
+    count: usize,
+    seed: u64,
+    height: usize,
+) -> Result<Vec<std::path::PathBuf>> {
+    use rayon::prelude::*;
+    let jobs: Vec<(Family, u64)> = Family::ALL
+        .iter()
+        .flat_map(|&f| (0..count as u64).map(move |k| (f, seed + k)))
+        .collect();
+    let results: Vec<Result<(std::path::PathBuf, Vec<[u8; 4]>)>> = jobs
+        .par_iter()
+        .map(|&(f, s)| {
+            let map = f.generate(s, height);
+            let path = dir.join(format!("{}_{s}.exr", f.name()));
+            crate::io::write_env_exr(&path, &map)?;
+            Ok((path, thumbnail(&map, 64)))
+        })
+        .collect();
+    let mut paths = Vec::new();
+    let mut tiles = Vec::new();
+    for r in results {
+        let (p, t) = r?;
+        paths.push(p);
+        tiles.push(t);
+    }
+    let sheet = dir.join("envmaps.png");
+    crate::io::write_contact_sheet(&sheet, &tiles, 128, 64, count.max(1))?;
+    paths.push(sheet);
+    Ok(paths)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -319,57 +372,4 @@ mod tests {
         assert!(builtin("sunsky:x").unwrap_err().to_string().contains("seed"));
         assert!(builtin("moon:1").unwrap_err().to_string().contains("unknown"));
     }
-}
-
-/// A tone-mapped thumbnail of a map (for contact sheets): resampled to `rows × 2·rows`, exposed
-/// so that the median texel is mid-grey (0.18), then the preview tone map.
-pub fn thumbnail(map: &EnvMap, rows: usize) -> Vec<[u8; 4]> {
-    let small = map.resampled(rows, 0.0);
-    let mut lum: Vec<f32> = small.texels().iter().map(|t| (t[0] + t[1] + t[2]) / 3.0).collect();
-    lum.sort_by(|a, b| a.total_cmp(b));
-    let median = lum[lum.len() / 2].max(1e-6);
-    let exposure = 0.18 / median;
-    small
-        .texels()
-        .iter()
-        .map(|t| {
-            let c = t.map(|v| matedit_physics::tonemap::tonemap_u8(v, exposure));
-            [c[0], c[1], c[2], 255]
-        })
-        .collect()
-}
-
-/// Writes `count` maps of every family (`<family>_<seed>.exr`, seeds `seed .. seed+count`) at
-/// `height` rows, and `envmaps.png`, a contact sheet with one row per family. Returns the paths.
-pub fn write_family_set(
-    dir: &std::path::Path,
-    count: usize,
-    seed: u64,
-    height: usize,
-) -> Result<Vec<std::path::PathBuf>> {
-    use rayon::prelude::*;
-    let jobs: Vec<(Family, u64)> = Family::ALL
-        .iter()
-        .flat_map(|&f| (0..count as u64).map(move |k| (f, seed + k)))
-        .collect();
-    let results: Vec<Result<(std::path::PathBuf, Vec<[u8; 4]>)>> = jobs
-        .par_iter()
-        .map(|&(f, s)| {
-            let map = f.generate(s, height);
-            let path = dir.join(format!("{}_{s}.exr", f.name()));
-            crate::io::write_env_exr(&path, &map)?;
-            Ok((path, thumbnail(&map, 64)))
-        })
-        .collect();
-    let mut paths = Vec::new();
-    let mut tiles = Vec::new();
-    for r in results {
-        let (p, t) = r?;
-        paths.push(p);
-        tiles.push(t);
-    }
-    let sheet = dir.join("envmaps.png");
-    crate::io::write_contact_sheet(&sheet, &tiles, 128, 64, count.max(1))?;
-    paths.push(sheet);
-    Ok(paths)
 }

@@ -76,6 +76,43 @@ impl Mesh {
     }
 }
 
+impl Mesh {
+    /// Writes the mesh as OBJ with per-corner normals, one `usemtl` run per region, and a
+    /// matching `.mtl` beside it (region colours from `palette`, cycled). Both files atomically.
+    pub fn write_obj(&self, path: &Path, palette: &[[f32; 3]]) -> anyhow::Result<()> {
+        use std::fmt::Write as _;
+        let mtl = path.with_extension("mtl");
+        let mtl_name = mtl
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let mut obj = format!("# {}\nmtllib {mtl_name}\n", self.source);
+        for p in &self.positions {
+            let _ = writeln!(obj, "v {} {} {}", p.x, p.y, p.z);
+        }
+        for n in self.corner_normals.iter().flatten() {
+            let _ = writeln!(obj, "vn {} {} {}", n.x, n.y, n.z);
+        }
+        for (region, name) in self.regions.iter().enumerate() {
+            let _ = writeln!(obj, "o {name}\nusemtl {name}");
+            for (t, tri) in self.triangles.iter().enumerate() {
+                if self.triangle_region[t] as usize == region {
+                    let [a, b, c] = tri.map(|i| i + 1);
+                    let n = 3 * t + 1;
+                    let _ = writeln!(obj, "f {a}//{n} {b}//{} {c}//{}", n + 1, n + 2);
+                }
+            }
+        }
+        let mut m = String::new();
+        for (k, name) in self.regions.iter().enumerate() {
+            let c = palette.get(k % palette.len().max(1)).copied().unwrap_or([0.8; 3]);
+            let _ = writeln!(m, "newmtl {name}\nKd {} {} {}\n", c[0], c[1], c[2]);
+        }
+        crate::io::write_atomically(&mtl, |tmp| Ok(std::fs::write(tmp, m)?))?;
+        crate::io::write_atomically(path, |tmp| Ok(std::fs::write(tmp, obj)?))
+    }
+}
+
 /// tobj reports what failed but not where: find the first line of that kind that does not parse.
 fn locate_error(path: &Path, e: &tobj::LoadError) -> Option<(usize, String)> {
     use tobj::LoadError as E;
@@ -165,6 +202,38 @@ mod tests {
         );
         let m = Mesh::from_obj(&p).unwrap();
         assert_eq!(m.regions, vec!["left".to_string(), "right".to_string()]);
+    }
+
+    #[test]
+    fn written_obj_files_load_back_with_their_regions() {
+        let m = crate::shapes::procedural::Category::Chair.generate(4);
+        let dir = std::env::temp_dir().join(format!("matedit-obj-{}", std::process::id()));
+        let p = dir.join("chair.obj");
+        m.write_obj(&p, &[[0.5, 0.6, 0.8], [0.9, 0.5, 0.2]]).unwrap();
+        let back = Mesh::from_obj(&p).unwrap();
+        assert_eq!(back.regions, m.regions);
+        assert_eq!(back.triangles.len(), m.triangles.len());
+        assert_eq!(back.normals_computed, 0);
+        let count = |mesh: &Mesh, r| mesh.triangle_region.iter().filter(|&&x| x == r).count();
+        assert_eq!(count(&back, 1), count(&m, 1));
+        // tobj re-indexes vertices per object, so compare order-free properties: area per region
+        // and the bounding box.
+        let area = |mesh: &Mesh, r: u32| -> f32 {
+            mesh.triangles
+                .iter()
+                .zip(&mesh.triangle_region)
+                .filter(|(_, x)| **x == r)
+                .map(|(t, _)| {
+                    let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+                    (b - a).cross(c - a).length() / 2.0
+                })
+                .sum()
+        };
+        for r in 0..2 {
+            assert!((area(&back, r) - area(&m, r)).abs() < 1e-4 * area(&m, r), "region {r}");
+        }
+        let bbox = |mesh: &Mesh| mesh.positions.iter().fold(glam::Vec3::ZERO, |a, p| a.max(p.abs()));
+        assert!((bbox(&back) - bbox(&m)).length() < 1e-5);
     }
 
     #[test]
