@@ -16,5 +16,6 @@ pub mod accel;
 pub mod assets;
 pub mod gbuffer;
 pub mod io;
+pub mod materials;
 pub mod render;
 pub mod shapes;

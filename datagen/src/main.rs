@@ -25,6 +25,15 @@ struct Cli {
 enum Command {
     /// Render one object under an environment map (preview and check renderer).
     Render(RenderArgs),
+    /// Fit the 108-parameter DSBRDF to a BRDF (analytic, dsbrdf or merl) and report the error.
+    Fit {
+        /// The source: lambert:R,G,B | ggx:ALPHA:F0R,F0G,F0B | plastic:ALPHA:R,G,B | dsbrdf:PATH | merl:PATH.
+        #[arg(long)]
+        brdf: BrdfSpec,
+        /// Output material file (JSON); the report goes beside it as FILE.fit.json.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Generate the embedded procedural assets as files, with contact sheets.
     #[command(subcommand)]
     Assets(AssetsCommand),
@@ -62,6 +71,33 @@ enum AssetsCommand {
         #[arg(long, default_value_t = 256)]
         height: usize,
     },
+}
+
+fn run_fit(spec: BrdfSpec, out: PathBuf) -> Result<()> {
+    let source = spec.build()?;
+    let t = std::time::Instant::now();
+    let (m, report) = matedit_datagen::materials::fit::fit_and_report(&source);
+    let rendered: Vec<String> = report
+        .rendered
+        .iter()
+        .map(|(e, v)| format!("{e} {:.2}%", 100.0 * v))
+        .collect();
+    eprintln!(
+        "fit in {:.1} s: BRDF-space log RMSE {:.4}; rendered relative RMSE: {}",
+        t.elapsed().as_secs_f64(),
+        report.brdf_log_rmse,
+        rendered.join(", ")
+    );
+    matedit_datagen::io::write_atomically(&out, |tmp| Ok(std::fs::write(tmp, m.to_json())?))?;
+    let json = serde_json::json!({
+        "source": format!("{spec:?}"),
+        "brdf_log_rmse": report.brdf_log_rmse,
+        "rendered_rel_rmse": report.rendered.iter().map(|(e, v)| (e.clone(), *v)).collect::<std::collections::BTreeMap<_, _>>(),
+    });
+    let report_path = out.with_extension("fit.json");
+    matedit_datagen::io::write_atomically(&report_path, |tmp| Ok(std::fs::write(tmp, format!("{json:#}\n"))?))?;
+    eprintln!("wrote {} and {}", out.display(), report_path.display());
+    Ok(())
 }
 
 fn run_assets(c: AssetsCommand) -> Result<()> {
@@ -225,6 +261,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Render(a) => run_render(a),
         Command::Assets(c) => run_assets(c),
+        Command::Fit { brdf, out } => run_fit(brdf, out),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

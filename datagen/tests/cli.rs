@@ -267,3 +267,24 @@ fn assets_shapes_writes_region_tagged_objs_that_render() {
         .unwrap();
     assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown category"));
 }
+
+#[test]
+fn fit_writes_a_renderable_material_and_a_report() {
+    let d = scratch("fit");
+    let out = datagen()
+        .args(["fit", "--brdf", "plastic:0.3:0.6,0.2,0.1", "--out"])
+        .arg(d.join("m.json"))
+        .output()
+        .unwrap();
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{log}");
+    assert!(log.contains("rendered relative RMSE"), "{log}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("m.fit.json")).unwrap()).unwrap();
+    for env in ["sunsky:1", "softbox:2", "window:3"] {
+        let e = report["rendered_rel_rmse"][env].as_f64().unwrap();
+        assert!(e < 0.12, "{env}: {e}");
+    }
+    let m = matedit_physics::brdf::Dsbrdf::load(&d.join("m.json")).unwrap();
+    assert!(m.params().iter().all(|v| v.is_finite()));
+}
