@@ -27,7 +27,7 @@ enum Command {
     Render(RenderArgs),
     /// Fit the 108-parameter DSBRDF to a BRDF (analytic, dsbrdf or merl) and report the error.
     Fit {
-        /// The source: lambert:R,G,B | ggx:ALPHA:F0R,F0G,F0B | plastic:ALPHA:R,G,B | dsbrdf:PATH | merl:PATH.
+        /// The source: lambert:R,G,B | ggx:ALPHA:F0R,F0G,F0B | plastic:ALPHA:R,G,B | dsbrdf:PATH | merl:PATH | library:NAME.
         #[arg(long)]
         brdf: BrdfSpec,
         /// Output material file (JSON); the report goes beside it as FILE.fit.json.
@@ -41,6 +41,28 @@ enum Command {
 
 #[derive(Subcommand)]
 enum AssetsCommand {
+    /// The material library: fit every material's DSBRDF (cached; refitted only when its source
+    /// changes) and write DIR/report.md with every fit's errors.
+    Materials {
+        /// Cache and report directory (default: $MATEDIT_MATERIALS or out/materials).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Only list the materials (name, family, group, split) and exit.
+        #[arg(long)]
+        list: bool,
+    },
+    /// List the shapes of a source with their stable ids (id, category, path), sorted by id.
+    ListShapes {
+        /// A ShapeNet v2 tree (<synset>/<model_id>/models/model_normalized.obj).
+        #[arg(long, conflicts_with = "folder")]
+        shapenet: Option<PathBuf>,
+        /// A folder of OBJ files (searched recursively).
+        #[arg(long)]
+        folder: Option<PathBuf>,
+        /// Only this category (car, chair, sofa, monitor); for a folder, the category it holds.
+        #[arg(long)]
+        category: Option<matedit_datagen::shapes::procedural::Category>,
+    },
     /// Procedural shapes: COUNT seeds of each category (car, chair, sofa, monitor) as OBJ + MTL
     /// (one material per semantic region), plus shapes.png, a contact sheet with both regions
     /// coloured (one row per category).
@@ -74,7 +96,7 @@ enum AssetsCommand {
 }
 
 fn run_fit(spec: BrdfSpec, out: PathBuf) -> Result<()> {
-    let source = spec.build()?;
+    let source = matedit_datagen::materials::cache::resolve(&spec, &matedit_datagen::materials::cache::default_dir())?;
     let t = std::time::Instant::now();
     let (m, report) = matedit_datagen::materials::fit::fit_and_report(&source);
     let rendered: Vec<String> = report
@@ -102,6 +124,58 @@ fn run_fit(spec: BrdfSpec, out: PathBuf) -> Result<()> {
 
 fn run_assets(c: AssetsCommand) -> Result<()> {
     match c {
+        AssetsCommand::ListShapes {
+            shapenet,
+            folder,
+            category,
+        } => {
+            use matedit_datagen::shapes::sources;
+            let entries = match (shapenet, folder) {
+                (Some(root), _) => sources::shapenet(&root, category.as_slice())?,
+                (None, Some(dir)) => sources::folder(&dir, category)?,
+                (None, None) => anyhow::bail!("give --shapenet DIR or --folder DIR"),
+            };
+            for e in &entries {
+                println!("{}\t{}\t{}", e.id, e.category.map_or("-", |c| c.name()), e.spec);
+            }
+            eprintln!("{} shapes", entries.len());
+        }
+        AssetsCommand::Materials { out, list } => {
+            use matedit_datagen::materials::{cache, library};
+            if list {
+                for m in library::library() {
+                    println!("{}\t{}\t{}\t{:?}", m.name, m.family, m.group, m.split());
+                }
+                return Ok(());
+            }
+            let dir = out.unwrap_or_else(cache::default_dir);
+            let lib = library::library();
+            let bar = if std::io::stderr().is_terminal() {
+                indicatif::ProgressBar::new(lib.len() as u64)
+            } else {
+                indicatif::ProgressBar::hidden()
+            };
+            bar.set_style(
+                indicatif::ProgressStyle::with_template("fitting [{bar:40}] {pos}/{len}, ETA {eta}")
+                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            );
+            let (records, fitted) = cache::fit_library(&dir, &|| bar.inc(1))?;
+            bar.finish_and_clear();
+            let report = cache::write_report(&dir, &records)?;
+            let mut all: Vec<f64> = records
+                .iter()
+                .flat_map(|r| r.rendered_rel_rmse.values().copied())
+                .collect();
+            all.sort_by(|a, b| a.total_cmp(b));
+            eprintln!(
+                "{} materials ({} fitted now, {} cached); median rendered error {:.2} %; report {}",
+                records.len(),
+                fitted,
+                records.len() - fitted,
+                100.0 * all.get(all.len() / 2).copied().unwrap_or(0.0),
+                report.display()
+            );
+        }
         AssetsCommand::Shapes { out, count, seed } => {
             let paths = matedit_datagen::assets::shapes::write_category_set(&out, count, seed)?;
             eprintln!(
@@ -146,7 +220,8 @@ struct RenderArgs {
     /// Which axis of the mesh file points up (x, -x, y, -y, z, -z); it becomes +y.
     #[arg(long, default_value = "y")]
     up: UpAxis,
-    /// Material: lambert:R,G,B | ggx:ALPHA:F0R,F0G,F0B | plastic:ALPHA:R,G,B | dsbrdf:PATH.
+    /// Material: lambert:R,G,B | ggx:ALPHA:F0R,F0G,F0B | plastic:ALPHA:R,G,B | dsbrdf:PATH | merl:PATH
+    /// | library:NAME (a library material's source BRDF) | fit:NAME (its fitted DSBRDF).
     #[arg(long)]
     brdf: BrdfSpec,
     /// Environment map: a .hdr or .exr file, or builtin:sky | builtin:studio | builtin:constant:V.

@@ -137,7 +137,7 @@ pub fn render(opts: &RenderOptions) -> Result<Rendered> {
         bail!("--env-rotation must be finite");
     }
     let t0 = Instant::now();
-    let brdf = opts.brdf.build()?;
+    let brdf = crate::materials::cache::resolve(&opts.brdf, &crate::materials::cache::default_dir())?;
     let (src, env_source) = load_env(&opts.env)?;
     let rows = match opts.env_res {
         EnvRes::Full => src.height(),

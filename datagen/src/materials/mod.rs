@@ -1,4 +1,7 @@
-//! Materials for the dataset: fitting the paper's 108-parameter DSBRDF to any BRDF (analytic,
-//! tabulated or measured), with errors reported in BRDF space and in rendered images.
+//! Materials for the dataset: the named library, fitting the paper's 108-parameter DSBRDF to any
+//! BRDF (analytic, tabulated or measured) with errors in BRDF space and in rendered images, and
+//! the on-disk cache of fits.
 
+pub mod cache;
 pub mod fit;
+pub mod library;

@@ -3,6 +3,7 @@
 mod mesh;
 mod obj;
 pub mod procedural;
+pub mod sources;
 
 pub use mesh::{Mesh, MeshError, UpAxis};
 

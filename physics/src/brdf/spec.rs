@@ -1,5 +1,5 @@
 //! The `--brdf SPEC` strings: `lambert:R,G,B`, `ggx:ALPHA:F0R,F0G,F0B`, `plastic:ALPHA:R,G,B`,
-//! `dsbrdf:PATH`, `merl:PATH`.
+//! `dsbrdf:PATH`, `merl:PATH`, `library:NAME`, `fit:NAME`.
 
 use super::{BrdfModel, Dsbrdf, Fresnel, Ggx, Lambert, Plastic, dsbrdf::DsbrdfError};
 use std::path::PathBuf;
@@ -27,6 +27,10 @@ pub enum BrdfSpec {
     Dsbrdf(PathBuf),
     /// `merl:PATH`: a measured MERL `.binary` file.
     Merl(PathBuf),
+    /// `library:NAME`: a material of the dataset factory's library, with its source BRDF.
+    Library(String),
+    /// `fit:NAME`: the fitted DSBRDF of a library material.
+    Fit(String),
 }
 
 /// A `--brdf` string that cannot be used.
@@ -48,6 +52,9 @@ pub enum SpecError {
     /// The MERL file could not be loaded.
     #[error(transparent)]
     Merl(#[from] super::merl::MerlError),
+    /// `library:`/`fit:` names are resolved by the dataset factory, which owns the library.
+    #[error("{0}: library materials are resolved by matedit-datagen (materials::resolve)")]
+    NeedsLibrary(String),
 }
 
 impl std::str::FromStr for BrdfSpec {
@@ -96,6 +103,9 @@ impl std::str::FromStr for BrdfSpec {
             "dsbrdf" => Err(bad("missing material file path".into())),
             "merl" if !rest.is_empty() => Ok(BrdfSpec::Merl(PathBuf::from(rest))),
             "merl" => Err(bad("missing MERL file path".into())),
+            "library" if !rest.is_empty() => Ok(BrdfSpec::Library(rest.to_string())),
+            "fit" if !rest.is_empty() => Ok(BrdfSpec::Fit(rest.to_string())),
+            "library" | "fit" => Err(bad("missing material name".into())),
             other => Err(bad(format!("unknown model {other:?}"))),
         }
     }
@@ -109,6 +119,8 @@ impl BrdfSpec {
             BrdfSpec::Ggx { alpha, f0 } => BrdfModel::Ggx(Ggx::new(*alpha, Fresnel::Schlick(*f0))),
             BrdfSpec::Plastic { alpha, albedo } => BrdfModel::Plastic(Plastic::new(*alpha, *albedo)),
             BrdfSpec::Dsbrdf(path) => BrdfModel::Dsbrdf(Box::new(Dsbrdf::load(path)?)),
+            BrdfSpec::Library(n) => return Err(SpecError::NeedsLibrary(format!("library:{n}"))),
+            BrdfSpec::Fit(n) => return Err(SpecError::NeedsLibrary(format!("fit:{n}"))),
             BrdfSpec::Merl(path) => BrdfModel::Measured(std::sync::Arc::new(super::MerlBrdf::read(path)?)),
         })
     }
