@@ -12,7 +12,7 @@
 
 use super::procedural::Category;
 use anyhow::{Context, Result, bail};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// ShapeNet synset ids of the paper's four categories.
 pub const SHAPENET_SYNSETS: [(Category, &str); 4] = [
@@ -121,7 +121,7 @@ pub fn procedural(category: Category, first: u64, count: usize) -> Vec<ShapeEntr
         .collect()
 }
 
-fn path_spec(p: &PathBuf) -> Result<String> {
+fn path_spec(p: &Path) -> Result<String> {
     p.to_str()
         .map(str::to_string)
         .with_context(|| format!("{} is not valid UTF-8", p.display()))
