@@ -237,6 +237,40 @@ mod tests {
     }
 
     #[test]
+    fn a_broken_mtl_falls_back_to_object_names() {
+        let p = write(
+            "brokenmtl.obj",
+            "mtllib broken.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\no part\nusemtl a\nf 1 2 3\n",
+        );
+        write("broken.mtl", "newmtl a\nKd not numbers at all\n\u{0}\u{1}garbage\n");
+        let m = Mesh::from_obj(&p).unwrap();
+        assert_eq!(m.triangles.len(), 1);
+        assert_eq!(m.regions.len(), 1);
+    }
+
+    #[test]
+    fn huge_and_tiny_scales_normalise_to_the_unit_ball() {
+        for scale in [1e-6_f32, 1e6] {
+            let text = format!(
+                "v {} 0 0\nv {} 0 0\nv 0 {} 0\nv 0 0 {}\nf 1 2 3\nf 1 3 4\n",
+                7.0 * scale,
+                9.0 * scale,
+                scale,
+                scale
+            );
+            let m = Mesh::from_obj(&write("scaled.obj", &text)).unwrap();
+            let r = m.positions.iter().map(|p| p.length()).fold(0.0, f32::max);
+            assert!((r - 1.0).abs() < 1e-5, "scale {scale}: radius {r}");
+            assert!(
+                m.corner_normals
+                    .iter()
+                    .flatten()
+                    .all(|n| (n.length() - 1.0).abs() < 1e-5)
+            );
+        }
+    }
+
+    #[test]
     fn parse_errors_name_the_line() {
         let p = write(
             "badvn.obj",
