@@ -11,22 +11,6 @@ use matedit_physics::brdf::{BrdfModel, Dsbrdf, Fresnel, Ggx, Lambert, Plastic};
 use matedit_physics::shading::{Quality, make_shader, shade_image};
 use std::time::Instant;
 
-fn sphere(res: usize) -> (Vec<[f32; 3]>, Vec<f32>) {
-    let mut n = vec![[0.0; 3]; res * res];
-    let mut m = vec![0.0; res * res];
-    for r in 0..res {
-        for c in 0..res {
-            let (x, y) = matedit_physics::camera::pixel_center(c, r, res);
-            let r2 = x * x + y * y;
-            if r2 < 1.0 {
-                n[r * res + c] = [x as f32, y as f32, (1.0 - r2).sqrt() as f32];
-                m[r * res + c] = 1.0;
-            }
-        }
-    }
-    (n, m)
-}
-
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(|a, b| a.total_cmp(b));
     v[v.len() / 2]
@@ -40,7 +24,7 @@ fn main() {
     let env = EnvMap::from_fn(rows, |d| {
         [(1.2 + d.x) as f32, (1.5 + d.y) as f32, (1.1 - 0.5 * d.z) as f32]
     });
-    let (normals, mask) = sphere(res);
+    let (normals, mask) = matedit_physics::camera::unit_sphere_normals(res);
     let covered = mask.iter().filter(|m| **m > 0.0).count();
     let brdfs = [
         (

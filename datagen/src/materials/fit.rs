@@ -231,16 +231,7 @@ pub fn rendered_errors(
     res: usize,
 ) -> Vec<(String, f64)> {
     use matedit_physics::shading::{Quality, make_shader, shade_image};
-    let mut normals = vec![[0.0_f32; 3]; res * res];
-    let mut mask = vec![0.0_f32; res * res];
-    for p in 0..res * res {
-        let (x, y) = matedit_physics::camera::pixel_center(p % res, p / res, res);
-        let r2 = x * x + y * y;
-        if r2 < 1.0 {
-            normals[p] = [x as f32, y as f32, (1.0 - r2).sqrt() as f32];
-            mask[p] = 1.0;
-        }
-    }
+    let (normals, mask) = matedit_physics::camera::unit_sphere_normals(res);
     let fit = BrdfModel::Dsbrdf(Box::new(fit.clone()));
     envs.iter()
         .map(|(name, env)| {
