@@ -12,6 +12,8 @@
 //!
 //! The image formation itself (Eq. 2, BRDFs, environment maps) lives in `matedit-physics`.
 
+#![warn(missing_docs)]
+
 pub mod accel;
 pub mod assets;
 pub mod gbuffer;

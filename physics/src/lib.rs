@@ -21,6 +21,8 @@
 //!
 //! Every convention is written down in `docs/CONVENTIONS.md` and tested.
 
+#![warn(missing_docs)]
+
 pub mod brdf;
 pub mod camera;
 pub mod envmap;

@@ -5,4 +5,6 @@
 //! tanh range [−0.95, 0.95] (Sec. 3.2), and its outputs map back to raw, renderable materials.
 //! The Burn modules, the rendering layer and the training loop build on it.
 
+#![warn(missing_docs)]
+
 pub mod targets;
