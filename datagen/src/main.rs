@@ -67,32 +67,41 @@ enum AssetsCommand {
     /// (one material per semantic region), plus shapes.png, a contact sheet with both regions
     /// coloured (one row per category).
     Shapes {
-        /// Output directory.
-        #[arg(long)]
-        out: PathBuf,
-        /// Shapes per category.
-        #[arg(long, default_value_t = 4)]
-        count: usize,
-        /// First seed.
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
+        #[command(flatten)]
+        set: SeededSet,
     },
     /// Procedural environment maps: COUNT seeds of each family (sunsky, overcast, softbox,
     /// window) as EXR, plus envmaps.png, a tone-mapped contact sheet (one row per family).
     Envmaps {
-        /// Output directory.
-        #[arg(long)]
-        out: PathBuf,
-        /// Maps per family.
-        #[arg(long, default_value_t = 4)]
-        count: usize,
-        /// First seed.
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
+        #[command(flatten)]
+        set: SeededSet,
         /// Rows of each map (width is twice this).
         #[arg(long, default_value_t = 256)]
         height: usize,
     },
+}
+
+/// A set of seeded procedural assets: COUNT per kind from seed SEED, written to OUT.
+#[derive(clap::Args)]
+struct SeededSet {
+    /// Output directory.
+    #[arg(long)]
+    out: PathBuf,
+    /// Assets per category or family.
+    #[arg(long, default_value_t = 4)]
+    count: usize,
+    /// First seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+fn report_set(paths: &[PathBuf], out: &std::path::Path, sheet: &str) {
+    eprintln!(
+        "wrote {} files to {} (contact sheet: {})",
+        paths.len(),
+        out.display(),
+        out.join(sheet).display()
+    );
 }
 
 fn run_fit(spec: BrdfSpec, out: PathBuf) -> Result<()> {
@@ -162,45 +171,25 @@ fn run_assets(c: AssetsCommand) -> Result<()> {
             let (records, fitted) = cache::fit_library(&dir, &|| bar.inc(1))?;
             bar.finish_and_clear();
             let report = cache::write_report(&dir, &records)?;
-            let mut all: Vec<f64> = records
-                .iter()
-                .flat_map(|r| r.rendered_rel_rmse.values().copied())
-                .collect();
-            all.sort_by(|a, b| a.total_cmp(b));
             eprintln!(
                 "{} materials ({} fitted now, {} cached); median rendered error {:.2} %; report {}",
                 records.len(),
                 fitted,
                 records.len() - fitted,
-                100.0 * all.get(all.len() / 2).copied().unwrap_or(0.0),
+                100.0 * cache::median_rendered(&records),
                 report.display()
             );
         }
-        AssetsCommand::Shapes { out, count, seed } => {
-            let paths = matedit_datagen::assets::shapes::write_category_set(&out, count, seed)?;
-            eprintln!(
-                "wrote {} files to {} (contact sheet: {})",
-                paths.len(),
-                out.display(),
-                out.join("shapes.png").display()
-            );
+        AssetsCommand::Shapes { set } => {
+            let paths = matedit_datagen::assets::shapes::write_category_set(&set.out, set.count, set.seed)?;
+            report_set(&paths, &set.out, "shapes.png");
         }
-        AssetsCommand::Envmaps {
-            out,
-            count,
-            seed,
-            height,
-        } => {
+        AssetsCommand::Envmaps { set, height } => {
             if height == 0 || height > 8192 {
                 anyhow::bail!("--height {height}: expected 1 to 8192 rows");
             }
-            let paths = matedit_datagen::assets::envmaps::write_family_set(&out, count, seed, height)?;
-            eprintln!(
-                "wrote {} files to {} (contact sheet: {})",
-                paths.len(),
-                out.display(),
-                out.join("envmaps.png").display()
-            );
+            let paths = matedit_datagen::assets::envmaps::write_family_set(&set.out, set.count, set.seed, height)?;
+            report_set(&paths, &set.out, "envmaps.png");
         }
     }
     Ok(())

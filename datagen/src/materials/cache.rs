@@ -59,17 +59,23 @@ fn read_record(dir: &Path, name: &str) -> Option<FitRecord> {
     serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{name}.fit.json"))).ok()?).ok()
 }
 
-/// The cached fit of `m` if it is up to date.
-pub fn load_cached(dir: &Path, m: &LibraryMaterial) -> Option<Dsbrdf> {
+/// The cached record and fit of `m`, if both are there and up to date.
+fn cached(dir: &Path, m: &LibraryMaterial) -> Option<(FitRecord, Dsbrdf)> {
     let rec = read_record(dir, &m.name)?;
     if rec.fingerprint != fingerprint(m) {
         return None;
     }
-    Dsbrdf::load(&dir.join(format!("{}.dsbrdf.json", m.name))).ok()
+    let fit = Dsbrdf::load(&dir.join(format!("{}.dsbrdf.json", m.name))).ok()?;
+    Some((rec, fit))
+}
+
+/// The cached fit of `m` if it is up to date.
+pub fn load_cached(dir: &Path, m: &LibraryMaterial) -> Option<Dsbrdf> {
+    cached(dir, m).map(|(_, fit)| fit)
 }
 
 fn fit_one(dir: &Path, m: &LibraryMaterial) -> Result<(FitRecord, bool)> {
-    if let (Some(rec), Some(_)) = (read_record(dir, &m.name), load_cached(dir, m)) {
+    if let Some((rec, _)) = cached(dir, m) {
         return Ok((rec, false));
     }
     let source = m.spec.build().with_context(|| m.name.clone())?;
@@ -117,15 +123,20 @@ pub fn fit_library(dir: &Path, on_done: &(dyn Fn() + Sync)) -> Result<(Vec<FitRe
     Ok((records, fitted))
 }
 
-/// Writes `report.md`: every material's errors, the median and the worst cases.
-pub fn write_report(dir: &Path, records: &[FitRecord]) -> Result<PathBuf> {
-    use std::fmt::Write as _;
+/// Median rendered error over every (material, environment) pair.
+pub fn median_rendered(records: &[FitRecord]) -> f64 {
     let mut all: Vec<f64> = records
         .iter()
         .flat_map(|r| r.rendered_rel_rmse.values().copied())
         .collect();
     all.sort_by(|a, b| a.total_cmp(b));
-    let median = if all.is_empty() { 0.0 } else { all[all.len() / 2] };
+    all.get(all.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// Writes `report.md`: every material's errors, the median and the worst cases.
+pub fn write_report(dir: &Path, records: &[FitRecord]) -> Result<PathBuf> {
+    use std::fmt::Write as _;
+    let median = median_rendered(records);
     let envs: Vec<String> = records
         .first()
         .map(|r| r.rendered_rel_rmse.keys().cloned().collect())

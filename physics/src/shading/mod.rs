@@ -81,9 +81,13 @@ pub trait Shader: Send + Sync {
 /// Builds the shader of the requested quality.
 /// Measured (tabulated) BRDFs always use the exact path.
 pub fn make_shader(brdf: &BrdfModel, env: &EnvMap, quality: Quality) -> Box<dyn Shader> {
-    match (quality, fast::FastShader::new(brdf, env)) {
-        (Quality::Fast, Some(fast)) => Box::new(fast),
-        _ => Box::new(exact::ExactShader::new(brdf.clone(), env)),
+    let fast = match quality {
+        Quality::Fast => fast::FastShader::new(brdf, env),
+        Quality::Exact => None,
+    };
+    match fast {
+        Some(fast) => Box::new(fast),
+        None => Box::new(exact::ExactShader::new(brdf.clone(), env)),
     }
 }
 
