@@ -3,7 +3,7 @@
 
 use crate::accel::Scene;
 use crate::shapes::{Mesh, Shape};
-use glam::Vec3;
+use glam::{Mat3, Vec3};
 use matedit_physics::camera::pixel_center;
 use rayon::prelude::*;
 
@@ -30,6 +30,13 @@ const CAMERA_Z: f32 = 2.0;
 impl GBuffer {
     /// Traces the pixel centres against `shape`.
     pub fn trace(shape: &Shape, scene: Option<&Scene>, res: usize) -> GBuffer {
+        Self::trace_rotated(shape, scene, res, Mat3::IDENTITY)
+    }
+
+    /// Traces the pixel centres against `shape` turned by `rotation` (object → camera space),
+    /// without moving the mesh: rays go into object space and normals come back, so one BVH
+    /// serves every view of a shape.
+    pub fn trace_rotated(shape: &Shape, scene: Option<&Scene>, res: usize, rotation: Mat3) -> GBuffer {
         let px: Vec<_> = (0..res * res)
             .into_par_iter()
             .map(|p| {
@@ -37,7 +44,7 @@ impl GBuffer {
                 let (x, y) = (x as f32, y as f32);
                 match (shape, scene) {
                     (Shape::Sphere, _) => sphere_pixel(x, y),
-                    (Shape::Mesh(mesh), Some(scene)) => mesh_pixel(mesh, scene, x, y),
+                    (Shape::Mesh(mesh), Some(scene)) => mesh_pixel(mesh, scene, x, y, rotation),
                     (Shape::Mesh(_), None) => None,
                 }
             })
@@ -81,19 +88,20 @@ fn sphere_pixel(x: f32, y: f32) -> PixelHit {
     Some((n, n, n, 0))
 }
 
-fn mesh_pixel(mesh: &Mesh, scene: &Scene, x: f32, y: f32) -> PixelHit {
-    let hit = scene.intersect(Vec3::new(x, y, CAMERA_Z), Vec3::NEG_Z, 0.0)?;
+fn mesh_pixel(mesh: &Mesh, scene: &Scene, x: f32, y: f32, rotation: Mat3) -> PixelHit {
+    let to_object = rotation.transpose();
+    let hit = scene.intersect(to_object * Vec3::new(x, y, CAMERA_Z), to_object * Vec3::NEG_Z, 0.0)?;
     let tri = mesh.triangles[hit.triangle as usize];
     let [a, b, c] = tri.map(|i| mesh.positions[i as usize]);
     let pos = Vec3::new(x, y, CAMERA_Z - hit.t);
     // Meshes are two-sided: a back face seen by the camera is shaded as its front.
-    let mut ng = (b - a).cross(c - a).normalize_or_zero();
+    let mut ng = (rotation * (b - a).cross(c - a)).normalize_or_zero();
     if ng.z < 0.0 {
         ng = -ng;
     }
     let [n0, n1, n2] = mesh.corner_normals[hit.triangle as usize];
     let w0 = 1.0 - hit.u - hit.v;
-    let mut ns = (n0 * w0 + n1 * hit.u + n2 * hit.v).normalize_or_zero();
+    let mut ns = (rotation * (n0 * w0 + n1 * hit.u + n2 * hit.v)).normalize_or_zero();
     // File normals may be wound opposite to the faces; keep them on the camera's side.
     if ns.dot(ng) < 0.0 {
         ns = -ns;

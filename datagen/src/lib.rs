@@ -8,7 +8,8 @@
 //! * [`gbuffer`]: per-pixel camera-space normals, mask and hit points of the orthographic view;
 //! * [`assets`]: embedded default data (procedural environment maps);
 //! * [`io`]: environment-map loading (.hdr, .exr), EXR and PNG writing, all writes atomic;
-//! * [`render`]: the one-scene preview renderer behind `datagen render`.
+//! * [`render`]: the one-scene preview renderer behind `datagen render`;
+//! * [`dataset`]: the manifest-driven dataset factory behind `datagen plan/run/verify/inspect/join`.
 //!
 //! The image formation itself (Eq. 2, BRDFs, environment maps) lives in `matedit-physics`.
 
@@ -16,6 +17,7 @@
 
 pub mod accel;
 pub mod assets;
+pub mod dataset;
 pub mod gbuffer;
 pub mod io;
 pub mod materials;

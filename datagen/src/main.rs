@@ -2,6 +2,7 @@
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
+use matedit_datagen::dataset::run::Worker;
 use matedit_datagen::render::{EnvRes, RenderOptions, Shadows, render};
 use matedit_datagen::shapes::UpAxis;
 use matedit_physics::BrdfSpec;
@@ -37,6 +38,68 @@ enum Command {
     /// Generate the embedded procedural assets as files, with contact sheets.
     #[command(subcommand)]
     Assets(AssetsCommand),
+    /// Check a manifest and print what it would produce: counts per split, disk and time
+    /// estimates. Renders nothing.
+    Plan {
+        /// The manifest (TOML).
+        manifest: PathBuf,
+    },
+    /// Render a manifest's dataset (resumable: a rerun continues where it stopped).
+    Run {
+        /// The manifest (TOML).
+        manifest: PathBuf,
+        /// Output directory (overrides the manifest's dataset.output).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Render only worker I of N's shards (for job arrays); then `datagen join`.
+        #[arg(long, default_value = "0/1")]
+        worker: Worker,
+    },
+    /// Join the shards of all workers into index.jsonl and dataset.json.
+    Join {
+        /// The dataset directory (holds plan.json).
+        dir: PathBuf,
+        /// Workers' output directories to gather shards from (when they did not share DIR).
+        #[arg(long, num_args = 1..)]
+        from: Vec<PathBuf>,
+    },
+    /// Check a dataset: checksums, schema, counts and split integrity (exit status 1 on any
+    /// problem, each named).
+    Verify {
+        /// The dataset directory.
+        dir: PathBuf,
+    },
+    /// Write a contact sheet of samples (I, O, normals, mask, regions, environment).
+    Inspect {
+        /// The dataset directory.
+        dir: PathBuf,
+        /// Output PNG (default DIR/inspect.png).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Number of samples (rows), spread over the index.
+        #[arg(long, default_value_t = 6)]
+        samples: usize,
+        /// Only samples of this split.
+        #[arg(long)]
+        split: Option<String>,
+    },
+    /// Speed against error of shading options on a manifest's own samples (nothing written).
+    Bench {
+        /// The manifest (TOML).
+        manifest: PathBuf,
+        /// Samples, spread over the plan.
+        #[arg(long, default_value_t = 8)]
+        samples: usize,
+        /// Reference the errors are measured against.
+        #[arg(long, default_value = "exact")]
+        reference: Quality,
+        /// Options to time, comma-separated.
+        #[arg(long, default_value = "lut,fast", value_delimiter = ',')]
+        options: Vec<Quality>,
+        /// Override the image side.
+        #[arg(long)]
+        res: Option<usize>,
+    },
 }
 
 #[derive(Subcommand)]
@@ -320,12 +383,172 @@ fn run_render(a: RenderArgs) -> Result<()> {
     Ok(())
 }
 
+mod dataset {
+    //! The dataset commands.
+    use super::*;
+    use matedit_datagen::dataset::{bench as b, inspect as ins, run as r, store, verify as v};
+
+    pub fn plan(manifest: &std::path::Path) -> Result<()> {
+        let l = r::load(manifest)?;
+        print!("{}", r::describe(&l));
+        Ok(())
+    }
+
+    pub fn run(manifest: &std::path::Path, out: Option<PathBuf>, worker: Worker) -> Result<()> {
+        let l = r::load(manifest)?;
+        for note in &l.plan.catalogue.substitutions {
+            eprintln!("note: {note}");
+        }
+        let opts = r::RunOptions {
+            out,
+            worker,
+            progress: std::io::stderr().is_terminal(),
+        };
+        let s = r::run(&l, &opts)?;
+        let rate = if s.render_s > 0.0 {
+            s.rendered_samples as f64 / s.render_s
+        } else {
+            0.0
+        };
+        eprintln!(
+            "{}: rendered {} shards ({} samples, {:.1} samples/s), {} already complete",
+            s.dir.display(),
+            s.rendered_shards,
+            s.rendered_samples,
+            rate,
+            s.resumed_shards
+        );
+        if s.joined {
+            eprintln!(
+                "wrote {} and {}",
+                s.dir.join("index.jsonl").display(),
+                s.dir.join("dataset.json").display()
+            );
+        } else {
+            eprintln!(
+                "worker {}/{} done; when every worker has finished: datagen join {}",
+                worker.index,
+                worker.count,
+                s.dir.display()
+            );
+        }
+        Ok(())
+    }
+
+    pub fn join(dir: &std::path::Path, from: &[PathBuf]) -> Result<()> {
+        let rec = store::join(dir, from, None)?;
+        let total: usize = rec.counts.values().sum();
+        eprintln!("{}: joined {total} samples ({:?})", dir.display(), rec.counts);
+        Ok(())
+    }
+
+    pub fn verify(dir: &std::path::Path) -> ExitCode {
+        match v::verify(dir) {
+            Ok(rep) => {
+                for p in &rep.problems {
+                    println!("{p}");
+                }
+                if rep.ok() {
+                    eprintln!(
+                        "{}: OK ({} samples, {} files checked)",
+                        dir.display(),
+                        rep.samples,
+                        rep.files
+                    );
+                    ExitCode::SUCCESS
+                } else {
+                    eprintln!("{}: {} problems", dir.display(), rep.problems.len());
+                    ExitCode::FAILURE
+                }
+            }
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
+            }
+        }
+    }
+
+    pub fn inspect(dir: &std::path::Path, out: Option<PathBuf>, samples: usize, split: Option<String>) -> Result<()> {
+        let out = out.unwrap_or_else(|| dir.join("inspect.png"));
+        let ids = ins::inspect(dir, &out, samples, split.as_deref())?;
+        eprintln!(
+            "wrote {} ({} samples: {}; columns: {})",
+            out.display(),
+            ids.len(),
+            ids.join(", "),
+            ins::COLUMNS.join(", ")
+        );
+        Ok(())
+    }
+
+    pub fn bench(
+        manifest: &std::path::Path,
+        samples: usize,
+        reference: Quality,
+        options: &[Quality],
+        res: Option<usize>,
+    ) -> Result<()> {
+        let mut l = r::load(manifest)?;
+        if let Some(res) = res {
+            l.plan.settings.resolution = res;
+        }
+        let dir = std::env::temp_dir().join(format!("matedit-bench-materials-{}", std::process::id()));
+        let materials = matedit_datagen::dataset::materials::prepare_all(
+            &dir,
+            &l.plan.catalogue.materials,
+            &matedit_datagen::dataset::materials::needed(&l.plan),
+            l.plan.settings.ground_truth,
+            &|| {},
+        )?;
+        let _ = std::fs::remove_dir_all(&dir);
+        let picks = b::spread(&l.plan, samples);
+        let rows = b::bench(&l.plan, &materials, &picks, reference, options)?;
+        println!(
+            "{} samples of {} at {}², {} threads, reference {reference:?}",
+            picks.len(),
+            manifest.display(),
+            l.plan.settings.resolution,
+            rayon::current_num_threads()
+        );
+        println!("| quality | samples/s | median rel. RMSE | max rel. RMSE | bytes/sample |");
+        println!("|---|---|---|---|---|");
+        for row in rows {
+            println!(
+                "| {:?} | {:.2} | {:.3} % | {:.3} % | {:.0} |",
+                row.quality,
+                row.samples_per_s,
+                100.0 * row.median_rel_rmse,
+                100.0 * row.max_rel_rmse,
+                row.bytes_per_sample
+            );
+        }
+        Ok(())
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(a) => run_render(a),
         Command::Assets(c) => run_assets(c),
         Command::Fit { brdf, out } => run_fit(brdf, out),
+        Command::Plan { manifest } => dataset::plan(&manifest),
+        Command::Run { manifest, out, worker } => dataset::run(&manifest, out, worker),
+        Command::Join { dir, from } => dataset::join(&dir, &from),
+        Command::Verify { dir } => return dataset::verify(&dir),
+        Command::Inspect {
+            dir,
+            out,
+            samples,
+            split,
+        } => dataset::inspect(&dir, out, samples, split),
+        Command::Bench {
+            manifest,
+            samples,
+            reference,
+            options,
+            res,
+        } => dataset::bench(&manifest, samples, reference, &options, res),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

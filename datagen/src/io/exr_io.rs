@@ -11,15 +11,22 @@ use std::path::Path;
 /// atomically. Names with a dot (`normal.X`) are layer-qualified, as tools such as Blender and
 /// OpenImageIO expect.
 pub fn write_exr_channels(path: &Path, width: usize, height: usize, channels: Vec<(&str, Vec<f32>)>) -> Result<()> {
+    let bytes = encode_exr_channels(width, height, channels)
+        .with_context(|| format!("refusing to write {}", path.display()))?;
+    write_atomically(path, |tmp| {
+        std::fs::write(tmp, &bytes).with_context(|| format!("cannot write {}", path.display()))
+    })
+}
+
+/// Encodes one EXR part in memory (see [`write_exr_channels`]). Non-finite samples and
+/// channels of the wrong length are errors. The bytes depend only on the data.
+pub fn encode_exr_channels(width: usize, height: usize, channels: Vec<(&str, Vec<f32>)>) -> Result<Vec<u8>> {
     for (name, data) in &channels {
         if data.len() != width * height {
             bail!("channel {name}: {} samples for a {width}×{height} image", data.len());
         }
         if let Some(i) = data.iter().position(|v| !v.is_finite()) {
-            bail!(
-                "channel {name}: sample {i} is not finite; refusing to write {}",
-                path.display()
-            );
+            bail!("channel {name}: sample {i} is not finite");
         }
     }
     let list: Vec<AnyChannel<FlatSamples>> = channels
@@ -33,12 +40,9 @@ pub fn write_exr_channels(path: &Path, width: usize, height: usize, channels: Ve
         AnyChannels::sort(SmallVec::from_vec(list)),
     );
     let image = Image::from_layer(layer);
-    write_atomically(path, |tmp| {
-        image
-            .write()
-            .to_file(tmp)
-            .with_context(|| format!("cannot write {}", path.display()))
-    })
+    let mut buf = std::io::Cursor::new(Vec::new());
+    image.write().to_buffered(&mut buf).context("EXR encoding failed")?;
+    Ok(buf.into_inner())
 }
 
 /// Writes an environment map as an RGB EXR.

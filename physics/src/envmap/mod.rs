@@ -7,6 +7,9 @@
 //! sum to 4π.
 
 mod resample;
+mod rotate;
+
+pub use rotate::SUBSAMPLES as ROTATION_SUBSAMPLES;
 
 use glam::DVec3;
 use std::f64::consts::PI;

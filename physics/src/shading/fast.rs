@@ -17,6 +17,9 @@ use std::f64::consts::PI;
 
 const LANES: usize = 8;
 
+/// ln of the lobe value cos^γ θ_h below which a DSBRDF lobe is skipped for a block of texels.
+const SKIP_LOG_LOBE: f32 = -30.0;
+
 /// Per-texel data of a GGX lobe: half vector and L·dω·F/4 per channel.
 struct GgxTexels {
     a2: f32,
@@ -312,6 +315,9 @@ impl FastShader {
             for l in 0..LANES {
                 ci[l] = if ci[l] > 0.0 { ci[l] * v[l] } else { 0.0 };
             }
+            if ci.iter().all(|&c| c == 0.0) {
+                continue;
+            }
             if DIFFUSE {
                 for (acc, w) in acc.iter_mut().zip(diffuse) {
                     let w = lanes(w, b);
@@ -358,10 +364,24 @@ impl FastShader {
                 lc[l] = fastmath::ln_1m(omc[l]);
                 wt[l] = if ci[l] > 0.0 { ci[l] * v[l] } else { 0.0 };
             }
+            // Eight texels behind the surface (or shadowed) add exactly nothing.
+            if wt.iter().all(|&w| w == 0.0) {
+                continue;
+            }
             for (c, acc) in acc.iter_mut().enumerate() {
                 let mut rho = [0.0_f32; LANES];
                 for k in 0..3 {
                     let (kap, gam) = (lanes(&s.kappa[c * 3 + k], b), lanes(&s.gamma[c * 3 + k], b));
+                    // A lobe whose cos^γ is below e^−30 on all eight texels contributes at most
+                    // κ·e^−30 ≤ 2e-12 of L·dω: skip its exp and expm1 (the dominant cost; most
+                    // texels lie far outside a sharp lobe).
+                    let mut top = f32::MIN;
+                    for l in 0..LANES {
+                        top = top.max(gam[l] * lc[l]);
+                    }
+                    if top < SKIP_LOG_LOBE {
+                        continue;
+                    }
                     for l in 0..LANES {
                         // cos^γ, computed unconditionally (so the loop stays branch-free), then
                         // zeroed at cos θ_h = 0 where ln's floor would give a wrong limit.

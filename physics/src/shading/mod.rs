@@ -9,10 +9,14 @@
 //!   Fresnel term and the DSBRDF lobe parameters depend on the texel only, so they are computed
 //!   once per texel; per pixel only n·ω_i and n·h remain. Texels of zero radiance are dropped.
 //!
-//! Both apply the same [normal policy](shading_normal) and never return NaN or Inf.
+//! * [`lut`]: the fast path evaluated on a normal-space table and interpolated per pixel (valid
+//!   without shadows, where radiance depends on the normal alone).
+//!
+//! All apply the same [normal policy](shading_normal) and never return NaN or Inf.
 
 pub mod exact;
 pub mod fast;
+pub mod lut;
 
 use crate::{BrdfModel, EnvMap};
 use glam::DVec3;
@@ -55,6 +59,9 @@ pub enum Quality {
     /// `f32` vectorised ([`fast::FastShader`]).
     #[default]
     Fast,
+    /// Normal-space table over the fast path ([`lut`]); falls back to `Fast` where a table would
+    /// not save work or where shadows make radiance depend on more than the normal.
+    Lut,
 }
 
 impl std::str::FromStr for Quality {
@@ -63,7 +70,8 @@ impl std::str::FromStr for Quality {
         match s {
             "exact" => Ok(Quality::Exact),
             "fast" => Ok(Quality::Fast),
-            _ => Err(format!("quality {s:?}: expected exact or fast")),
+            "lut" => Ok(Quality::Lut),
+            _ => Err(format!("quality {s:?}: expected exact, fast or lut")),
         }
     }
 }
@@ -78,11 +86,11 @@ pub trait Shader: Send + Sync {
     fn shade(&self, n: [f32; 3], visibility: Option<&[f32]>) -> [f32; 3];
 }
 
-/// Builds the shader of the requested quality.
-/// Measured (tabulated) BRDFs always use the exact path.
+/// Builds a per-pixel shader of the requested quality (`Lut` gives its per-pixel equivalent,
+/// the fast shader). Measured (tabulated) BRDFs always use the exact path.
 pub fn make_shader(brdf: &BrdfModel, env: &EnvMap, quality: Quality) -> Box<dyn Shader> {
     let fast = match quality {
-        Quality::Fast => fast::FastShader::new(brdf, env),
+        Quality::Fast | Quality::Lut => fast::FastShader::new(brdf, env),
         Quality::Exact => None,
     };
     match fast {
@@ -137,6 +145,25 @@ pub fn shade_image(
         .collect();
     let bad = out.iter().map(|o| o.1).sum();
     (out.into_iter().map(|o| o.0).collect(), bad)
+}
+
+/// Shades an image with the requested quality: [`lut::shade_image_lut`] for `Lut` without
+/// visibility, otherwise [`make_shader`] and [`shade_image`]. Returns radiance and the number of
+/// non-finite values replaced.
+pub fn shade_with(
+    brdf: &BrdfModel,
+    env: &EnvMap,
+    quality: Quality,
+    normals: &[[f32; 3]],
+    mask: &[f32],
+    visibility: Option<&VisibilityFn<'_>>,
+) -> (Vec<[f32; 3]>, usize) {
+    if quality == Quality::Lut && visibility.is_none() {
+        let (rgb, bad, _) = lut::shade_image_lut(brdf, env, normals, mask);
+        return (rgb, bad);
+    }
+    let shader = make_shader(brdf, env, quality);
+    shade_image(shader.as_ref(), normals, mask, visibility)
 }
 
 #[cfg(test)]

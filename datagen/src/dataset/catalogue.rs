@@ -1,0 +1,676 @@
+//! The catalogue: every shape, material and environment a manifest's sources provide, each with
+//! a stable id, sorted by id. Ids name things inside their source, never where it is mounted,
+//! so two machines build identical datasets from the same manifest.
+
+use super::manifest::{EnvSourceToml, ManifestError, ManifestFile, MaterialSourceToml, ShapeSourceToml};
+use crate::assets::envmaps::Family;
+use crate::materials::library::library;
+use crate::shapes::UpAxis;
+use crate::shapes::procedural::Category;
+use crate::shapes::sources;
+use matedit_physics::BrdfSpec;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use toml::Spanned;
+
+/// A shape of the catalogue.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShapeItem {
+    /// Stable id (`procedural:car:3`, `folder:chairs/a`, `shapenet:SYNSET/ID`).
+    pub id: String,
+    /// Category name.
+    pub category: String,
+    /// What [`Shape::load`](crate::shapes::Shape::load) accepts.
+    pub spec: String,
+    /// Up axis of the file.
+    pub up: UpAxis,
+}
+
+/// Where a material's BRDF comes from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum MaterialSource {
+    /// An analytic library material.
+    Library(BrdfSpec),
+    /// A DSBRDF file (already the 108 parameters).
+    Dsbrdf(PathBuf),
+    /// A MERL measurement.
+    Merl(PathBuf),
+}
+
+/// A material of the catalogue.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MaterialItem {
+    /// Stable id (`library:gold-brushed`, `dsbrdf:NAME`, `merl:NAME`).
+    pub id: String,
+    /// Near-duplicate group: all members go to the same split.
+    pub group: String,
+    /// The source BRDF.
+    pub source: MaterialSource,
+}
+
+/// An environment of the catalogue.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EnvItem {
+    /// Stable id (`builtin:sunsky:3`, `file:NAME`).
+    pub id: String,
+    /// What [`load_env`](crate::io::load_env) accepts.
+    pub spec: String,
+}
+
+/// Everything the sources provide.
+#[derive(Clone, Debug, Default)]
+pub struct Catalogue {
+    /// Shapes, sorted by id.
+    pub shapes: Vec<ShapeItem>,
+    /// Materials, sorted by id.
+    pub materials: Vec<MaterialItem>,
+    /// Environments, sorted by id.
+    pub envs: Vec<EnvItem>,
+    /// Sources that were missing and replaced by embedded defaults (`if_missing`), as notes.
+    pub substitutions: Vec<String>,
+}
+
+impl Catalogue {
+    /// Lists every source of the manifest. Missing paths, unset variables, unknown names and
+    /// duplicate ids are errors naming the entry.
+    pub fn resolve(mf: &ManifestFile) -> Result<Catalogue, ManifestError> {
+        let mut cat = Catalogue::default();
+        for (i, entry) in mf.manifest.shapes.iter().enumerate() {
+            shapes_of(mf, &mut cat, i, entry)?;
+        }
+        for (i, entry) in mf.manifest.materials.iter().enumerate() {
+            materials_of(mf, &mut cat, i, entry)?;
+        }
+        for (i, entry) in mf.manifest.environments.iter().enumerate() {
+            envs_of(mf, &mut cat, i, entry)?;
+        }
+        let m = &mf.manifest;
+        dedup(mf, &mut cat.shapes, |s| &s.id, first_span(&m.shapes), "shapes")?;
+        dedup(mf, &mut cat.materials, |m| &m.id, first_span(&m.materials), "materials")?;
+        dedup(
+            mf,
+            &mut cat.envs,
+            |e| &e.id,
+            first_span(&m.environments),
+            "environments",
+        )?;
+        Ok(cat)
+    }
+}
+
+fn first_span<T>(list: &[Spanned<T>]) -> std::ops::Range<usize> {
+    list.first().map(|s| s.span()).unwrap_or(0..0)
+}
+
+fn dedup<T>(
+    mf: &ManifestFile,
+    items: &mut Vec<T>,
+    id: impl Fn(&T) -> &String,
+    span: std::ops::Range<usize>,
+    field: &str,
+) -> Result<(), ManifestError> {
+    items.sort_by(|a, b| id(a).cmp(id(b)));
+    for w in items.windows(2) {
+        if id(&w[0]) == id(&w[1]) {
+            return Err(mf.invalid(
+                span,
+                field,
+                format!(
+                    "{} is provided by two sources; each id must come from one source",
+                    id(&w[0])
+                ),
+            ));
+        }
+    }
+    if items.is_empty() {
+        return Err(mf.invalid(span, field, "the sources provide nothing"));
+    }
+    Ok(())
+}
+
+/// Resolves an entry's `path`: `Ok(Some)` when it exists, `Ok(None)` when it is missing and
+/// `if_missing` allows a substitute, an error otherwise.
+fn existing_path(
+    mf: &ManifestFile,
+    span: std::ops::Range<usize>,
+    field: &str,
+    path: Option<&String>,
+    if_missing: Option<&String>,
+    substitute: &str,
+) -> Result<Option<PathBuf>, ManifestError> {
+    let Some(written) = path else {
+        return Err(mf.invalid(span, &format!("{field}.path"), "this source needs a path"));
+    };
+    let allowed = match if_missing.map(String::as_str) {
+        None | Some("error") => false,
+        Some(s) if s == substitute => true,
+        Some(other) => {
+            return Err(mf.invalid(
+                span,
+                &format!("{field}.if_missing"),
+                format!("{other:?}: expected \"error\" or \"{substitute}\""),
+            ));
+        }
+    };
+    let resolved = match mf.resolve_path(written) {
+        Ok(p) if p.exists() => return Ok(Some(p)),
+        Ok(p) => format!("{} does not exist", p.display()),
+        Err(e) => e,
+    };
+    if allowed {
+        Ok(None)
+    } else {
+        Err(mf.invalid(
+            span,
+            &format!("{field}.path"),
+            format!("{resolved} (set if_missing = \"{substitute}\" to use the embedded defaults instead)"),
+        ))
+    }
+}
+
+fn not_for(
+    mf: &ManifestFile,
+    span: &std::ops::Range<usize>,
+    field: &str,
+    source: &str,
+    present: &[(&str, bool)],
+) -> Result<(), ManifestError> {
+    for (name, set) in present {
+        if *set {
+            return Err(mf.invalid(
+                span.clone(),
+                &format!("{field}.{name}"),
+                format!("not used by source = \"{source}\""),
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn category(
+    mf: &ManifestFile,
+    span: std::ops::Range<usize>,
+    field: &str,
+    name: &str,
+) -> Result<Category, ManifestError> {
+    name.parse::<Category>().map_err(|e| mf.invalid(span, field, e))
+}
+
+fn shapes_of(
+    mf: &ManifestFile,
+    cat: &mut Catalogue,
+    i: usize,
+    entry: &Spanned<ShapeSourceToml>,
+) -> Result<(), ManifestError> {
+    let span = entry.span();
+    let s = entry.get_ref();
+    let field = format!("shapes[{i}]");
+    let up: UpAxis = match &s.up {
+        Some(u) => u
+            .parse()
+            .map_err(|e: String| mf.invalid(span.clone(), &format!("{field}.up"), e))?,
+        None => UpAxis::PosY,
+    };
+    let procedural = |cat: &mut Catalogue, c: Category, first: u64, count: usize| {
+        for e in sources::procedural(c, first, count) {
+            cat.shapes.push(ShapeItem {
+                id: e.id,
+                category: c.name().into(),
+                spec: e.spec,
+                up: UpAxis::PosY,
+            });
+        }
+    };
+    match s.source.as_str() {
+        "procedural" => {
+            not_for(
+                mf,
+                &span,
+                &field,
+                "procedural",
+                &[
+                    ("path", s.path.is_some()),
+                    ("categories", s.categories.is_some()),
+                    ("if_missing", s.if_missing.is_some()),
+                    ("fallback_count", s.fallback_count.is_some()),
+                ],
+            )?;
+            let name = s
+                .category
+                .as_ref()
+                .ok_or_else(|| mf.invalid(span.clone(), &format!("{field}.category"), "required"))?;
+            let c = category(mf, span.clone(), &format!("{field}.category"), name)?;
+            let count = s
+                .count
+                .ok_or_else(|| mf.invalid(span.clone(), &format!("{field}.count"), "required"))?;
+            procedural(cat, c, s.first_seed.unwrap_or(0), count);
+        }
+        "folder" | "shapenet" => {
+            not_for(
+                mf,
+                &span,
+                &field,
+                &s.source,
+                &[("count", s.count.is_some()), ("first_seed", s.first_seed.is_some())],
+            )?;
+            let cats: Vec<Category> = if s.source == "folder" {
+                not_for(mf, &span, &field, "folder", &[("categories", s.categories.is_some())])?;
+                let name = s.category.as_ref().ok_or_else(|| {
+                    mf.invalid(
+                        span.clone(),
+                        &format!("{field}.category"),
+                        "required: the split counts shapes per category",
+                    )
+                })?;
+                vec![category(mf, span.clone(), &format!("{field}.category"), name)?]
+            } else {
+                not_for(mf, &span, &field, "shapenet", &[("category", s.category.is_some())])?;
+                match &s.categories {
+                    Some(list) => list
+                        .iter()
+                        .map(|n| category(mf, span.clone(), &format!("{field}.categories"), n))
+                        .collect::<Result<_, _>>()?,
+                    None => Category::ALL.to_vec(),
+                }
+            };
+            match existing_path(
+                mf,
+                span.clone(),
+                &field,
+                s.path.as_ref(),
+                s.if_missing.as_ref(),
+                "procedural",
+            )? {
+                Some(path) => {
+                    let found = if s.source == "folder" {
+                        sources::folder(&path, Some(cats[0]))
+                    } else {
+                        sources::shapenet(&path, &cats)
+                    }
+                    .map_err(|e| mf.invalid(span.clone(), &format!("{field}.path"), format!("{e:#}")))?;
+                    for e in found {
+                        let category = e.category.map(|c| c.name()).unwrap_or("uncategorised");
+                        cat.shapes.push(ShapeItem {
+                            id: e.id,
+                            category: category.into(),
+                            spec: e.spec,
+                            up,
+                        });
+                    }
+                }
+                None => {
+                    let n = s.fallback_count.ok_or_else(|| {
+                        mf.invalid(
+                            span.clone(),
+                            &format!("{field}.fallback_count"),
+                            "required with if_missing = \"procedural\"",
+                        )
+                    })?;
+                    for c in &cats {
+                        procedural(cat, *c, 0, n);
+                    }
+                    cat.substitutions.push(format!(
+                        "{field}: {} is missing; using {n} procedural shapes per category ({})",
+                        s.path.as_deref().unwrap_or(""),
+                        cats.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ")
+                    ));
+                }
+            }
+        }
+        other => {
+            return Err(mf.invalid(
+                span,
+                &format!("{field}.source"),
+                format!("{other:?}: expected procedural, folder or shapenet"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn library_items(names: Option<&Vec<String>>, families: Option<&Vec<String>>) -> Result<Vec<MaterialItem>, String> {
+    let lib = library();
+    let known_families: BTreeSet<&str> = lib.iter().map(|m| m.family).collect();
+    if let Some(fs) = families {
+        for f in fs {
+            if !known_families.contains(f.as_str()) {
+                return Err(format!(
+                    "unknown family {f:?} (known: {})",
+                    known_families.iter().copied().collect::<Vec<_>>().join(", ")
+                ));
+            }
+        }
+    }
+    if let Some(ns) = names {
+        for n in ns {
+            if n != "*" && !lib.iter().any(|m| &m.name == n) {
+                return Err(format!(
+                    "no library material {n:?} (list them with `datagen assets materials --list`)"
+                ));
+            }
+        }
+    }
+    let all = names.is_none() && families.is_none() || names.is_some_and(|n| n.iter().any(|x| x == "*"));
+    Ok(lib
+        .into_iter()
+        .filter(|m| {
+            all || names.is_some_and(|n| n.contains(&m.name))
+                || families.is_some_and(|f| f.iter().any(|x| x == m.family))
+        })
+        .map(|m| MaterialItem {
+            id: format!("library:{}", m.name),
+            group: format!("library:{}", m.group),
+            source: MaterialSource::Library(m.spec),
+        })
+        .collect())
+}
+
+/// MERL names differ by a trailing digit for near-duplicates (`blue-metallic-paint2`), so the
+/// group drops trailing digits.
+pub fn merl_group(name: &str) -> String {
+    format!("merl:{}", name.trim_end_matches(|c: char| c.is_ascii_digit()))
+}
+
+fn files_with(dir: &Path, suffix: &str) -> std::io::Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    if dir.is_file() {
+        out.push(dir.to_path_buf());
+        return Ok(out);
+    }
+    for e in std::fs::read_dir(dir)? {
+        let p = e?.path();
+        if p.is_file()
+            && p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.ends_with(suffix))
+        {
+            out.push(p);
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+fn stem(p: &Path, suffix: &str) -> String {
+    let n = p
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    n.strip_suffix(suffix).unwrap_or(&n).to_string()
+}
+
+fn materials_of(
+    mf: &ManifestFile,
+    cat: &mut Catalogue,
+    i: usize,
+    entry: &Spanned<MaterialSourceToml>,
+) -> Result<(), ManifestError> {
+    let span = entry.span();
+    let s = entry.get_ref();
+    let field = format!("materials[{i}]");
+    match s.source.as_str() {
+        "library" => {
+            not_for(
+                mf,
+                &span,
+                &field,
+                "library",
+                &[("path", s.path.is_some()), ("if_missing", s.if_missing.is_some())],
+            )?;
+            let items = library_items(s.names.as_ref(), s.families.as_ref())
+                .map_err(|e| mf.invalid(span.clone(), &format!("{field}.names"), e))?;
+            cat.materials.extend(items);
+        }
+        "dsbrdf" | "merl" => {
+            not_for(
+                mf,
+                &span,
+                &field,
+                &s.source,
+                &[("names", s.names.is_some()), ("families", s.families.is_some())],
+            )?;
+            let suffix = if s.source == "dsbrdf" {
+                ".dsbrdf.json"
+            } else {
+                ".binary"
+            };
+            match existing_path(
+                mf,
+                span.clone(),
+                &field,
+                s.path.as_ref(),
+                s.if_missing.as_ref(),
+                "library",
+            )? {
+                Some(path) => {
+                    let files = files_with(&path, suffix).map_err(|e| {
+                        mf.invalid(
+                            span.clone(),
+                            &format!("{field}.path"),
+                            format!("{}: {e}", path.display()),
+                        )
+                    })?;
+                    if files.is_empty() {
+                        return Err(mf.invalid(
+                            span,
+                            &format!("{field}.path"),
+                            format!("{} holds no *{suffix} file", path.display()),
+                        ));
+                    }
+                    for f in files {
+                        let name = stem(&f, suffix);
+                        let (id, group, source) = if s.source == "dsbrdf" {
+                            (
+                                format!("dsbrdf:{name}"),
+                                format!("dsbrdf:{name}"),
+                                MaterialSource::Dsbrdf(f),
+                            )
+                        } else {
+                            (format!("merl:{name}"), merl_group(&name), MaterialSource::Merl(f))
+                        };
+                        cat.materials.push(MaterialItem { id, group, source });
+                    }
+                }
+                None => {
+                    let items = library_items(None, None).map_err(|e| mf.invalid(span.clone(), &field, e))?;
+                    cat.substitutions.push(format!(
+                        "{field}: {} is missing; using the {} library materials",
+                        s.path.as_deref().unwrap_or(""),
+                        items.len()
+                    ));
+                    cat.materials.extend(items);
+                }
+            }
+        }
+        other => {
+            return Err(mf.invalid(
+                span,
+                &format!("{field}.source"),
+                format!("{other:?}: expected library, dsbrdf or merl"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn procedural_envs(family: &str, first: u64, count: usize) -> Result<Vec<EnvItem>, String> {
+    let families: Vec<Family> = if family == "all" {
+        Family::ALL.to_vec()
+    } else {
+        vec![
+            Family::ALL
+                .into_iter()
+                .find(|f| f.name() == family)
+                .ok_or_else(|| format!("unknown family {family:?} (sunsky, overcast, softbox, window or all)"))?,
+        ]
+    };
+    Ok(families
+        .into_iter()
+        .flat_map(|f| {
+            (first..first + count as u64).map(move |seed| {
+                let spec = format!("builtin:{}:{seed}", f.name());
+                EnvItem { id: spec.clone(), spec }
+            })
+        })
+        .collect())
+}
+
+fn envs_of(
+    mf: &ManifestFile,
+    cat: &mut Catalogue,
+    i: usize,
+    entry: &Spanned<EnvSourceToml>,
+) -> Result<(), ManifestError> {
+    let span = entry.span();
+    let s = entry.get_ref();
+    let field = format!("environments[{i}]");
+    match s.source.as_str() {
+        "procedural" => {
+            not_for(
+                mf,
+                &span,
+                &field,
+                "procedural",
+                &[
+                    ("path", s.path.is_some()),
+                    ("if_missing", s.if_missing.is_some()),
+                    ("fallback_count", s.fallback_count.is_some()),
+                ],
+            )?;
+            let family = s
+                .family
+                .as_ref()
+                .ok_or_else(|| mf.invalid(span.clone(), &format!("{field}.family"), "required"))?;
+            let count = s
+                .count
+                .ok_or_else(|| mf.invalid(span.clone(), &format!("{field}.count"), "required"))?;
+            let items = procedural_envs(family, s.first_seed.unwrap_or(0), count)
+                .map_err(|e| mf.invalid(span.clone(), &format!("{field}.family"), e))?;
+            cat.envs.extend(items);
+        }
+        "file" | "folder" => {
+            not_for(
+                mf,
+                &span,
+                &field,
+                &s.source,
+                &[
+                    ("family", s.family.is_some()),
+                    ("count", s.count.is_some()),
+                    ("first_seed", s.first_seed.is_some()),
+                ],
+            )?;
+            match existing_path(
+                mf,
+                span.clone(),
+                &field,
+                s.path.as_ref(),
+                s.if_missing.as_ref(),
+                "procedural",
+            )? {
+                Some(path) => {
+                    let mut files = Vec::new();
+                    if path.is_file() {
+                        files.push(path.clone());
+                    } else {
+                        for ext in [".hdr", ".exr"] {
+                            files.extend(files_with(&path, ext).map_err(|e| {
+                                mf.invalid(
+                                    span.clone(),
+                                    &format!("{field}.path"),
+                                    format!("{}: {e}", path.display()),
+                                )
+                            })?);
+                        }
+                    }
+                    if files.is_empty() {
+                        return Err(mf.invalid(
+                            span,
+                            &format!("{field}.path"),
+                            format!("{} holds no .hdr or .exr file", path.display()),
+                        ));
+                    }
+                    for f in files {
+                        let ext_ok = f
+                            .extension()
+                            .and_then(|e| e.to_str())
+                            .is_some_and(|e| e.eq_ignore_ascii_case("hdr") || e.eq_ignore_ascii_case("exr"));
+                        if !ext_ok {
+                            return Err(mf.invalid(
+                                span,
+                                &format!("{field}.path"),
+                                format!("{}: environment maps must be .hdr or .exr", f.display()),
+                            ));
+                        }
+                        let name = f
+                            .file_name()
+                            .map(|n| n.to_string_lossy().into_owned())
+                            .unwrap_or_default();
+                        let spec = f.to_str().map(str::to_string).ok_or_else(|| {
+                            mf.invalid(span.clone(), &format!("{field}.path"), "path is not valid UTF-8")
+                        })?;
+                        cat.envs.push(EnvItem {
+                            id: format!("file:{name}"),
+                            spec,
+                        });
+                    }
+                }
+                None => {
+                    let n = s.fallback_count.ok_or_else(|| {
+                        mf.invalid(
+                            span.clone(),
+                            &format!("{field}.fallback_count"),
+                            "required with if_missing = \"procedural\"",
+                        )
+                    })?;
+                    let items = procedural_envs("all", 0, n).map_err(|e| mf.invalid(span.clone(), &field, e))?;
+                    cat.substitutions.push(format!(
+                        "{field}: {} is missing; using {} procedural environments",
+                        s.path.as_deref().unwrap_or(""),
+                        items.len()
+                    ));
+                    cat.envs.extend(items);
+                }
+            }
+        }
+        other => {
+            return Err(mf.invalid(
+                span,
+                &format!("{field}.source"),
+                format!("{other:?}: expected procedural, file or folder"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn merl_near_duplicates_share_a_group() {
+        assert_eq!(merl_group("blue-metallic-paint2"), merl_group("blue-metallic-paint"));
+        assert_ne!(merl_group("gold-paint"), merl_group("blue-metallic-paint"));
+    }
+
+    #[test]
+    fn library_selection_by_name_and_family() {
+        assert_eq!(library_items(None, None).unwrap().len(), library().len());
+        let metals = library_items(None, Some(&vec!["metal".into()])).unwrap();
+        assert_eq!(metals.len(), 48);
+        assert!(
+            library_items(Some(&vec!["nope".into()]), None)
+                .unwrap_err()
+                .contains("nope")
+        );
+        assert!(
+            library_items(None, Some(&vec!["glass".into()]))
+                .unwrap_err()
+                .contains("glass")
+        );
+        let two = library_items(Some(&vec!["gold-brushed".into(), "rubber-red".into()]), None).unwrap();
+        assert_eq!(two.len(), 2);
+        assert_eq!(two[0].group, "library:metal-gold");
+    }
+}

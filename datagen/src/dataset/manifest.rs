@@ -1,0 +1,521 @@
+//! The dataset manifest: a TOML file that, with its seed, defines a dataset completely.
+//!
+//! Every table rejects unknown fields, so a typo is an error rather than a silently ignored
+//! setting. Syntax and type errors come from the TOML parser with their line and column;
+//! everything checked afterwards (paths, counts, splits) is reported as
+//! `FILE:LINE: FIELD: message` through [`ManifestError`]. The field-by-field reference is
+//! `manifests/README.md`.
+
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use toml::Spanned;
+
+/// A manifest problem, located in the file.
+#[derive(Debug, thiserror::Error)]
+pub enum ManifestError {
+    /// The file cannot be read.
+    #[error("{file}: cannot read: {source}")]
+    Io {
+        /// The manifest path.
+        file: String,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// Not valid TOML, a wrong type, a missing or an unknown field (the parser's message
+    /// names the line, the column and the field).
+    #[error("{file}: {message}")]
+    Syntax {
+        /// The manifest path.
+        file: String,
+        /// The parser's message.
+        message: String,
+    },
+    /// A value that parses but cannot be honoured.
+    #[error("{file}:{line}: {field}: {message}")]
+    Invalid {
+        /// The manifest path.
+        file: String,
+        /// 1-based line of the field (or of its table).
+        line: usize,
+        /// Dotted field path, e.g. `splits[1].shapes.car`.
+        field: String,
+        /// What is wrong and what would be accepted.
+        message: String,
+    },
+}
+
+/// The whole manifest as written (see `manifests/README.md`).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    /// Name, seed, output directory, shard size.
+    pub dataset: DatasetSection,
+    /// Image formation settings.
+    #[serde(default)]
+    pub render: RenderSection,
+    /// Camera placement.
+    #[serde(default)]
+    pub views: ViewsSection,
+    /// How the environment is turned about the vertical axis per combination.
+    #[serde(default)]
+    pub environment_rotation: RotationSection,
+    /// Full cross product or sampled combinations.
+    #[serde(default)]
+    pub sampling: SamplingSection,
+    /// How the target material m_t is chosen.
+    #[serde(default)]
+    pub target: TargetSection,
+    /// One material per object or one per semantic region.
+    #[serde(default)]
+    pub multi_material: MultiMaterialSection,
+    /// Shape sources.
+    pub shapes: Vec<Spanned<ShapeSourceToml>>,
+    /// Material sources.
+    pub materials: Vec<Spanned<MaterialSourceToml>>,
+    /// Environment map sources.
+    pub environments: Vec<Spanned<EnvSourceToml>>,
+    /// The splits, in order (e.g. train, test).
+    pub splits: Vec<Spanned<SplitToml>>,
+}
+
+/// `[dataset]`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct DatasetSection {
+    /// Dataset name (recorded in `dataset.json`).
+    pub name: String,
+    /// Seed of every random choice.
+    pub seed: u64,
+    /// Output directory, relative to the working directory (`--out` overrides it).
+    pub output: String,
+    /// Samples per shard.
+    #[serde(default = "default_shard_size")]
+    pub shard_size: Spanned<usize>,
+    /// Render only these splits (all when absent). The deal still sees every split, so
+    /// manifests that differ only here agree on who gets which shape and material.
+    #[serde(default)]
+    pub render_splits: Option<Spanned<Vec<String>>>,
+}
+
+fn default_shard_size() -> Spanned<usize> {
+    Spanned::new(0..0, 64)
+}
+
+/// `[render]`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RenderSection {
+    /// Image side in pixels.
+    #[serde(default = "default_resolution")]
+    pub resolution: Spanned<usize>,
+    /// Environment resolution, `HxW` with W = 2H.
+    #[serde(default = "default_env_resolution")]
+    pub env_resolution: Spanned<String>,
+    /// `exact`, `fast` or `lut` (see `docs/PERFORMANCE.md` for speed against error).
+    #[serde(default = "default_quality")]
+    pub quality: Spanned<String>,
+    /// `off`, `on` or `auto` (on for shapes that can shadow themselves).
+    #[serde(default = "default_shadows")]
+    pub shadows: Spanned<String>,
+    /// `dsbrdf` (render the fitted 108-parameter material) or `measured` (render the source).
+    #[serde(default = "default_ground_truth")]
+    pub ground_truth: Spanned<String>,
+}
+
+fn default_resolution() -> Spanned<usize> {
+    Spanned::new(0..0, 256)
+}
+fn default_env_resolution() -> Spanned<String> {
+    Spanned::new(0..0, "64x128".into())
+}
+fn default_quality() -> Spanned<String> {
+    Spanned::new(0..0, "lut".into())
+}
+fn default_shadows() -> Spanned<String> {
+    Spanned::new(0..0, "off".into())
+}
+fn default_ground_truth() -> Spanned<String> {
+    Spanned::new(0..0, "dsbrdf".into())
+}
+
+impl Default for RenderSection {
+    fn default() -> Self {
+        Self {
+            resolution: default_resolution(),
+            env_resolution: default_env_resolution(),
+            quality: default_quality(),
+            shadows: default_shadows(),
+            ground_truth: default_ground_truth(),
+        }
+    }
+}
+
+/// `[views]`: `azimuths` preset viewpoints evenly spaced around the object at one elevation;
+/// each combination is rendered from `per_combination` of them, drawn without replacement.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViewsSection {
+    /// Number of preset azimuths (the paper: 24).
+    #[serde(default = "default_azimuths")]
+    pub azimuths: Spanned<usize>,
+    /// Camera elevation in degrees (positive looks down on the object).
+    #[serde(default = "default_elevation")]
+    pub elevation_deg: Spanned<f64>,
+    /// Views drawn per combination (the paper: 5).
+    #[serde(default = "default_per_combination")]
+    pub per_combination: Spanned<usize>,
+}
+
+fn default_azimuths() -> Spanned<usize> {
+    Spanned::new(0..0, 24)
+}
+fn default_elevation() -> Spanned<f64> {
+    Spanned::new(0..0, 20.0)
+}
+fn default_per_combination() -> Spanned<usize> {
+    Spanned::new(0..0, 5)
+}
+
+impl Default for ViewsSection {
+    fn default() -> Self {
+        Self {
+            azimuths: default_azimuths(),
+            elevation_deg: default_elevation(),
+            per_combination: default_per_combination(),
+        }
+    }
+}
+
+/// `[environment_rotation]`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RotationSection {
+    /// `random` (uniform in [0°, 360°)), `none`, or `list` (drawn from `values`).
+    #[serde(default = "default_rotation_mode")]
+    pub mode: Spanned<String>,
+    /// Angles in degrees for `list`.
+    #[serde(default)]
+    pub values: Vec<f64>,
+}
+
+fn default_rotation_mode() -> Spanned<String> {
+    Spanned::new(0..0, "random".into())
+}
+
+impl Default for RotationSection {
+    fn default() -> Self {
+        Self {
+            mode: default_rotation_mode(),
+            values: Vec::new(),
+        }
+    }
+}
+
+/// `[sampling]`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SamplingSection {
+    /// `cross` (every shape × material × environment of a split, as in the paper) or
+    /// `sampled` (`combinations` random combinations per split).
+    #[serde(default = "default_sampling_mode")]
+    pub mode: Spanned<String>,
+    /// Combinations per split for `sampled`.
+    #[serde(default)]
+    pub combinations: Option<Spanned<usize>>,
+}
+
+fn default_sampling_mode() -> Spanned<String> {
+    Spanned::new(0..0, "cross".into())
+}
+
+impl Default for SamplingSection {
+    fn default() -> Self {
+        Self {
+            mode: default_sampling_mode(),
+            combinations: None,
+        }
+    }
+}
+
+/// `[target]`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TargetSection {
+    /// `random` (another material of the same split, per region) or `same` (m_t = m).
+    #[serde(default = "default_target_policy")]
+    pub policy: Spanned<String>,
+}
+
+fn default_target_policy() -> Spanned<String> {
+    Spanned::new(0..0, "random".into())
+}
+
+impl Default for TargetSection {
+    fn default() -> Self {
+        Self {
+            policy: default_target_policy(),
+        }
+    }
+}
+
+/// `[multi_material]`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MultiMaterialSection {
+    /// `single` (one material per object) or `per_region` (each semantic region of the mesh
+    /// gets its own material; the combination's material goes to region 0, the others are
+    /// drawn from the split).
+    #[serde(default = "default_mm_mode")]
+    pub mode: Spanned<String>,
+}
+
+fn default_mm_mode() -> Spanned<String> {
+    Spanned::new(0..0, "single".into())
+}
+
+impl Default for MultiMaterialSection {
+    fn default() -> Self {
+        Self {
+            mode: default_mm_mode(),
+        }
+    }
+}
+
+/// A `[[shapes]]` entry.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShapeSourceToml {
+    /// `procedural`, `folder` or `shapenet`.
+    pub source: String,
+    /// Category (procedural and folder).
+    pub category: Option<String>,
+    /// Categories to take from a ShapeNet tree (all four when absent).
+    pub categories: Option<Vec<String>>,
+    /// Number of procedural shapes.
+    pub count: Option<usize>,
+    /// First procedural seed (default 0).
+    pub first_seed: Option<u64>,
+    /// Folder or ShapeNet root; `${VAR}` is expanded, relative paths are relative to the manifest.
+    pub path: Option<String>,
+    /// Up axis of the files (`y`, `z`, `-y`, ...; default `y`).
+    pub up: Option<String>,
+    /// `error` (default) or `procedural`: what to do when `path` does not exist.
+    pub if_missing: Option<String>,
+    /// Procedural shapes per category used when `if_missing = "procedural"` applies.
+    pub fallback_count: Option<usize>,
+}
+
+/// A `[[materials]]` entry.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSourceToml {
+    /// `library`, `dsbrdf` (a file or a folder of `.dsbrdf.json`) or `merl` (a folder of
+    /// `.binary` files).
+    pub source: String,
+    /// Library names (`["*"]` for all).
+    pub names: Option<Vec<String>>,
+    /// Library families (metal, carpaint, plastic, rubber, ceramic, fabric, wood).
+    pub families: Option<Vec<String>>,
+    /// File or folder for `dsbrdf` and `merl`.
+    pub path: Option<String>,
+    /// `error` (default) or `library`: what to do when `path` does not exist.
+    pub if_missing: Option<String>,
+}
+
+/// An `[[environments]]` entry.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnvSourceToml {
+    /// `procedural`, `file` or `folder` (`.hdr` and `.exr`).
+    pub source: String,
+    /// Procedural family: sunsky, overcast, softbox, window, or `all`.
+    pub family: Option<String>,
+    /// Procedural maps per family.
+    pub count: Option<usize>,
+    /// First procedural seed (default 0).
+    pub first_seed: Option<u64>,
+    /// File or folder.
+    pub path: Option<String>,
+    /// `error` (default) or `procedural`: what to do when `path` does not exist.
+    pub if_missing: Option<String>,
+    /// Procedural maps per family used when `if_missing = "procedural"` applies.
+    pub fallback_count: Option<usize>,
+}
+
+/// A `[[splits]]` entry: counts (drawn with the seed) or explicit id lists.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SplitToml {
+    /// Split name (`train`, `test`, ...).
+    pub name: String,
+    /// `train` or `test` (default: `test` for names starting with "test", else `train`).
+    /// Splits of one role may share materials (`materials_from`); never across roles.
+    pub role: Option<String>,
+    /// Use the materials of this earlier split of the same role instead of drawing new ones
+    /// (the paper's pretraining and finetuning share their 60 training materials).
+    pub materials_from: Option<String>,
+    /// Shapes per category.
+    #[serde(default)]
+    pub shapes: BTreeMap<String, Spanned<usize>>,
+    /// Explicit shape ids.
+    #[serde(default)]
+    pub shape_ids: Vec<String>,
+    /// Number of materials (whole near-duplicate groups are kept together).
+    pub materials: Option<Spanned<usize>>,
+    /// Explicit material ids.
+    #[serde(default)]
+    pub material_ids: Vec<String>,
+    /// Number of environments; when no split gives one, every split uses every environment.
+    pub environments: Option<Spanned<usize>>,
+}
+
+/// A loaded manifest: its text (for line numbers), its path and its parsed form.
+#[derive(Clone, Debug)]
+pub struct ManifestFile {
+    /// Path as given.
+    pub path: PathBuf,
+    /// Raw text.
+    pub text: String,
+    /// Parsed content.
+    pub manifest: Manifest,
+}
+
+impl ManifestFile {
+    /// Reads and parses `path`.
+    pub fn load(path: &Path) -> Result<ManifestFile, ManifestError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| ManifestError::Io {
+            file: file.clone(),
+            source,
+        })?;
+        Self::parse(path, text)
+    }
+
+    /// Parses manifest text that came from `path`.
+    pub fn parse(path: &Path, text: String) -> Result<ManifestFile, ManifestError> {
+        let manifest: Manifest = toml::from_str(&text).map_err(|e| ManifestError::Syntax {
+            file: path.display().to_string(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        Ok(ManifestFile {
+            path: path.to_path_buf(),
+            text,
+            manifest,
+        })
+    }
+
+    /// The 1-based line of a byte offset (line 1 for defaults, which have no span).
+    pub fn line_of(&self, offset: usize) -> usize {
+        let end = offset.min(self.text.len());
+        self.text.as_bytes()[..end].iter().filter(|&&b| b == b'\n').count() + 1
+    }
+
+    /// An [`ManifestError::Invalid`] at `span`.
+    pub fn invalid(&self, span: std::ops::Range<usize>, field: &str, message: impl Into<String>) -> ManifestError {
+        ManifestError::Invalid {
+            file: self.path.display().to_string(),
+            line: self.line_of(span.start),
+            field: field.to_string(),
+            message: message.into(),
+        }
+    }
+
+    /// Resolves a path written in the manifest: `${VAR}` expanded, relative to the manifest's
+    /// folder. `Err` names an unset variable.
+    pub fn resolve_path(&self, written: &str) -> Result<PathBuf, String> {
+        let expanded = expand_vars(written)?;
+        let p = PathBuf::from(expanded);
+        if p.is_absolute() {
+            return Ok(p);
+        }
+        let base = self.path.parent().unwrap_or(Path::new(""));
+        Ok(base.join(p))
+    }
+}
+
+/// Expands `${NAME}` from the environment.
+pub fn expand_vars(s: &str) -> Result<String, String> {
+    let mut out = String::new();
+    let mut rest = s;
+    while let Some(start) = rest.find("${") {
+        out.push_str(&rest[..start]);
+        let after = &rest[start + 2..];
+        let end = after.find('}').ok_or_else(|| format!("unclosed ${{ in {s:?}"))?;
+        let name = &after[..end];
+        let value = std::env::var(name).map_err(|_| format!("environment variable {name} is not set"))?;
+        out.push_str(&value);
+        rest = &after[end + 1..];
+    }
+    out.push_str(rest);
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MINIMAL: &str = r#"
+[dataset]
+name = "t"
+seed = 1
+output = "out/t"
+
+[[shapes]]
+source = "procedural"
+category = "car"
+count = 3
+
+[[materials]]
+source = "library"
+names = ["*"]
+
+[[environments]]
+source = "procedural"
+family = "sunsky"
+count = 2
+
+[[splits]]
+name = "train"
+shapes = { car = 2 }
+materials = 4
+"#;
+
+    #[test]
+    fn a_minimal_manifest_parses_with_defaults() {
+        let m = ManifestFile::parse(Path::new("m.toml"), MINIMAL.into()).unwrap();
+        assert_eq!(*m.manifest.render.resolution.get_ref(), 256);
+        assert_eq!(*m.manifest.views.azimuths.get_ref(), 24);
+        assert_eq!(*m.manifest.dataset.shard_size.get_ref(), 64);
+        let span = m.manifest.splits[0].get_ref().shapes["car"].span();
+        assert_eq!(m.line_of(span.start), 23);
+    }
+
+    #[test]
+    fn unknown_fields_and_wrong_types_name_the_line() {
+        let bad = MINIMAL.replace("count = 3", "count = 3\ncolour = \"red\"");
+        let e = ManifestFile::parse(Path::new("m.toml"), bad).unwrap_err().to_string();
+        assert!(
+            e.contains("m.toml") && e.contains("line 11") && e.contains("colour"),
+            "{e}"
+        );
+        let bad = MINIMAL.replace("seed = 1", "seed = \"one\"");
+        let e = ManifestFile::parse(Path::new("m.toml"), bad).unwrap_err().to_string();
+        assert!(e.contains("line 4") && e.contains("seed"), "{e}");
+    }
+
+    #[test]
+    fn variables_expand_and_relative_paths_follow_the_manifest() {
+        // SAFETY of the test: a variable name no other test uses.
+        unsafe { std::env::set_var("MATEDIT_TEST_ROOT", "/data") };
+        assert_eq!(expand_vars("${MATEDIT_TEST_ROOT}/x").unwrap(), "/data/x");
+        assert!(
+            expand_vars("${MATEDIT_NOT_SET_ANYWHERE}")
+                .unwrap_err()
+                .contains("not set")
+        );
+        let m = ManifestFile::parse(Path::new("manifests/m.toml"), MINIMAL.into()).unwrap();
+        assert_eq!(m.resolve_path("assets").unwrap(), PathBuf::from("manifests/assets"));
+        assert_eq!(m.resolve_path("/abs").unwrap(), PathBuf::from("/abs"));
+    }
+}

@@ -1,0 +1,165 @@
+//! The dataset's material table: every catalogue material as its 108 DSBRDF parameters (the
+//! labels m and m_t) and as the BRDF that renders it (the ground truth the manifest chose).
+//!
+//! Fits are stored in `DIR/materials/` (`ID.dsbrdf.json` plus `ID.fit.json` with the source
+//! fingerprint), so a resumed or repeated run fits nothing twice, and the dataset carries its
+//! own labels. Fitting is deterministic (sequential Levenberg–Marquardt per material), so the
+//! same manifest gives the same labels on any machine and thread count.
+
+use super::catalogue::{MaterialItem, MaterialSource};
+use super::plan::GroundTruth;
+use crate::io::write_atomically;
+use crate::materials::cache::FIT_VERSION;
+use crate::materials::fit::fit_dsbrdf;
+use anyhow::{Context, Result};
+use matedit_physics::BrdfModel;
+use matedit_physics::brdf::Dsbrdf;
+use matedit_physics::brdf::MerlBrdf;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use std::sync::Arc;
+
+/// A ready material.
+#[derive(Clone, Debug)]
+pub struct MaterialEntry {
+    /// Catalogue id.
+    pub id: String,
+    /// Near-duplicate group.
+    pub group: String,
+    /// The 108 parameters (the label).
+    pub dsbrdf: Dsbrdf,
+    /// The BRDF that renders the pixels.
+    pub render: BrdfModel,
+    /// BRDF-space error of the fit (0 for DSBRDF files).
+    pub fit_log_rmse: f64,
+}
+
+/// What `ID.fit.json` records.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+struct FitStamp {
+    id: String,
+    fingerprint: String,
+    brdf_log_rmse: f64,
+}
+
+/// File-name form of an id (`library:gold-brushed` → `library_gold-brushed`).
+pub fn file_stem(id: &str) -> String {
+    id.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '.' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+fn fingerprint(item: &MaterialItem) -> String {
+    match &item.source {
+        MaterialSource::Library(spec) => format!("{FIT_VERSION}|{spec:?}"),
+        MaterialSource::Dsbrdf(_) => "dsbrdf-file".into(),
+        MaterialSource::Merl(p) => {
+            let size = std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
+            format!("{FIT_VERSION}|merl|{size}")
+        }
+    }
+}
+
+fn source_model(item: &MaterialItem) -> Result<BrdfModel> {
+    Ok(match &item.source {
+        MaterialSource::Library(spec) => spec.build().with_context(|| item.id.clone())?,
+        MaterialSource::Dsbrdf(p) => BrdfModel::Dsbrdf(Box::new(Dsbrdf::load(p)?)),
+        MaterialSource::Merl(p) => BrdfModel::Measured(Arc::new(MerlBrdf::read(p)?)),
+    })
+}
+
+fn prepare(dir: &Path, item: &MaterialItem, truth: GroundTruth) -> Result<MaterialEntry> {
+    let stem = file_stem(&item.id);
+    let mat_path = dir.join(format!("{stem}.dsbrdf.json"));
+    let stamp_path = dir.join(format!("{stem}.fit.json"));
+    let fp = fingerprint(item);
+    let cached = std::fs::read_to_string(&stamp_path)
+        .ok()
+        .and_then(|t| serde_json::from_str::<FitStamp>(&t).ok())
+        .filter(|s| s.fingerprint == fp)
+        .and_then(|s| Dsbrdf::load(&mat_path).ok().map(|m| (m, s.brdf_log_rmse)));
+    let source = source_model(item)?;
+    let (dsbrdf, err) = match cached {
+        Some(c) => c,
+        None => {
+            let (m, err) = match (&item.source, &source) {
+                (MaterialSource::Dsbrdf(_), BrdfModel::Dsbrdf(m)) => ((**m).clone(), 0.0),
+                _ => fit_dsbrdf(&source),
+            };
+            write_atomically(&mat_path, |t| Ok(std::fs::write(t, m.to_json())?))?;
+            let stamp = FitStamp {
+                id: item.id.clone(),
+                fingerprint: fp,
+                brdf_log_rmse: err,
+            };
+            let json = serde_json::to_string_pretty(&stamp)?;
+            write_atomically(&stamp_path, |t| Ok(std::fs::write(t, json)?))?;
+            (m, err)
+        }
+    };
+    let render = match truth {
+        GroundTruth::Dsbrdf => BrdfModel::Dsbrdf(Box::new(dsbrdf.clone())),
+        GroundTruth::Measured => source,
+    };
+    Ok(MaterialEntry {
+        id: item.id.clone(),
+        group: item.group.clone(),
+        dsbrdf,
+        render,
+        fit_log_rmse: err,
+    })
+}
+
+/// Prepares the materials with `needed[k]` (in parallel, fitting what is not stored yet), in
+/// catalogue order; the others (provided by a source but dealt to no split) stay `None`.
+/// `on_done` is called once per prepared material.
+pub fn prepare_all(
+    dir: &Path,
+    items: &[MaterialItem],
+    needed: &[bool],
+    truth: GroundTruth,
+    on_done: &(dyn Fn() + Sync),
+) -> Result<Vec<Option<MaterialEntry>>> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    items
+        .par_iter()
+        .zip(needed)
+        .map(|(m, &need)| {
+            if !need {
+                return Ok(None);
+            }
+            let r = prepare(dir, m, truth).with_context(|| format!("material {}", m.id));
+            on_done();
+            r.map(Some)
+        })
+        .collect()
+}
+
+/// Which catalogue materials a plan's splits use.
+pub fn needed(plan: &super::plan::Plan) -> Vec<bool> {
+    let mut need = vec![false; plan.catalogue.materials.len()];
+    for s in &plan.splits {
+        for &m in &s.materials {
+            need[m] = true;
+        }
+    }
+    need
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ids_become_safe_file_names() {
+        assert_eq!(file_stem("library:gold-brushed"), "library_gold-brushed");
+        assert_eq!(file_stem("merl:a/b c"), "merl_a_b_c");
+    }
+}

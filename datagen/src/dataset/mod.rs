@@ -1,0 +1,24 @@
+//! The batch dataset factory: a TOML [manifest] and a seed define a dataset completely.
+//!
+//! * [`manifest`]: the file format, with errors that name the file, line and field;
+//! * [`catalogue`]: every shape, material and environment the manifest's sources provide;
+//! * [`plan`]: the split deal (no shape or material in two splits), combinations, views,
+//!   samples and shards;
+//! * [`materials`]: fitted 108-parameter labels and the BRDFs that render them;
+//! * [`sample`]: one training tuple (I, O, normals, mask, regions, environment);
+//! * [`store`]: the layout on disk, atomic shards, `index.jsonl`, `dataset.json`, joining
+//!   workers;
+//! * [`run`]: `plan` and `run` (locking, resuming, workers);
+//! * [`verify`] and [`inspect`]: checking and looking at a finished dataset;
+//! * [`bench`]: speed against error of the shading options on a manifest's samples.
+
+pub mod bench;
+pub mod catalogue;
+pub mod inspect;
+pub mod manifest;
+pub mod materials;
+pub mod plan;
+pub mod run;
+pub mod sample;
+pub mod store;
+pub mod verify;

@@ -1,0 +1,746 @@
+//! The plan: which shapes, materials and environments each split gets, every combination and
+//! every sample, and how samples are grouped into shards. A pure function of the manifest, the
+//! catalogue and the seed; nothing here renders.
+//!
+//! **Splits never share a shape or a material.** Shapes are dealt per category from a seeded
+//! shuffle; materials are dealt by near-duplicate *group*, so variants of one material (the
+//! library's `gold-polished` / `gold-brushed`, MERL's `paint` / `paint2`) can never sit on both
+//! sides. Explicit id lists are checked for the same two rules.
+
+use super::catalogue::Catalogue;
+use super::manifest::{ManifestError, ManifestFile};
+use crate::assets::random::Draw;
+use crate::render::Shadows;
+use matedit_physics::shading::Quality;
+use serde::Serialize;
+use std::collections::{BTreeMap, BTreeSet};
+
+/// How the environment is turned per combination.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub enum RotationMode {
+    /// Uniform in [0°, 360°).
+    Random,
+    /// Always 0°.
+    None,
+    /// Drawn from a list.
+    List(Vec<f64>),
+}
+
+/// Shadow policy of the manifest.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum ShadowPolicy {
+    /// Never trace shadow rays (the paper's rendering layer).
+    Off,
+    /// Always (except the analytic sphere).
+    On,
+    /// Only for meshes that can shadow themselves (not convex).
+    Auto,
+}
+
+impl ShadowPolicy {
+    /// Whether a shape with this convexity gets shadow rays.
+    pub fn for_shape(self, convex: bool) -> Shadows {
+        match self {
+            ShadowPolicy::Off => Shadows::Off,
+            ShadowPolicy::On => Shadows::On,
+            ShadowPolicy::Auto if convex => Shadows::Off,
+            ShadowPolicy::Auto => Shadows::On,
+        }
+    }
+}
+
+/// Which BRDF produces the pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum GroundTruth {
+    /// The fitted 108-parameter DSBRDF (what the network's rendering layer can reproduce).
+    Dsbrdf,
+    /// The source BRDF (analytic or measured), as in the paper's renders.
+    Measured,
+}
+
+/// The settings every sample shares, validated.
+#[derive(Clone, Debug, Serialize)]
+pub struct Settings {
+    /// Image side.
+    pub resolution: usize,
+    /// Environment rows (width is twice).
+    pub env_rows: usize,
+    /// Eq. 2 implementation.
+    #[serde(serialize_with = "ser_quality")]
+    pub quality: Quality,
+    /// Shadow policy.
+    pub shadows: ShadowPolicy,
+    /// Which BRDF renders.
+    pub ground_truth: GroundTruth,
+    /// Preset azimuths.
+    pub azimuths: usize,
+    /// Camera elevation, degrees.
+    pub elevation_deg: f64,
+    /// Views per combination.
+    pub views_per_combination: usize,
+    /// Environment rotation.
+    pub rotation: RotationMode,
+    /// m_t = m (`false`: another material of the split).
+    pub target_same: bool,
+    /// One material per region.
+    pub per_region: bool,
+    /// Samples per shard.
+    pub shard_size: usize,
+}
+
+fn ser_quality<S: serde::Serializer>(q: &Quality, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(match q {
+        Quality::Exact => "exact",
+        Quality::Fast => "fast",
+        Quality::Lut => "lut",
+    })
+}
+
+/// One (shape, material, environment) combination of a split.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Combination {
+    /// Index into the catalogue's shapes.
+    pub shape: usize,
+    /// Index into the catalogue's materials (region 0's material).
+    pub material: usize,
+    /// Index into the catalogue's environments.
+    pub env: usize,
+    /// Seed stream of every random choice inside the combination.
+    pub stream: u64,
+}
+
+/// A split's membership and combinations.
+#[derive(Clone, Debug)]
+pub struct SplitPlan {
+    /// Name.
+    pub name: String,
+    /// `train` or `test`.
+    pub role: String,
+    /// Catalogue indices of its shapes (sorted).
+    pub shapes: Vec<usize>,
+    /// Catalogue indices of its materials (sorted).
+    pub materials: Vec<usize>,
+    /// Catalogue indices of its environments (sorted).
+    pub envs: Vec<usize>,
+    /// Combinations in sample order.
+    pub combinations: Vec<Combination>,
+    /// Samples (combinations × views).
+    pub samples: usize,
+}
+
+/// One shard: consecutive samples of one split.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ShardRef {
+    /// Position in the dataset's shard list (decides the worker).
+    pub ordinal: usize,
+    /// Split index.
+    pub split: usize,
+    /// Shard number within the split.
+    pub number: usize,
+    /// First sample index within the split.
+    pub first: usize,
+    /// Number of samples.
+    pub len: usize,
+}
+
+impl ShardRef {
+    /// Directory name, e.g. `train-00003`.
+    pub fn name(&self, plan: &Plan) -> String {
+        format!("{}-{:05}", plan.splits[self.split].name, self.number)
+    }
+}
+
+/// The whole plan.
+#[derive(Clone, Debug)]
+pub struct Plan {
+    /// Dataset name.
+    pub name: String,
+    /// Seed.
+    pub seed: u64,
+    /// Validated settings.
+    pub settings: Settings,
+    /// Everything the sources provide.
+    pub catalogue: Catalogue,
+    /// Splits in manifest order.
+    pub splits: Vec<SplitPlan>,
+    /// Every shard, in order.
+    pub shards: Vec<ShardRef>,
+}
+
+/// A 64-bit stream id from strings (stable across platforms and versions of this program).
+pub fn stream_of(parts: &[&str]) -> u64 {
+    let mut h = blake3::Hasher::new();
+    for p in parts {
+        h.update(p.as_bytes());
+        h.update(&[0]);
+    }
+    let bytes = h.finalize();
+    u64::from_le_bytes(bytes.as_bytes()[..8].try_into().unwrap_or([0; 8]))
+}
+
+fn shuffle<T>(items: &mut [T], draw: &mut Draw) {
+    for i in (1..items.len()).rev() {
+        let j = draw.int(0, i);
+        items.swap(i, j);
+    }
+}
+
+fn choice<'a>(
+    mf: &ManifestFile,
+    s: &'a toml::Spanned<String>,
+    field: &str,
+    options: &[&str],
+) -> Result<&'a str, ManifestError> {
+    let v = s.get_ref().as_str();
+    if options.contains(&v) {
+        Ok(v)
+    } else {
+        Err(mf.invalid(s.span(), field, format!("{v:?}: expected {}", options.join(", "))))
+    }
+}
+
+fn settings(mf: &ManifestFile) -> Result<Settings, ManifestError> {
+    let m = &mf.manifest;
+    let r = &m.render;
+    let resolution = *r.resolution.get_ref();
+    if !(8..=4096).contains(&resolution) {
+        return Err(mf.invalid(
+            r.resolution.span(),
+            "render.resolution",
+            format!("{resolution}: expected 8 to 4096"),
+        ));
+    }
+    let env_res: crate::render::EnvRes = r.env_resolution.get_ref().parse().map_err(|e: String| {
+        mf.invalid(
+            r.env_resolution.span(),
+            "render.env_resolution",
+            e.replace("--env-res ", ""),
+        )
+    })?;
+    let env_rows = match env_res {
+        crate::render::EnvRes::Rows(h) if (4..=1024).contains(&h) => h,
+        _ => {
+            return Err(mf.invalid(
+                r.env_resolution.span(),
+                "render.env_resolution",
+                "expected HxW with 4 ≤ H ≤ 1024 and W = 2H (the paper: 64x128)",
+            ));
+        }
+    };
+    let quality = match choice(mf, &r.quality, "render.quality", &["exact", "fast", "lut"])? {
+        "exact" => Quality::Exact,
+        "fast" => Quality::Fast,
+        _ => Quality::Lut,
+    };
+    let shadows = match choice(mf, &r.shadows, "render.shadows", &["off", "on", "auto"])? {
+        "off" => ShadowPolicy::Off,
+        "on" => ShadowPolicy::On,
+        _ => ShadowPolicy::Auto,
+    };
+    let ground_truth = match choice(mf, &r.ground_truth, "render.ground_truth", &["dsbrdf", "measured"])? {
+        "dsbrdf" => GroundTruth::Dsbrdf,
+        _ => GroundTruth::Measured,
+    };
+    let v = &m.views;
+    let azimuths = *v.azimuths.get_ref();
+    if !(1..=3600).contains(&azimuths) {
+        return Err(mf.invalid(v.azimuths.span(), "views.azimuths", "expected 1 to 3600"));
+    }
+    let per = *v.per_combination.get_ref();
+    if per == 0 || per > azimuths {
+        return Err(mf.invalid(
+            v.per_combination.span(),
+            "views.per_combination",
+            format!("{per}: expected 1 to views.azimuths ({azimuths}); views are drawn without replacement"),
+        ));
+    }
+    let elevation_deg = *v.elevation_deg.get_ref();
+    if !(-89.0..=89.0).contains(&elevation_deg) {
+        return Err(mf.invalid(v.elevation_deg.span(), "views.elevation_deg", "expected −89° to 89°"));
+    }
+    let rot = &m.environment_rotation;
+    let rotation = match choice(mf, &rot.mode, "environment_rotation.mode", &["random", "none", "list"])? {
+        "random" => RotationMode::Random,
+        "none" => RotationMode::None,
+        _ => {
+            if rot.values.is_empty() || rot.values.iter().any(|x| !x.is_finite()) {
+                return Err(mf.invalid(
+                    rot.mode.span(),
+                    "environment_rotation.values",
+                    "mode = \"list\" needs a non-empty list of finite angles",
+                ));
+            }
+            RotationMode::List(rot.values.clone())
+        }
+    };
+    if !matches!(rotation, RotationMode::List(_)) && !rot.values.is_empty() {
+        return Err(mf.invalid(
+            rot.mode.span(),
+            "environment_rotation.values",
+            "only used with mode = \"list\"",
+        ));
+    }
+    let target_same = choice(mf, &m.target.policy, "target.policy", &["random", "same"])? == "same";
+    let per_region = choice(
+        mf,
+        &m.multi_material.mode,
+        "multi_material.mode",
+        &["single", "per_region"],
+    )? == "per_region";
+    let shard_size = *m.dataset.shard_size.get_ref();
+    if !(1..=100_000).contains(&shard_size) {
+        return Err(mf.invalid(
+            m.dataset.shard_size.span(),
+            "dataset.shard_size",
+            "expected 1 to 100000",
+        ));
+    }
+    Ok(Settings {
+        resolution,
+        env_rows,
+        quality,
+        shadows,
+        ground_truth,
+        azimuths,
+        elevation_deg,
+        views_per_combination: per,
+        rotation,
+        target_same,
+        per_region,
+        shard_size,
+    })
+}
+
+impl Plan {
+    /// Builds the plan; every impossible request is an error naming its field and line.
+    pub fn new(mf: &ManifestFile, catalogue: Catalogue) -> Result<Plan, ManifestError> {
+        let settings = settings(mf)?;
+        let m = &mf.manifest;
+        let seed = m.dataset.seed;
+        if m.splits.is_empty() {
+            return Err(mf.invalid(0..0, "splits", "at least one [[splits]] entry is needed"));
+        }
+        let mut names = BTreeSet::new();
+        for (i, s) in m.splits.iter().enumerate() {
+            let n = &s.get_ref().name;
+            let ok = !n.is_empty() && n.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+            if !ok {
+                return Err(mf.invalid(
+                    s.span(),
+                    &format!("splits[{i}].name"),
+                    format!("{n:?}: use letters, digits and _ (it names files)"),
+                ));
+            }
+            if !names.insert(n.clone()) {
+                return Err(mf.invalid(s.span(), &format!("splits[{i}].name"), format!("{n:?} is used twice")));
+            }
+        }
+        let roles: Vec<String> = m
+            .splits
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                let s2 = s.get_ref();
+                match s2.role.as_deref() {
+                    Some(r @ ("train" | "test")) => Ok(r.to_string()),
+                    Some(other) => Err(mf.invalid(
+                        s.span(),
+                        &format!("splits[{i}].role"),
+                        format!("{other:?}: expected train or test"),
+                    )),
+                    None if s2.name.starts_with("test") => Ok("test".into()),
+                    None => Ok("train".into()),
+                }
+            })
+            .collect::<Result<_, _>>()?;
+        let shapes = deal_shapes(mf, &catalogue, seed)?;
+        let materials = deal_materials(mf, &catalogue, seed, &roles)?;
+        let envs = deal_envs(mf, &catalogue, seed)?;
+
+        let render: Option<Vec<String>> = match &m.dataset.render_splits {
+            Some(list) => {
+                for n in list.get_ref() {
+                    if !names.contains(n) {
+                        return Err(mf.invalid(
+                            list.span(),
+                            "dataset.render_splits",
+                            format!("no split is named {n:?}"),
+                        ));
+                    }
+                }
+                Some(list.get_ref().clone())
+            }
+            None => None,
+        };
+        let mut splits = Vec::new();
+        for (i, s) in m.splits.iter().enumerate() {
+            let name = s.get_ref().name.clone();
+            if render.as_ref().is_some_and(|r| !r.contains(&name)) {
+                continue;
+            }
+            let (sh, ma, en) = (shapes[i].clone(), materials[i].clone(), envs[i].clone());
+            let field = |f: &str| format!("splits[{i}].{f}");
+            if sh.is_empty() {
+                return Err(mf.invalid(s.span(), &field("shapes"), "the split has no shape"));
+            }
+            if ma.is_empty() {
+                return Err(mf.invalid(s.span(), &field("materials"), "the split has no material"));
+            }
+            if en.is_empty() {
+                return Err(mf.invalid(s.span(), &field("environments"), "the split has no environment"));
+            }
+            let needs_two = !settings.target_same || settings.per_region;
+            if needs_two && ma.len() < 2 {
+                return Err(mf.invalid(
+                    s.span(),
+                    &field("materials"),
+                    "a random target material (or per-region materials) needs at least 2 materials in the split",
+                ));
+            }
+            let combinations = combinations_of(mf, &catalogue, &name, &sh, &ma, &en, seed)?;
+            let samples = combinations.len() * settings.views_per_combination;
+            splits.push(SplitPlan {
+                name,
+                role: roles[i].clone(),
+                shapes: sh,
+                materials: ma,
+                envs: en,
+                combinations,
+                samples,
+            });
+        }
+        let mut shards = Vec::new();
+        for (si, s) in splits.iter().enumerate() {
+            for (number, first) in (0..s.samples).step_by(settings.shard_size).enumerate() {
+                shards.push(ShardRef {
+                    ordinal: shards.len(),
+                    split: si,
+                    number,
+                    first,
+                    len: settings.shard_size.min(s.samples - first),
+                });
+            }
+        }
+        Ok(Plan {
+            name: m.dataset.name.clone(),
+            seed,
+            settings,
+            catalogue,
+            splits,
+            shards,
+        })
+    }
+
+    /// Total samples.
+    pub fn samples(&self) -> usize {
+        self.splits.iter().map(|s| s.samples).sum()
+    }
+}
+
+fn combinations_of(
+    mf: &ManifestFile,
+    cat: &Catalogue,
+    split: &str,
+    shapes: &[usize],
+    materials: &[usize],
+    envs: &[usize],
+    seed: u64,
+) -> Result<Vec<Combination>, ManifestError> {
+    let s = &mf.manifest.sampling;
+    let mode = choice(mf, &s.mode, "sampling.mode", &["cross", "sampled"])?;
+    let mut out = Vec::new();
+    if mode == "cross" {
+        if s.combinations.is_some() {
+            return Err(mf.invalid(
+                s.mode.span(),
+                "sampling.combinations",
+                "only used with mode = \"sampled\"",
+            ));
+        }
+        for &sh in shapes {
+            for &ma in materials {
+                for &en in envs {
+                    let stream = stream_of(&[split, &cat.shapes[sh].id, &cat.materials[ma].id, &cat.envs[en].id]);
+                    out.push(Combination {
+                        shape: sh,
+                        material: ma,
+                        env: en,
+                        stream,
+                    });
+                }
+            }
+        }
+    } else {
+        let n = s.combinations.as_ref().ok_or_else(|| {
+            mf.invalid(
+                s.mode.span(),
+                "sampling.combinations",
+                "mode = \"sampled\" needs a number of combinations per split",
+            )
+        })?;
+        let mut d = Draw::new(seed, stream_of(&[split, "sampled"]));
+        for k in 0..*n.get_ref() {
+            let sh = shapes[d.int(0, shapes.len() - 1)];
+            let ma = materials[d.int(0, materials.len() - 1)];
+            let en = envs[d.int(0, envs.len() - 1)];
+            out.push(Combination {
+                shape: sh,
+                material: ma,
+                env: en,
+                stream: stream_of(&[split, "sampled", &k.to_string()]),
+            });
+        }
+    }
+    Ok(out)
+}
+
+fn deal_shapes(mf: &ManifestFile, cat: &Catalogue, seed: u64) -> Result<Vec<Vec<usize>>, ManifestError> {
+    let splits = &mf.manifest.splits;
+    let index: BTreeMap<&str, usize> = cat.shapes.iter().enumerate().map(|(i, s)| (s.id.as_str(), i)).collect();
+    let mut taken: BTreeMap<usize, usize> = BTreeMap::new();
+    let mut out = vec![Vec::new(); splits.len()];
+    for (i, s) in splits.iter().enumerate() {
+        for id in &s.get_ref().shape_ids {
+            let &k = index.get(id.as_str()).ok_or_else(|| {
+                mf.invalid(
+                    s.span(),
+                    &format!("splits[{i}].shape_ids"),
+                    format!("{id} is not provided by any [[shapes]] source"),
+                )
+            })?;
+            if let Some(&j) = taken.get(&k) {
+                return Err(mf.invalid(
+                    s.span(),
+                    &format!("splits[{i}].shape_ids"),
+                    format!(
+                        "{id} is already in split {:?}: splits may not share a shape",
+                        splits[j].get_ref().name
+                    ),
+                ));
+            }
+            taken.insert(k, i);
+            out[i].push(k);
+        }
+    }
+    let categories: BTreeSet<&str> = cat.shapes.iter().map(|s| s.category.as_str()).collect();
+    for c in &categories {
+        let mut pool: Vec<usize> = (0..cat.shapes.len())
+            .filter(|k| cat.shapes[*k].category == *c && !taken.contains_key(k))
+            .collect();
+        let total = cat.shapes.iter().filter(|s| s.category == *c).count();
+        shuffle(&mut pool, &mut Draw::new(seed, stream_of(&["shapes", c])));
+        let mut next = 0;
+        for (i, s) in splits.iter().enumerate() {
+            if let Some(n) = s.get_ref().shapes.get(*c) {
+                let want = *n.get_ref();
+                if next + want > pool.len() {
+                    return Err(mf.invalid(
+                        n.span(),
+                        &format!("splits[{i}].shapes.{c}"),
+                        format!(
+                            "asks for {want} {c} shapes but only {} are left ({total} provided, {} taken by explicit ids, {next} by earlier splits)",
+                            pool.len() - next,
+                            total - pool.len()
+                        ),
+                    ));
+                }
+                out[i].extend_from_slice(&pool[next..next + want]);
+                next += want;
+            }
+        }
+    }
+    for (i, s) in splits.iter().enumerate() {
+        for (c, n) in &s.get_ref().shapes {
+            if !categories.contains(c.as_str()) {
+                return Err(mf.invalid(
+                    n.span(),
+                    &format!("splits[{i}].shapes.{c}"),
+                    format!(
+                        "no source provides {c:?} shapes (categories provided: {})",
+                        categories.iter().copied().collect::<Vec<_>>().join(", ")
+                    ),
+                ));
+            }
+        }
+        out[i].sort();
+    }
+    Ok(out)
+}
+
+fn deal_materials(
+    mf: &ManifestFile,
+    cat: &Catalogue,
+    seed: u64,
+    roles: &[String],
+) -> Result<Vec<Vec<usize>>, ManifestError> {
+    let splits = &mf.manifest.splits;
+    let index: BTreeMap<&str, usize> = cat
+        .materials
+        .iter()
+        .enumerate()
+        .map(|(i, m)| (m.id.as_str(), i))
+        .collect();
+    // Group → split that owns it.
+    let mut owner: BTreeMap<&str, usize> = BTreeMap::new();
+    let mut out = vec![Vec::new(); splits.len()];
+    for (i, s) in splits.iter().enumerate() {
+        for id in &s.get_ref().material_ids {
+            let &k = index.get(id.as_str()).ok_or_else(|| {
+                mf.invalid(
+                    s.span(),
+                    &format!("splits[{i}].material_ids"),
+                    format!("{id} is not provided by any [[materials]] source"),
+                )
+            })?;
+            let g = cat.materials[k].group.as_str();
+            match owner.get(g) {
+                Some(&j) if j != i => {
+                    return Err(mf.invalid(
+                        s.span(),
+                        &format!("splits[{i}].material_ids"),
+                        format!(
+                            "{id} (group {g}) would share its near-duplicate group with split {:?}: splits may not share a material",
+                            splits[j].get_ref().name
+                        ),
+                    ));
+                }
+                _ => {}
+            }
+            if out[i].contains(&k) {
+                return Err(mf.invalid(
+                    s.span(),
+                    &format!("splits[{i}].material_ids"),
+                    format!("{id} is listed twice"),
+                ));
+            }
+            owner.insert(g, i);
+            out[i].push(k);
+        }
+    }
+    let mut groups: Vec<&str> = cat
+        .materials
+        .iter()
+        .map(|m| m.group.as_str())
+        .filter(|g| !owner.contains_key(g))
+        .collect::<BTreeSet<_>>()
+        .into_iter()
+        .collect();
+    shuffle(&mut groups, &mut Draw::new(seed, stream_of(&["materials"])));
+    let mut next = 0;
+    for (i, s) in splits.iter().enumerate() {
+        let Some(n) = &s.get_ref().materials else { continue };
+        let want = *n.get_ref();
+        let mut got = 0;
+        while got < want {
+            let Some(g) = groups.get(next) else {
+                return Err(mf.invalid(
+                    n.span(),
+                    &format!("splits[{i}].materials"),
+                    format!(
+                        "asks for {want} materials but only {got} could be drawn: the sources provide {} materials in {} near-duplicate groups, and whole groups go to one split",
+                        cat.materials.len(),
+                        cat.materials.iter().map(|m| &m.group).collect::<BTreeSet<_>>().len()
+                    ),
+                ));
+            };
+            next += 1;
+            for (k, m) in cat.materials.iter().enumerate() {
+                if m.group == *g && got < want {
+                    out[i].push(k);
+                    got += 1;
+                }
+            }
+        }
+    }
+    for (i, s) in splits.iter().enumerate() {
+        let Some(from) = &s.get_ref().materials_from else {
+            continue;
+        };
+        let field = format!("splits[{i}].materials_from");
+        let Some(j) = splits[..i].iter().position(|t| &t.get_ref().name == from) else {
+            return Err(mf.invalid(s.span(), &field, format!("{from:?} is not an earlier split")));
+        };
+        if roles[j] != roles[i] {
+            return Err(mf.invalid(
+                s.span(),
+                &field,
+                format!(
+                    "split {from:?} has role {} and this one {}: a training and a test split may not share materials",
+                    roles[j], roles[i]
+                ),
+            ));
+        }
+        if s.get_ref().materials.is_some() || !s.get_ref().material_ids.is_empty() {
+            return Err(mf.invalid(
+                s.span(),
+                &field,
+                "give materials_from or materials/material_ids, not both",
+            ));
+        }
+        out[i] = out[j].clone();
+    }
+    // Groups may be shared only between splits of one role.
+    for i in 0..splits.len() {
+        for j in 0..i {
+            if roles[i] == roles[j] {
+                continue;
+            }
+            for &a in &out[i] {
+                if out[j].iter().any(|&b| cat.materials[b].group == cat.materials[a].group) {
+                    return Err(mf.invalid(
+                        splits[i].span(),
+                        &format!("splits[{i}].material_ids"),
+                        format!(
+                            "{} shares its near-duplicate group {} with split {:?}: splits may not share a material",
+                            cat.materials[a].id,
+                            cat.materials[a].group,
+                            splits[j].get_ref().name
+                        ),
+                    ));
+                }
+            }
+        }
+    }
+    for o in &mut out {
+        o.sort();
+    }
+    Ok(out)
+}
+
+fn deal_envs(mf: &ManifestFile, cat: &Catalogue, seed: u64) -> Result<Vec<Vec<usize>>, ManifestError> {
+    let splits = &mf.manifest.splits;
+    let counted: Vec<_> = splits.iter().map(|s| s.get_ref().environments.as_ref()).collect();
+    if counted.iter().all(Option::is_none) {
+        return Ok(vec![(0..cat.envs.len()).collect(); splits.len()]);
+    }
+    let mut pool: Vec<usize> = (0..cat.envs.len()).collect();
+    shuffle(&mut pool, &mut Draw::new(seed, stream_of(&["environments"])));
+    let mut next = 0;
+    let mut out = Vec::new();
+    for (i, (s, c)) in splits.iter().zip(&counted).enumerate() {
+        let Some(n) = c else {
+            return Err(mf.invalid(
+                s.span(),
+                &format!("splits[{i}].environments"),
+                "when one split counts its environments, every split must (environments are then split too)",
+            ));
+        };
+        let want = *n.get_ref();
+        if next + want > pool.len() {
+            return Err(mf.invalid(
+                n.span(),
+                &format!("splits[{i}].environments"),
+                format!(
+                    "asks for {want} environments but only {} are left of {}",
+                    pool.len() - next,
+                    pool.len()
+                ),
+            ));
+        }
+        let mut mine = pool[next..next + want].to_vec();
+        mine.sort();
+        out.push(mine);
+        next += want;
+    }
+    Ok(out)
+}

@@ -1,0 +1,342 @@
+//! `datagen plan` and `datagen run`: loading a manifest, locking the output, resuming, workers.
+
+use super::catalogue::Catalogue;
+use super::manifest::ManifestFile;
+use super::materials::{needed, prepare_all};
+use super::plan::Plan;
+use super::sample::Renderer;
+use super::store::{PlanRecord, join, read_plan, shard_done, shards_dir, write_plan, write_shard};
+use anyhow::{Context, Result, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::fs::{File, TryLockError};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// A manifest, resolved and planned.
+pub struct Loaded {
+    /// The file.
+    pub file: ManifestFile,
+    /// The plan.
+    pub plan: Plan,
+}
+
+/// Reads, resolves and plans a manifest; any problem names the file, line and field.
+pub fn load(path: &Path) -> Result<Loaded> {
+    let file = ManifestFile::load(path)?;
+    let catalogue = Catalogue::resolve(&file)?;
+    let plan = Plan::new(&file, catalogue)?;
+    Ok(Loaded { file, plan })
+}
+
+/// Which part of the shards a process renders.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Worker {
+    /// This worker, 0-based.
+    pub index: usize,
+    /// Number of workers.
+    pub count: usize,
+}
+
+impl Worker {
+    /// The whole job.
+    pub const ALL: Worker = Worker { index: 0, count: 1 };
+
+    /// Whether shard `ordinal` belongs to this worker (round robin, so every worker gets a mix
+    /// of splits and shard sizes).
+    pub fn owns(self, ordinal: usize) -> bool {
+        ordinal % self.count == self.index
+    }
+}
+
+impl std::str::FromStr for Worker {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let err = || format!("--worker {s:?}: expected I/N with 0 ≤ I < N (e.g. 3/16)");
+        let (i, n) = s.split_once('/').ok_or_else(err)?;
+        let (index, count): (usize, usize) = (
+            i.trim().parse().map_err(|_| err())?,
+            n.trim().parse().map_err(|_| err())?,
+        );
+        if count == 0 || index >= count {
+            return Err(err());
+        }
+        Ok(Worker { index, count })
+    }
+}
+
+/// Estimated encoded bytes per sample: measured ZIP-compressed EXR sizes scale with the covered
+/// area; this is the median over the quickstart samples (docs/PERFORMANCE.md), per pixel.
+pub const BYTES_PER_PIXEL_ESTIMATE: f64 = 15.5;
+/// Samples per second on the reference machine (2 cores) at 256² with the `lut` quality and no
+/// shadows, from docs/PERFORMANCE.md; scaled by pixel count for estimates.
+pub const SAMPLES_PER_SECOND_256: f64 = 9.0;
+
+/// Prints what a manifest would produce.
+pub fn describe(l: &Loaded) -> String {
+    use std::fmt::Write;
+    let p = &l.plan;
+    let st = &p.settings;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "dataset {:?} (seed {}), from {}",
+        p.name,
+        p.seed,
+        l.file.path.display()
+    );
+    for note in &p.catalogue.substitutions {
+        let _ = writeln!(s, "  note: {note}");
+    }
+    let _ = writeln!(
+        s,
+        "catalogue: {} shapes, {} materials, {} environments",
+        p.catalogue.shapes.len(),
+        p.catalogue.materials.len(),
+        p.catalogue.envs.len()
+    );
+    for sp in &p.splits {
+        let mut per_cat = std::collections::BTreeMap::<&str, usize>::new();
+        for &k in &sp.shapes {
+            *per_cat.entry(p.catalogue.shapes[k].category.as_str()).or_default() += 1;
+        }
+        let cats: Vec<String> = per_cat.iter().map(|(c, n)| format!("{n} {c}")).collect();
+        let shards = p.shards.iter().filter(|r| p.splits[r.split].name == sp.name).count();
+        let _ = writeln!(
+            s,
+            "split {:<8} shapes: {} ({}); materials: {}; environments: {}; combinations: {}; samples: {}; shards: {}",
+            sp.name,
+            sp.shapes.len(),
+            cats.join(", "),
+            sp.materials.len(),
+            sp.envs.len(),
+            sp.combinations.len(),
+            sp.samples,
+            shards
+        );
+    }
+    let n = p.samples();
+    let pixels = (st.resolution * st.resolution) as f64;
+    let bytes = n as f64 * (pixels * BYTES_PER_PIXEL_ESTIMATE);
+    let secs = n as f64 / (SAMPLES_PER_SECOND_256 * 65536.0 / pixels);
+    let _ = writeln!(
+        s,
+        "total: {n} samples in {} shards of up to {}; {}×{} images, {}×{} environment, quality {:?}, shadows {:?}, ground truth {:?}",
+        p.shards.len(),
+        st.shard_size,
+        st.resolution,
+        st.resolution,
+        st.env_rows,
+        2 * st.env_rows,
+        st.quality,
+        st.shadows,
+        st.ground_truth
+    );
+    let _ = writeln!(
+        s,
+        "estimate: {:.1} GB on disk, {} on 2 cores at the reference rate without shadows (docs/PERFORMANCE.md); scale by cores",
+        bytes / 1e9,
+        human_duration(secs)
+    );
+    s
+}
+
+fn human_duration(secs: f64) -> String {
+    if secs < 120.0 {
+        format!("{secs:.0} s")
+    } else if secs < 7200.0 {
+        format!("{:.0} min", secs / 60.0)
+    } else {
+        format!("{:.1} h", secs / 3600.0)
+    }
+}
+
+/// Options of `datagen run`.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// Overrides the manifest's output directory.
+    pub out: Option<PathBuf>,
+    /// Part of the job to render.
+    pub worker: Worker,
+    /// Show progress bars.
+    pub progress: bool,
+}
+
+/// What a run did.
+#[derive(Clone, Debug)]
+pub struct RunSummary {
+    /// Output directory.
+    pub dir: PathBuf,
+    /// Shards rendered now.
+    pub rendered_shards: usize,
+    /// Shards found complete from an earlier run.
+    pub resumed_shards: usize,
+    /// Samples rendered now.
+    pub rendered_samples: usize,
+    /// Seconds spent rendering shards.
+    pub render_s: f64,
+    /// Whether `index.jsonl` and `dataset.json` were written.
+    pub joined: bool,
+}
+
+/// Holds the output directory's lock for this worker layout until dropped.
+pub struct OutputLock {
+    _file: File,
+}
+
+/// Locks `dir` for `worker`. Runs with the same worker count but different indices may share a
+/// directory; a second run of the same worker, or any run with a different worker count,
+/// is refused while the first holds its lock. The OS releases locks of killed processes.
+pub fn lock_output(dir: &Path, worker: Worker) -> Result<OutputLock> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    for e in std::fs::read_dir(dir)? {
+        let p = e?.path();
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let Some(layout) = name.strip_prefix(".lock-") else {
+            continue;
+        };
+        if layout.ends_with(&format!("-of-{}", worker.count)) {
+            continue;
+        }
+        let f = File::open(&p)?;
+        if let Err(TryLockError::WouldBlock) = f.try_lock() {
+            bail!(
+                "{} is being written by a run with another worker layout ({layout}); refusing to start",
+                dir.display()
+            );
+        }
+    }
+    let p = dir.join(format!(".lock-{}-of-{}", worker.index, worker.count));
+    let f = File::options()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&p)
+        .with_context(|| format!("cannot open {}", p.display()))?;
+    match f.try_lock() {
+        Ok(()) => Ok(OutputLock { _file: f }),
+        Err(TryLockError::WouldBlock) => bail!(
+            "another datagen run is writing {} (worker {}/{}); refusing to start a second one",
+            dir.display(),
+            worker.index,
+            worker.count
+        ),
+        Err(TryLockError::Error(e)) => Err(e).with_context(|| format!("cannot lock {}", p.display())),
+    }
+}
+
+fn bar(progress: bool, len: u64, what: &str) -> ProgressBar {
+    let b = if progress {
+        ProgressBar::new(len)
+    } else {
+        ProgressBar::hidden()
+    };
+    b.set_style(
+        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} ({per_sec}), {elapsed} elapsed, ETA {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    b.set_message(what.to_string());
+    b
+}
+
+/// Renders the shards of `worker` that are not complete yet; the whole job (one worker) then
+/// joins the index. Rerunning after an interruption continues where it stopped.
+pub fn run(l: &Loaded, opts: &RunOptions) -> Result<RunSummary> {
+    let plan = &l.plan;
+    let dir = opts
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(&l.file.manifest.dataset.output));
+    let _lock = lock_output(&dir, opts.worker)?;
+    let record = PlanRecord::of(plan, &l.file.manifest)?;
+    if dir.join("plan.json").exists() {
+        let old = read_plan(&dir)?;
+        if old.manifest_hash != record.manifest_hash {
+            bail!(
+                "{} holds a dataset of another manifest ({} ≠ {}): choose another --out or delete it",
+                dir.display(),
+                old.manifest_hash,
+                record.manifest_hash
+            );
+        }
+    } else {
+        write_plan(&dir, &record)?;
+    }
+    std::fs::create_dir_all(shards_dir(&dir))?;
+
+    let need = needed(plan);
+    let mbar = bar(opts.progress, need.iter().filter(|&&n| n).count() as u64, "materials");
+    let materials = prepare_all(
+        &dir.join("materials"),
+        &plan.catalogue.materials,
+        &need,
+        plan.settings.ground_truth,
+        &|| mbar.inc(1),
+    )?;
+    mbar.finish_and_clear();
+
+    let mine: Vec<_> = plan.shards.iter().filter(|s| opts.worker.owns(s.ordinal)).collect();
+    let todo: Vec<_> = mine
+        .iter()
+        .filter(|s| !shard_done(&dir, &s.name(plan)))
+        .copied()
+        .collect();
+    let resumed = mine.len() - todo.len();
+    let samples: usize = todo.iter().map(|s| s.len).sum();
+    let sbar = bar(opts.progress, samples as u64, "samples");
+    let renderer = Renderer::new(plan, &materials);
+    let t0 = Instant::now();
+    for shard in &todo {
+        write_shard(&dir, plan, &renderer, shard, &|| sbar.inc(1))
+            .with_context(|| format!("shard {}", shard.name(plan)))?;
+    }
+    sbar.finish_and_clear();
+    let render_s = t0.elapsed().as_secs_f64();
+    let joined = opts.worker.count == 1;
+    if joined {
+        join(&dir, &[], Some(&materials))?;
+    }
+    Ok(RunSummary {
+        dir,
+        rendered_shards: todo.len(),
+        resumed_shards: resumed,
+        rendered_samples: samples,
+        render_s,
+        joined,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn worker_specs_parse_and_partition() {
+        assert_eq!("3/16".parse::<Worker>(), Ok(Worker { index: 3, count: 16 }));
+        assert!("16/16".parse::<Worker>().is_err());
+        assert!("1/0".parse::<Worker>().is_err());
+        assert!("x".parse::<Worker>().is_err());
+        let ws: Vec<Worker> = (0..3).map(|i| Worker { index: i, count: 3 }).collect();
+        for ordinal in 0..20 {
+            assert_eq!(ws.iter().filter(|w| w.owns(ordinal)).count(), 1);
+        }
+    }
+
+    #[test]
+    fn a_second_run_on_the_same_output_is_refused() {
+        let dir = std::env::temp_dir().join(format!("matedit-lock-{}", std::process::id()));
+        let first = lock_output(&dir, Worker::ALL).unwrap();
+        let e = lock_output(&dir, Worker::ALL).err().unwrap().to_string();
+        assert!(e.contains("another datagen run"), "{e}");
+        let e = lock_output(&dir, Worker { index: 0, count: 2 })
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("another worker layout"), "{e}");
+        drop(first);
+        assert!(lock_output(&dir, Worker::ALL).is_ok());
+    }
+}

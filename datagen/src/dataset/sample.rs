@@ -1,0 +1,380 @@
+//! One training tuple of Fig. 2: the input image I (material m), the target image O (same shape,
+//! view and light, material m_t), camera-space normals, mask, region map and the environment as
+//! the camera sees it.
+//!
+//! Every random choice of a sample comes from its combination's seed stream, in a fixed order
+//! (environment rotation, the views, then per-region materials and targets), so all views of a
+//! combination agree and a sample never depends on which thread or worker renders it.
+//!
+//! Shortcuts ("model only what a scene needs"), each measured in `docs/PERFORMANCE.md`:
+//! one BVH per shape serves all its views (rays are turned into object space instead);
+//! no shadow rays for convex shapes under `shadows = "auto"`; a region that no pixel shows gets
+//! no shader; the `lut` quality shades a normal-space table instead of every pixel.
+
+use super::catalogue::ShapeItem;
+use super::materials::MaterialEntry;
+use super::plan::{Plan, RotationMode, SplitPlan};
+use crate::accel::Scene;
+use crate::assets::random::Draw;
+use crate::gbuffer::GBuffer;
+use crate::io::{encode_exr_channels, load_env};
+use crate::render::Shadows;
+use crate::shapes::{Mesh, Shape};
+use anyhow::{Context, Result};
+use glam::{DMat3, Mat3, Vec3};
+use matedit_physics::EnvMap;
+use matedit_physics::shading::{VisibilityFn, shade_with};
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, HashMap};
+use std::sync::{Arc, Mutex};
+
+/// One line of `index.jsonl` (and of a shard's `shard.json`).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SampleRecord {
+    /// Unique id, `SPLIT-NNNNNNN`.
+    pub id: String,
+    /// Split name.
+    pub split: String,
+    /// Index within the split.
+    pub index: usize,
+    /// Shape category.
+    pub category: String,
+    /// Shape id.
+    pub shape_id: String,
+    /// Region names; the EXR's `region` channel indexes this list.
+    pub regions: Vec<String>,
+    /// Material id per region (m).
+    pub material_ids: Vec<String>,
+    /// Target material id per region (m_t).
+    pub target_material_ids: Vec<String>,
+    /// Environment id.
+    pub env_id: String,
+    /// Rotation of the environment about +y, degrees.
+    pub env_rotation_deg: f64,
+    /// Camera azimuth, degrees.
+    pub view_azimuth_deg: f64,
+    /// Camera elevation, degrees.
+    pub view_elevation_deg: f64,
+    /// Whether shadow rays were traced.
+    pub shadows: bool,
+    /// Pixels covered by the object.
+    pub covered_pixels: usize,
+    /// Shard directory, relative to the dataset root.
+    pub shard: String,
+    /// Files of the sample, relative to the dataset root: `image` (EXR: R, G, B = I; O.R, O.G,
+    /// O.B = O; normal.X/Y/Z; mask; region) and `env` (EXR, camera-space environment).
+    pub files: BTreeMap<String, String>,
+    /// `blake3:HEX` of each file, same keys as `files`.
+    pub checksums: BTreeMap<String, String>,
+}
+
+/// A loaded shape with its BVH.
+pub struct LoadedShape {
+    /// The mesh (object space, normalised).
+    pub shape: Shape,
+    /// Its BVH.
+    pub scene: Option<Scene>,
+    /// Whether no part of it can shadow another.
+    pub convex: bool,
+}
+
+/// Whether every vertex lies on or behind every face's plane (then no point can see another
+/// part of the surface, so shadow rays are pointless). Gives up, answering `false`, beyond
+/// `budget` vertex–plane tests.
+pub fn is_convex(mesh: &Mesh, budget: usize) -> bool {
+    if mesh.triangles.len().saturating_mul(mesh.positions.len()) > budget {
+        return false;
+    }
+    for t in &mesh.triangles {
+        let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+        let n = (b - a).cross(c - a);
+        let len = n.length();
+        if len == 0.0 {
+            continue;
+        }
+        let n = n / len;
+        // Faces may be wound either way: all vertices must sit on one side.
+        let (mut above, mut below) = (false, false);
+        for p in &mesh.positions {
+            let d = n.dot(*p - a);
+            above |= d > 1e-5;
+            below |= d < -1e-5;
+            if above && below {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// Shared, thread-safe state for rendering the samples of a plan.
+pub struct Renderer<'a> {
+    plan: &'a Plan,
+    materials: &'a [Option<MaterialEntry>],
+    shapes: Mutex<HashMap<usize, Arc<LoadedShape>>>,
+    envs: Mutex<HashMap<usize, Arc<EnvMap>>>,
+}
+
+/// Shapes kept loaded at once; samples are ordered by shape, so a small cache suffices.
+const SHAPE_CACHE: usize = 16;
+
+/// The rendered pixels of a sample, before encoding.
+pub struct SamplePixels {
+    /// Record (files and checksums not yet filled).
+    pub record: SampleRecord,
+    /// EXR channels of the image file.
+    pub image: Vec<(&'static str, Vec<f32>)>,
+    /// The camera-space environment.
+    pub env: EnvMap,
+}
+
+impl<'a> Renderer<'a> {
+    /// A renderer for `plan` with its prepared `materials` (catalogue order).
+    pub fn new(plan: &'a Plan, materials: &'a [Option<MaterialEntry>]) -> Self {
+        Self {
+            plan,
+            materials,
+            shapes: Mutex::new(HashMap::new()),
+            envs: Mutex::new(HashMap::new()),
+        }
+    }
+
+    fn shape(&self, k: usize) -> Result<Arc<LoadedShape>> {
+        if let Some(s) = self
+            .shapes
+            .lock()
+            .map_err(|_| anyhow::anyhow!("shape cache poisoned"))?
+            .get(&k)
+        {
+            return Ok(s.clone());
+        }
+        let item: &ShapeItem = &self.plan.catalogue.shapes[k];
+        let shape = Shape::load(&item.spec, item.up).with_context(|| format!("shape {}", item.id))?;
+        let (scene, convex) = match &shape {
+            Shape::Mesh(m) => (Some(Scene::new(m)), is_convex(m, 200_000_000)),
+            Shape::Sphere => (None, true),
+        };
+        let loaded = Arc::new(LoadedShape { shape, scene, convex });
+        let mut cache = self
+            .shapes
+            .lock()
+            .map_err(|_| anyhow::anyhow!("shape cache poisoned"))?;
+        if cache.len() >= SHAPE_CACHE {
+            cache.clear();
+        }
+        cache.insert(k, loaded.clone());
+        Ok(loaded)
+    }
+
+    /// The environment at twice the output resolution (what [`EnvMap::rotated`] reads).
+    fn env(&self, k: usize) -> Result<Arc<EnvMap>> {
+        if let Some(e) = self
+            .envs
+            .lock()
+            .map_err(|_| anyhow::anyhow!("env cache poisoned"))?
+            .get(&k)
+        {
+            return Ok(e.clone());
+        }
+        let item = &self.plan.catalogue.envs[k];
+        let (map, _) = load_env(&item.spec).with_context(|| format!("environment {}", item.id))?;
+        let map = Arc::new(map.resampled(2 * self.plan.settings.env_rows, 0.0));
+        self.envs
+            .lock()
+            .map_err(|_| anyhow::anyhow!("env cache poisoned"))?
+            .insert(k, map.clone());
+        Ok(map)
+    }
+
+    fn material(&self, k: usize) -> Result<&MaterialEntry> {
+        self.materials
+            .get(k)
+            .and_then(Option::as_ref)
+            .with_context(|| format!("material {} was not prepared", self.plan.catalogue.materials[k].id))
+    }
+
+    /// Renders sample `index` of split `split`.
+    pub fn render(&self, split: usize, index: usize) -> Result<SamplePixels> {
+        let plan = self.plan;
+        let st = &plan.settings;
+        let sp: &SplitPlan = &plan.splits[split];
+        let combo = &sp.combinations[index / st.views_per_combination];
+        let slot = index % st.views_per_combination;
+        let mut draw = Draw::new(plan.seed, combo.stream);
+        let rotation = match &st.rotation {
+            RotationMode::Random => draw.uniform(0.0, 360.0),
+            RotationMode::None => 0.0,
+            RotationMode::List(v) => v[draw.int(0, v.len() - 1)],
+        };
+        // Partial Fisher–Yates: the first `per_combination` of a shuffled list of azimuths.
+        let mut views: Vec<usize> = (0..st.azimuths).collect();
+        for i in 0..st.views_per_combination {
+            let j = draw.int(i, st.azimuths - 1);
+            views.swap(i, j);
+        }
+        let azimuth = views[slot] as f64 * 360.0 / st.azimuths as f64;
+        let elevation = st.elevation_deg;
+
+        let loaded = self.shape(combo.shape)?;
+        let item = &plan.catalogue.shapes[combo.shape];
+        let mesh_regions: Vec<String> = match &loaded.shape {
+            Shape::Mesh(m) => m.regions.clone(),
+            Shape::Sphere => vec!["object".into()],
+        };
+        let regions = if st.per_region {
+            mesh_regions
+        } else {
+            vec!["object".into()]
+        };
+        let pick_other = |draw: &mut Draw, not: usize| -> usize {
+            let others: Vec<usize> = sp.materials.iter().copied().filter(|&m| m != not).collect();
+            if others.is_empty() {
+                not
+            } else {
+                others[draw.int(0, others.len() - 1)]
+            }
+        };
+        let mut materials = vec![combo.material];
+        for _ in 1..regions.len() {
+            let m = pick_other(&mut draw, combo.material);
+            materials.push(m);
+        }
+        let targets: Vec<usize> = materials
+            .iter()
+            .map(|&m| if st.target_same { m } else { pick_other(&mut draw, m) })
+            .collect();
+
+        // Object → camera: yaw by −azimuth (the camera moves +azimuth around the object), then
+        // pitch by the elevation (the camera looks down).
+        let rot = Mat3::from_rotation_x((elevation as f32).to_radians())
+            * Mat3::from_rotation_y((-azimuth as f32).to_radians());
+        let res = st.resolution;
+        let g = GBuffer::trace_rotated(&loaded.shape, loaded.scene.as_ref(), res, rot);
+        let region_of: Vec<u32> = if st.per_region {
+            g.region.clone()
+        } else {
+            vec![0; g.region.len()]
+        };
+
+        // L_cam(d) = L_src(R_y(azimuth − rotation) · R_x(−elevation) · d).
+        let m = DMat3::from_rotation_y((azimuth - rotation).to_radians())
+            * DMat3::from_rotation_x((-elevation).to_radians());
+        let env = self.env(combo.env)?.rotated(st.env_rows, m);
+
+        let shadows = st.shadows.for_shape(loaded.convex) == Shadows::On && loaded.scene.is_some();
+        let to_object = rot.transpose();
+        let visibility = |p: usize, dirs: &[[f32; 3]], out: &mut [f32]| {
+            let Some(scene) = loaded.scene.as_ref() else { return };
+            let ng = Vec3::from(g.geometric_normal[p]);
+            let ns = Vec3::from(g.normal[p]);
+            let origin = to_object * (Vec3::from(g.position[p]) + ng * 1e-4);
+            for (o, d) in out.iter_mut().zip(dirs) {
+                let d = Vec3::from(*d);
+                let open = d.dot(ng) > 0.0 && d.dot(ns) > 0.0 && !scene.occluded(origin, to_object * d, 0.0);
+                *o = if open { 1.0 } else { 0.0 };
+            }
+        };
+        let vis: Option<&VisibilityFn<'_>> = if shadows { Some(&visibility) } else { None };
+
+        let mut image_i = vec![[0.0_f32; 3]; res * res];
+        let mut image_o = vec![[0.0_f32; 3]; res * res];
+        for (r, (&mi, &mt)) in materials.iter().zip(&targets).enumerate() {
+            let mask_r: Vec<f32> = g
+                .mask
+                .iter()
+                .zip(&region_of)
+                .map(|(&m, &reg)| if m > 0.0 && reg as usize == r { 1.0 } else { 0.0 })
+                .collect();
+            if !mask_r.iter().any(|&m| m > 0.0) {
+                continue;
+            }
+            for (mat, out) in [(mi, &mut image_i), (mt, &mut image_o)] {
+                let (rgb, _) = shade_with(&self.material(mat)?.render, &env, st.quality, &g.normal, &mask_r, vis);
+                for ((o, v), &m) in out.iter_mut().zip(rgb).zip(&mask_r) {
+                    if m > 0.0 {
+                        *o = v;
+                    }
+                }
+            }
+        }
+
+        let chan = |img: &[[f32; 3]], c: usize| img.iter().map(|p| p[c]).collect::<Vec<f32>>();
+        let nrm = |c: usize| g.normal.iter().map(|p| p[c]).collect::<Vec<f32>>();
+        let image = vec![
+            ("R", chan(&image_i, 0)),
+            ("G", chan(&image_i, 1)),
+            ("B", chan(&image_i, 2)),
+            ("O.R", chan(&image_o, 0)),
+            ("O.G", chan(&image_o, 1)),
+            ("O.B", chan(&image_o, 2)),
+            ("normal.X", nrm(0)),
+            ("normal.Y", nrm(1)),
+            ("normal.Z", nrm(2)),
+            ("mask", g.mask.clone()),
+            ("region", region_of.iter().map(|&r| r as f32).collect()),
+        ];
+        let ids =
+            |v: &[usize]| -> Result<Vec<String>> { v.iter().map(|&m| Ok(self.material(m)?.id.clone())).collect() };
+        let record = SampleRecord {
+            id: format!("{}-{index:07}", sp.name),
+            split: sp.name.clone(),
+            index,
+            category: item.category.clone(),
+            shape_id: item.id.clone(),
+            regions,
+            material_ids: ids(&materials)?,
+            target_material_ids: ids(&targets)?,
+            env_id: plan.catalogue.envs[combo.env].id.clone(),
+            env_rotation_deg: rotation,
+            view_azimuth_deg: azimuth,
+            view_elevation_deg: elevation,
+            shadows,
+            covered_pixels: g.covered(),
+            shard: String::new(),
+            files: BTreeMap::new(),
+            checksums: BTreeMap::new(),
+        };
+        Ok(SamplePixels { record, image, env })
+    }
+}
+
+/// Encodes a sample's two EXR files: (image bytes, env bytes).
+pub fn encode(px: SamplePixels) -> Result<(SampleRecord, Vec<u8>, Vec<u8>)> {
+    let res = (px.image[0].1.len() as f64).sqrt() as usize;
+    let image = encode_exr_channels(res, res, px.image).with_context(|| px.record.id.clone())?;
+    let t = px.env.texels();
+    let ch = |c: usize| t.iter().map(|p| p[c]).collect::<Vec<f32>>();
+    let env = encode_exr_channels(
+        px.env.width(),
+        px.env.height(),
+        vec![("R", ch(0)), ("G", ch(1)), ("B", ch(2))],
+    )
+    .with_context(|| px.record.id.clone())?;
+    Ok((px.record, image, env))
+}
+
+/// `blake3:HEX` of some bytes.
+pub fn checksum(bytes: &[u8]) -> String {
+    format!("blake3:{}", blake3::hash(bytes).to_hex())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shapes::procedural::Category;
+
+    #[test]
+    fn convexity_is_detected() {
+        let cylinder = || {
+            let mut b = crate::shapes::procedural::Builder::new(["a", "b"], "cylinder".into());
+            b.cylinder(Vec3::ZERO, Vec3::Y, 0.5, 24, 0);
+            b.finish()
+        };
+        assert!(is_convex(&cylinder(), usize::MAX));
+        let chair = Category::Chair.generate(1);
+        assert!(!is_convex(&chair, usize::MAX));
+        // Beyond the budget the answer is the safe one.
+        assert!(!is_convex(&cylinder(), 1));
+    }
+}

@@ -1,0 +1,220 @@
+//! `datagen verify DIR`: checksums, schema and split integrity of a finished dataset, read only
+//! from what is on disk (never from the manifest).
+
+use super::sample::{SampleRecord, checksum};
+use super::store::{DatasetRecord, IMAGE_CHANNELS};
+use anyhow::{Context, Result};
+use rayon::prelude::*;
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+
+/// What verification found.
+#[derive(Clone, Debug, Default)]
+pub struct Report {
+    /// Samples checked.
+    pub samples: usize,
+    /// Files whose checksum was recomputed.
+    pub files: usize,
+    /// Every problem, one line each, naming the sample or file.
+    pub problems: Vec<String>,
+}
+
+impl Report {
+    /// True when nothing is wrong.
+    pub fn ok(&self) -> bool {
+        self.problems.is_empty()
+    }
+}
+
+/// Verifies `dir`. Problems are collected, not returned as errors; an error means the dataset
+/// could not be read at all.
+pub fn verify(dir: &Path) -> Result<Report> {
+    let ds_path = dir.join("dataset.json");
+    let ds: DatasetRecord = serde_json::from_str(
+        &std::fs::read_to_string(&ds_path)
+            .with_context(|| format!("cannot read {} (an unfinished run? `datagen join`)", ds_path.display()))?,
+    )
+    .with_context(|| format!("{}: not a dataset record", ds_path.display()))?;
+    let index_path = dir.join("index.jsonl");
+    let index = std::fs::read(&index_path).with_context(|| format!("cannot read {}", index_path.display()))?;
+    let mut r = Report::default();
+    if checksum(&index) != ds.index_checksum {
+        r.problems.push(format!(
+            "index.jsonl: checksum differs from dataset.json's index_checksum"
+        ));
+    }
+    let mut records = Vec::new();
+    for (n, line) in index.split(|&b| b == b'\n').enumerate() {
+        if line.is_empty() {
+            continue;
+        }
+        match serde_json::from_slice::<SampleRecord>(line) {
+            Ok(rec) => records.push(rec),
+            Err(e) => r.problems.push(format!("index.jsonl:{}: {e}", n + 1)),
+        }
+    }
+    r.samples = records.len();
+
+    // Counts and ids.
+    let mut counts: BTreeMap<&str, usize> = BTreeMap::new();
+    let mut ids = BTreeSet::new();
+    for rec in &records {
+        *counts.entry(rec.split.as_str()).or_default() += 1;
+        if !ids.insert(rec.id.as_str()) {
+            r.problems.push(format!("{}: id appears twice", rec.id));
+        }
+    }
+    for (split, &n) in &ds.counts {
+        let got = counts.get(split.as_str()).copied().unwrap_or(0);
+        if got != n {
+            r.problems.push(format!(
+                "split {split}: {got} samples in index.jsonl, dataset.json says {n}"
+            ));
+        }
+    }
+    for s in &ds.plan.splits {
+        if ds.counts.get(&s.name) != Some(&s.samples) {
+            r.problems.push(format!(
+                "split {}: the plan has {} samples, the counts differ",
+                s.name, s.samples
+            ));
+        }
+    }
+
+    integrity(&ds, &records, &mut r.problems);
+
+    // Files: existence, checksums, channels.
+    let file_problems: Vec<Vec<String>> = records
+        .par_iter()
+        .map(|rec| {
+            let mut p = Vec::new();
+            for key in ["image", "env"] {
+                let (Some(rel), Some(sum)) = (rec.files.get(key), rec.checksums.get(key)) else {
+                    p.push(format!("{}: no {key} file recorded", rec.id));
+                    continue;
+                };
+                let path = dir.join(rel);
+                let bytes = match std::fs::read(&path) {
+                    Ok(b) => b,
+                    Err(e) => {
+                        p.push(format!("{}: {rel}: {e}", rec.id));
+                        continue;
+                    }
+                };
+                if checksum(&bytes) != *sum {
+                    p.push(format!("{}: {rel}: checksum mismatch (corrupt or modified)", rec.id));
+                    continue;
+                }
+                if key == "image" {
+                    match exr_channels(&bytes) {
+                        Ok((w, h, ch)) => {
+                            let want: Vec<String> = IMAGE_CHANNELS.iter().map(|s| s.to_string()).collect();
+                            if ch != want {
+                                p.push(format!("{}: {rel}: channels {ch:?}, expected {want:?}", rec.id));
+                            }
+                            if w != h {
+                                p.push(format!("{}: {rel}: {w}×{h} is not square", rec.id));
+                            }
+                        }
+                        Err(e) => p.push(format!("{}: {rel}: {e}", rec.id)),
+                    }
+                }
+            }
+            p
+        })
+        .collect();
+    r.files = records.len() * 2;
+    r.problems.extend(file_problems.into_iter().flatten());
+    Ok(r)
+}
+
+fn exr_channels(bytes: &[u8]) -> Result<(usize, usize, Vec<String>)> {
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)?;
+    let header = meta.headers.first().context("no EXR header")?;
+    let size = header.layer_size;
+    let names = header.channels.list.iter().map(|c| c.name.to_string()).collect();
+    Ok((size.width(), size.height(), names))
+}
+
+/// No shape in two splits, no material (nor a near-duplicate group) in a training and a test
+/// split, and every sample uses only its split's members.
+fn integrity(ds: &DatasetRecord, records: &[SampleRecord], problems: &mut Vec<String>) {
+    let mut shape_split: BTreeMap<&str, BTreeSet<&str>> = BTreeMap::new();
+    let mut material_split: BTreeMap<&str, BTreeSet<&str>> = BTreeMap::new();
+    let mut group_split: BTreeMap<&str, BTreeSet<&str>> = BTreeMap::new();
+    let members: BTreeMap<&str, (BTreeSet<&str>, BTreeSet<&str>)> = ds
+        .plan
+        .splits
+        .iter()
+        .map(|s| {
+            (
+                s.name.as_str(),
+                (
+                    s.shapes.iter().map(String::as_str).collect(),
+                    s.materials.iter().map(String::as_str).collect(),
+                ),
+            )
+        })
+        .collect();
+    for rec in records {
+        shape_split.entry(&rec.shape_id).or_default().insert(&rec.split);
+        let Some((shapes, mats)) = members.get(rec.split.as_str()) else {
+            problems.push(format!("{}: split {:?} is not in dataset.json", rec.id, rec.split));
+            continue;
+        };
+        if !shapes.contains(rec.shape_id.as_str()) {
+            problems.push(format!(
+                "{}: shape {} is not a member of split {}",
+                rec.id, rec.shape_id, rec.split
+            ));
+        }
+        if rec.material_ids.len() != rec.regions.len() || rec.target_material_ids.len() != rec.regions.len() {
+            problems.push(format!("{}: one material and one target per region expected", rec.id));
+        }
+        for m in rec.material_ids.iter().chain(&rec.target_material_ids) {
+            material_split.entry(m).or_default().insert(&rec.split);
+            if !mats.contains(m.as_str()) {
+                problems.push(format!(
+                    "{}: material {m} is not a member of split {}",
+                    rec.id, rec.split
+                ));
+            }
+            match ds.materials.get(m) {
+                Some(t) => {
+                    group_split.entry(&t.group).or_default().insert(&rec.split);
+                }
+                None => problems.push(format!("{}: material {m} is not in the material table", rec.id)),
+            }
+        }
+    }
+    // Membership lists themselves must be disjoint too (a split could list a shape no sample
+    // happens to use).
+    for s in &ds.plan.splits {
+        for id in &s.shapes {
+            shape_split.entry(id).or_default().insert(&s.name);
+        }
+        for (id, g) in &s.material_groups {
+            material_split.entry(id).or_default().insert(&s.name);
+            group_split.entry(g).or_default().insert(&s.name);
+        }
+    }
+    let role: BTreeMap<&str, &str> = ds
+        .plan
+        .splits
+        .iter()
+        .map(|s| (s.name.as_str(), s.role.as_str()))
+        .collect();
+    let mut leak = |what: &str, map: BTreeMap<&str, BTreeSet<&str>>, by_role: bool| {
+        for (id, splits) in map {
+            let roles: BTreeSet<&str> = splits.iter().map(|s| role.get(s).copied().unwrap_or("?")).collect();
+            let leaked = if by_role { roles.len() > 1 } else { splits.len() > 1 };
+            if leaked {
+                let list: Vec<&str> = splits.into_iter().collect();
+                problems.push(format!("split leak: {what} {id} is in splits {}", list.join(" and ")));
+            }
+        }
+    };
+    leak("shape", shape_split, false);
+    leak("material", material_split, true);
+    leak("material group", group_split, true);
+}

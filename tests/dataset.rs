@@ -1,0 +1,424 @@
+//! The dataset factory end to end: split integrity (including manifests that try to leak),
+//! bad manifests, determinism across thread counts, resume after `kill -9`, and an independent
+//! reader of `index.jsonl` and the EXR files.
+
+mod common;
+
+use matedit_datagen::dataset::run::{RunOptions, Worker, load, run};
+use matedit_datagen::dataset::verify::verify;
+use matedit_datagen::gbuffer::GBuffer;
+use matedit_datagen::io::read_exr_channels;
+use matedit_datagen::shapes::{Shape, UpAxis};
+use serde_json::Value;
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("matedit-dataset-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A small manifest with mixed categories, per-region materials and rotations. Cheap shading:
+/// 16×32 environment, Lambert/plastic sources rendered as measured.
+fn manifest(extra_splits: &str, render: &str) -> String {
+    format!(
+        r#"
+[dataset]
+name = "t"
+seed = 11
+output = "unused"
+shard_size = 3
+
+[render]
+resolution = 32
+env_resolution = "16x32"
+{render}
+
+[views]
+azimuths = 8
+elevation_deg = 25.0
+per_combination = 2
+
+[multi_material]
+mode = "per_region"
+
+[[shapes]]
+source = "procedural"
+category = "car"
+count = 3
+
+[[shapes]]
+source = "procedural"
+category = "chair"
+count = 3
+
+[[materials]]
+source = "library"
+families = ["fabric", "rubber", "plastic"]
+
+[[environments]]
+source = "procedural"
+family = "overcast"
+count = 2
+
+[[splits]]
+name = "train"
+shapes = {{ car = 1, chair = 1 }}
+materials = 3
+{extra_splits}
+"#
+    )
+}
+
+const TEST_SPLIT: &str = r#"
+[[splits]]
+name = "test"
+shapes = { car = 1, chair = 1 }
+materials = 2
+"#;
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn run_to(manifest: &Path, out: &Path) {
+    let l = load(manifest).unwrap();
+    run(
+        &l,
+        &RunOptions {
+            out: Some(out.to_path_buf()),
+            worker: Worker::ALL,
+            progress: false,
+        },
+    )
+    .unwrap();
+}
+
+fn index(dir: &Path) -> Vec<Value> {
+    std::fs::read_to_string(dir.join("index.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+#[test]
+fn an_independent_reader_finds_disjoint_splits_correct_counts_and_consistent_images() {
+    let d = scratch("reader");
+    let m = write(&d, "m.toml", &manifest(TEST_SPLIT, "ground_truth = \"measured\""));
+    let out = d.join("out");
+    run_to(&m, &out);
+    let rep = verify(&out).unwrap();
+    assert!(rep.ok(), "{:?}", rep.problems);
+
+    let recs = index(&out);
+    // 2 shapes × 3 materials × 2 envs × 2 views and 2 × 2 × 2 × 2.
+    let count = |s: &str| recs.iter().filter(|r| r["split"] == s).count();
+    assert_eq!((count("train"), count("test")), (24, 16));
+    let mut owner: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for r in &recs {
+        let split = r["split"].as_str().unwrap().to_string();
+        owner
+            .entry(format!("shape {}", r["shape_id"]))
+            .or_default()
+            .insert(split.clone());
+        for m in r["material_ids"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .chain(r["target_material_ids"].as_array().unwrap())
+        {
+            owner.entry(format!("material {m}")).or_default().insert(split.clone());
+        }
+        for key in [
+            "id",
+            "category",
+            "env_id",
+            "env_rotation_deg",
+            "view_azimuth_deg",
+            "view_elevation_deg",
+        ] {
+            assert!(!r[key].is_null(), "{key} missing in {r}");
+        }
+        assert_eq!(
+            r["regions"].as_array().unwrap().len(),
+            r["material_ids"].as_array().unwrap().len()
+        );
+    }
+    for (what, splits) in &owner {
+        assert_eq!(splits.len(), 1, "{what} is in {splits:?}");
+    }
+
+    // Images agree with the recorded ids: the recorded shape, posed as recorded and traced by
+    // the plain (unrotated) path, covers the same pixels with the same normals.
+    for r in recs.iter().step_by(7) {
+        let (w, _, ch) = read_exr_channels(&out.join(r["files"]["image"].as_str().unwrap())).unwrap();
+        let az = r["view_azimuth_deg"].as_f64().unwrap() as f32;
+        let el = r["view_elevation_deg"].as_f64().unwrap() as f32;
+        let shape = Shape::load(r["shape_id"].as_str().unwrap(), UpAxis::PosY)
+            .unwrap()
+            .posed(-az, el);
+        let scene = match &shape {
+            Shape::Mesh(m) => Some(matedit_datagen::accel::Scene::new(m)),
+            Shape::Sphere => None,
+        };
+        let g = GBuffer::trace(&shape, scene.as_ref(), w);
+        let mask = &ch["mask"];
+        let differ = (0..w * w).filter(|&p| (mask[p] > 0.0) != (g.mask[p] > 0.0)).count();
+        assert!(differ <= 2, "{}: {differ} mask pixels differ", r["id"]);
+        let mut worst = 0.0_f32;
+        for p in 0..w * w {
+            if mask[p] > 0.0 && g.mask[p] > 0.0 {
+                let d = (ch["normal.X"][p] - g.normal[p][0]).abs() + (ch["normal.Z"][p] - g.normal[p][2]).abs();
+                worst = worst.max(d);
+            }
+        }
+        assert!(worst < 1e-3 || differ > 0, "{}: normals differ by {worst}", r["id"]);
+        // Radiance only where the object is, finite everywhere.
+        for p in 0..w * w {
+            assert!(ch["R"][p].is_finite() && ch["O.B"][p].is_finite());
+            if mask[p] == 0.0 {
+                assert_eq!(ch["R"][p], 0.0);
+            }
+        }
+        let (ew, eh, _) = read_exr_channels(&out.join(r["files"]["env"].as_str().unwrap())).unwrap();
+        assert_eq!((ew, eh), (32, 16));
+    }
+}
+
+#[test]
+fn verify_names_corrupt_files_and_leaks() {
+    let d = scratch("tamper");
+    let m = write(&d, "m.toml", &manifest(TEST_SPLIT, "ground_truth = \"measured\""));
+    let out = d.join("out");
+    run_to(&m, &out);
+    let recs = index(&out);
+    // Flip a byte of one image.
+    let victim = out.join(recs[5]["files"]["image"].as_str().unwrap());
+    let mut bytes = std::fs::read(&victim).unwrap();
+    let k = bytes.len() / 2;
+    bytes[k] ^= 0xff;
+    std::fs::write(&victim, bytes).unwrap();
+    let rep = verify(&out).unwrap();
+    assert!(
+        rep.problems
+            .iter()
+            .any(|p| p.contains(recs[5]["id"].as_str().unwrap()) && p.contains("checksum")),
+        "{:?}",
+        rep.problems
+    );
+    // A test sample that claims a training shape is a leak, named.
+    let train_shape = recs.iter().find(|r| r["split"] == "train").unwrap()["shape_id"].clone();
+    let mut lines: Vec<String> = std::fs::read_to_string(out.join("index.jsonl"))
+        .unwrap()
+        .lines()
+        .map(String::from)
+        .collect();
+    let t = lines.iter().position(|l| l.contains("\"split\":\"test\"")).unwrap();
+    let mut rec: Value = serde_json::from_str(&lines[t]).unwrap();
+    rec["shape_id"] = train_shape.clone();
+    lines[t] = rec.to_string();
+    std::fs::write(out.join("index.jsonl"), lines.join("\n") + "\n").unwrap();
+    let rep = verify(&out).unwrap();
+    let leak = format!("split leak: shape {}", train_shape.as_str().unwrap());
+    assert!(rep.problems.iter().any(|p| p.contains(&leak)), "{:?}", rep.problems);
+}
+
+#[test]
+fn manifests_that_try_to_leak_or_ask_too_much_are_refused_with_field_and_line() {
+    let d = scratch("bad");
+    let cases: Vec<(&str, String, &str)> = vec![
+        (
+            "explicit shape in two splits",
+            manifest(
+                "shape_ids = [\"procedural:car:0\"]\n[[splits]]\nname = \"test\"\nshape_ids = [\"procedural:car:0\"]\nmaterials = 2",
+                "",
+            ),
+            "splits[1].shape_ids",
+        ),
+        (
+            "near-duplicate materials across roles",
+            manifest(
+                "material_ids = [\"library:plastic-red-smooth\"]\n[[splits]]\nname = \"test\"\nshapes = { car = 1 }\nmaterial_ids = [\"library:plastic-red-matte\", \"library:rubber-red\"]",
+                "",
+            ),
+            "near-duplicate group",
+        ),
+        (
+            "test split borrowing training materials",
+            manifest(
+                "[[splits]]\nname = \"test\"\nshapes = { car = 1 }\nmaterials_from = \"train\"",
+                "",
+            ),
+            "may not share materials",
+        ),
+        (
+            "too many shapes",
+            manifest("[[splits]]\nname = \"test\"\nshapes = { car = 3 }\nmaterials = 2", ""),
+            "splits[1].shapes.car",
+        ),
+        ("unknown field", manifest(TEST_SPLIT, "colour = \"red\""), "colour"),
+        ("wrong type", manifest(TEST_SPLIT, "resolution = \"big\""), "resolution"),
+        (
+            "bad choice",
+            manifest(TEST_SPLIT, "quality = \"best\""),
+            "render.quality",
+        ),
+        (
+            "missing folder",
+            manifest(TEST_SPLIT, "").replace(
+                "source = \"procedural\"\ncategory = \"car\"\ncount = 3",
+                "source = \"folder\"\ncategory = \"car\"\npath = \"/nonexistent/cars\"",
+            ),
+            "shapes[0].path",
+        ),
+    ];
+    for (what, text, needle) in cases {
+        let p = write(&d, "bad.toml", &text);
+        let e = format!("{:#}", load(&p).err().unwrap_or_else(|| panic!("{what}: accepted")));
+        assert!(e.contains("bad.toml") && e.contains(needle), "{what}: {e}");
+        assert!(
+            e.contains(':') && e.chars().any(|c| c.is_ascii_digit()),
+            "{what}: no line in {e}"
+        );
+    }
+    // The line is the field's own line where the field has one.
+    let p = write(
+        &d,
+        "bad.toml",
+        &manifest("[[splits]]\nname = \"test\"\nshapes = { car = 3 }\nmaterials = 2", ""),
+    );
+    let text = std::fs::read_to_string(&p).unwrap();
+    let line = text.lines().position(|l| l.contains("car = 3")).unwrap() + 1;
+    let e = load(&p).err().unwrap().to_string();
+    assert!(e.contains(&format!("bad.toml:{line}:")), "{e}");
+}
+
+#[test]
+fn datasets_are_byte_identical_across_thread_counts() {
+    let d = scratch("threads");
+    let m = write(&d, "m.toml", &manifest(TEST_SPLIT, "quality = \"lut\""));
+    let mut outs = Vec::new();
+    for threads in [1, 2] {
+        let out = d.join(format!("out{threads}"));
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| run_to(&m, &out));
+        outs.push(out);
+    }
+    for f in ["index.jsonl", "dataset.json"] {
+        assert_eq!(
+            std::fs::read(outs[0].join(f)).unwrap(),
+            std::fs::read(outs[1].join(f)).unwrap(),
+            "{f}"
+        );
+    }
+}
+
+fn datagen() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    let bin = exe.parent().unwrap().parent().unwrap().join("datagen");
+    assert!(
+        bin.is_file(),
+        "{} not built: run `cargo test --workspace --release`",
+        bin.display()
+    );
+    bin
+}
+
+#[test]
+fn a_run_killed_at_random_moments_resumes_to_the_same_bytes() {
+    let d = scratch("kill");
+    // DSBRDF ground truth at 64² is slow enough (seconds) for kills to land mid-run.
+    let text = manifest(TEST_SPLIT, "quality = \"fast\"").replace("resolution = 32", "resolution = 64");
+    let m = write(&d, "m.toml", &text);
+    let reference = d.join("reference");
+    run_to(&m, &reference);
+    let out = d.join("killed");
+    // Kill at spread-out moments (deterministic pseudo-random, so a failure can be replayed).
+    let mut state: u64 = 0x9E37_79B9_7F4A_7C15;
+    let mut kills = 0;
+    for _ in 0..3 {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        let ms = 150 + (state >> 33) % 700;
+        let mut child = Command::new(datagen())
+            .arg("run")
+            .arg(&m)
+            .arg("--out")
+            .arg(&out)
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(ms));
+        if child.try_wait().unwrap().is_none() {
+            child.kill().unwrap(); // SIGKILL
+            kills += 1;
+        }
+        child.wait().unwrap();
+    }
+    assert!(
+        kills > 0 && !out.join("index.jsonl").exists(),
+        "the run finished before the kills; the test proves nothing"
+    );
+    let status = Command::new(datagen())
+        .arg("run")
+        .arg(&m)
+        .arg("--out")
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let status = Command::new(datagen()).arg("verify").arg(&out).status().unwrap();
+    assert!(status.success());
+    for f in ["index.jsonl", "dataset.json"] {
+        assert_eq!(
+            std::fs::read(reference.join(f)).unwrap(),
+            std::fs::read(out.join(f)).unwrap(),
+            "{f}"
+        );
+    }
+    // No temporary shard is left behind.
+    let leftovers: Vec<_> = std::fs::read_dir(out.join("shards"))
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().starts_with(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty());
+}
+
+#[test]
+fn workers_render_disjoint_parts_that_join_into_the_whole() {
+    let d = scratch("workers");
+    let m = write(&d, "m.toml", &manifest(TEST_SPLIT, "ground_truth = \"measured\""));
+    let whole = d.join("whole");
+    run_to(&m, &whole);
+    let l = load(&m).unwrap();
+    let parts: Vec<PathBuf> = (0..3).map(|i| d.join(format!("w{i}"))).collect();
+    for (i, p) in parts.iter().enumerate() {
+        run(
+            &l,
+            &RunOptions {
+                out: Some(p.clone()),
+                worker: Worker { index: i, count: 3 },
+                progress: false,
+            },
+        )
+        .unwrap();
+        assert!(!p.join("index.jsonl").exists(), "a worker does not join");
+    }
+    let joined = parts[0].clone();
+    matedit_datagen::dataset::store::join(&joined, &parts[1..], None).unwrap();
+    assert!(verify(&joined).unwrap().ok());
+    for f in ["index.jsonl", "dataset.json"] {
+        assert_eq!(
+            std::fs::read(whole.join(f)).unwrap(),
+            std::fs::read(joined.join(f)).unwrap(),
+            "{f}"
+        );
+    }
+}
