@@ -26,6 +26,9 @@ pub struct BenchRow {
     pub bytes_per_sample: f64,
 }
 
+/// I and O of one sample, channel-major.
+type Images = (Vec<f32>, Vec<f32>);
+
 /// Picks `n` samples spread over the plan, as (split, index).
 pub fn spread(plan: &Plan, n: usize) -> Vec<(usize, usize)> {
     let all: Vec<(usize, usize)> = plan
@@ -46,12 +49,12 @@ pub fn bench(
     reference: Quality,
     options: &[Quality],
 ) -> Result<Vec<BenchRow>> {
-    let render_all = |q: Quality| -> Result<(Vec<(Vec<f32>, Vec<f32>)>, f64, f64)> {
+    let render_all = |q: Quality| -> Result<(Vec<Images>, f64, f64)> {
         let mut p = plan.clone();
         p.settings.quality = q;
         let r = Renderer::new(&p, materials);
         let t = Instant::now();
-        let out: Vec<((Vec<f32>, Vec<f32>), usize)> = picks
+        let out: Vec<(Images, usize)> = picks
             .par_iter()
             .map(|&(s, i)| {
                 let px = r.render(s, i)?;

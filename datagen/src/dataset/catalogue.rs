@@ -104,7 +104,7 @@ fn first_span<T>(list: &[Spanned<T>]) -> std::ops::Range<usize> {
 
 fn dedup<T>(
     mf: &ManifestFile,
-    items: &mut Vec<T>,
+    items: &mut [T],
     id: impl Fn(&T) -> &String,
     span: std::ops::Range<usize>,
     field: &str,

@@ -64,12 +64,12 @@ impl std::str::FromStr for Worker {
     }
 }
 
-/// Estimated encoded bytes per sample: measured ZIP-compressed EXR sizes scale with the covered
-/// area; this is the median over the quickstart samples (docs/PERFORMANCE.md), per pixel.
-pub const BYTES_PER_PIXEL_ESTIMATE: f64 = 15.5;
+/// Encoded bytes (both EXR files) per image pixel: 365,378 bytes per 256² sample, the mean of
+/// `datagen bench manifests/quickstart.toml --res 256` (docs/PERFORMANCE.md). Estimates only.
+pub const BYTES_PER_PIXEL_ESTIMATE: f64 = 5.6;
 /// Samples per second on the reference machine (2 cores) at 256² with the `lut` quality and no
-/// shadows, from docs/PERFORMANCE.md; scaled by pixel count for estimates.
-pub const SAMPLES_PER_SECOND_256: f64 = 9.0;
+/// shadows, from the same measurement; scaled by pixel count for estimates.
+pub const SAMPLES_PER_SECOND_256: f64 = 0.62;
 
 /// Prints what a manifest would produce.
 pub fn describe(l: &Loaded) -> String {

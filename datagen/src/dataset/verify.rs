@@ -39,9 +39,8 @@ pub fn verify(dir: &Path) -> Result<Report> {
     let index = std::fs::read(&index_path).with_context(|| format!("cannot read {}", index_path.display()))?;
     let mut r = Report::default();
     if checksum(&index) != ds.index_checksum {
-        r.problems.push(format!(
-            "index.jsonl: checksum differs from dataset.json's index_checksum"
-        ));
+        r.problems
+            .push("index.jsonl: checksum differs from dataset.json's index_checksum".to_string());
     }
     let mut records = Vec::new();
     for (n, line) in index.split(|&b| b == b'\n').enumerate() {

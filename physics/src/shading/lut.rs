@@ -210,13 +210,13 @@ mod tests {
     #[test]
     fn coordinates_round_trip_and_hard_normals_are_handled() {
         for n in [
-            [0.0, 0.0, 1.0],
+            [0.0_f32, 0.0, 1.0],
             [0.6, 0.0, 0.8],
             [-0.3, 0.5, 0.81],
             [1.0, 0.0, 0.0],
             [0.0, -1.0, 1e-7],
         ] {
-            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2] as f32).sqrt();
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
             let (a, b) = table_coords(n).unwrap();
             assert!(a * a + b * b <= 1.0 + 1e-9);
             let back = table_normal(a, b);
