@@ -95,6 +95,11 @@ pub fn bench(
                 if s > 0.0 { (e / s).sqrt() } else { 0.0 }
             })
             .collect();
+        if std::env::var_os("MATEDIT_BENCH_PER_SAMPLE").is_some() {
+            for ((s, i), e) in picks.iter().zip(&errs) {
+                eprintln!("{q:?} split {s} sample {i}: rel RMSE {:.3} %", 100.0 * e);
+            }
+        }
         errs.sort_by(|a, b| a.total_cmp(b));
         rows.push(BenchRow {
             quality: q,

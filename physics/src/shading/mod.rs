@@ -10,13 +10,16 @@
 //!   once per texel; per pixel only n·ω_i and n·h remain. Texels of zero radiance are dropped.
 //!
 //! * [`lut`]: the fast path evaluated on a normal-space table and interpolated per pixel (valid
-//!   without shadows, where radiance depends on the normal alone).
+//!   without shadows, where radiance depends on the normal alone);
+//! * [`multires`]: for the DSBRDF, each lobe at the environment resolution, neighbourhood and
+//!   table resolution its width needs (the `lut` quality's DSBRDF path).
 //!
 //! All apply the same [normal policy](shading_normal) and never return NaN or Inf.
 
 pub mod exact;
 pub mod fast;
 pub mod lut;
+pub mod multires;
 
 use crate::{BrdfModel, EnvMap};
 use glam::DVec3;
@@ -159,6 +162,10 @@ pub fn shade_with(
     visibility: Option<&VisibilityFn<'_>>,
 ) -> (Vec<[f32; 3]>, usize) {
     if quality == Quality::Lut && visibility.is_none() {
+        if let BrdfModel::Dsbrdf(m) = brdf {
+            let (rgb, bad, _) = multires::shade_image_dsbrdf(m, env, normals, mask);
+            return (rgb, bad);
+        }
         let (rgb, bad, _) = lut::shade_image_lut(brdf, env, normals, mask);
         return (rgb, bad);
     }
