@@ -333,8 +333,8 @@ fn datagen() -> PathBuf {
 #[test]
 fn a_run_killed_at_random_moments_resumes_to_the_same_bytes() {
     let d = scratch("kill");
-    // DSBRDF ground truth at 64² is slow enough (seconds) for kills to land mid-run.
-    let text = manifest(TEST_SPLIT, "quality = \"fast\"").replace("resolution = 32", "resolution = 64");
+    // DSBRDF ground truth, per pixel, at 96² takes several seconds: the kills land mid-run.
+    let text = manifest(TEST_SPLIT, "quality = \"fast\"").replace("resolution = 32", "resolution = 96");
     let m = write(&d, "m.toml", &text);
     let reference = d.join("reference");
     run_to(&m, &reference);
@@ -421,4 +421,51 @@ fn workers_render_disjoint_parts_that_join_into_the_whole() {
             "{f}"
         );
     }
+}
+
+#[test]
+fn the_command_line_refuses_a_second_run_and_names_bad_manifest_lines() {
+    let d = scratch("cli");
+    let text = manifest(TEST_SPLIT, "quality = \"fast\"").replace("resolution = 32", "resolution = 64");
+    let m = write(&d, "m.toml", &text);
+    let out = d.join("out");
+    let mut first = Command::new(datagen())
+        .arg("run")
+        .arg(&m)
+        .arg("--out")
+        .arg(&out)
+        .spawn()
+        .unwrap();
+    // Wait until the first run holds its lock (it writes plan.json right after taking it).
+    let t0 = std::time::Instant::now();
+    while !out.join("plan.json").exists() && t0.elapsed().as_secs() < 30 {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let second = Command::new(datagen())
+        .arg("run")
+        .arg(&m)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let still_running = first.try_wait().unwrap().is_none();
+    first.kill().ok();
+    first.wait().unwrap();
+    // The first run takes seconds; had it already finished, the check below would prove nothing.
+    assert!(still_running, "the first run ended before the second started");
+    assert!(!second.status.success());
+    let err = String::from_utf8_lossy(&second.stderr);
+    assert!(err.contains("another datagen run"), "{err}");
+
+    let bad = write(&d, "bad.toml", &manifest(TEST_SPLIT, "shadows = \"sometimes\""));
+    let o = Command::new(datagen()).arg("plan").arg(&bad).output().unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    let line = std::fs::read_to_string(&bad)
+        .unwrap()
+        .lines()
+        .position(|l| l.contains("sometimes"))
+        .unwrap()
+        + 1;
+    assert!(err.contains(&format!("bad.toml:{line}: render.shadows")), "{err}");
 }
