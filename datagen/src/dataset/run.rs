@@ -64,12 +64,12 @@ impl std::str::FromStr for Worker {
     }
 }
 
-/// Encoded bytes (both EXR files) per image pixel: 371,482 bytes per 256² sample, the mean of
+/// Encoded bytes (both EXR files) per image pixel: 371,428 bytes per 256² sample, the mean of
 /// `datagen bench manifests/quickstart.toml --res 256` (docs/PERFORMANCE.md). Estimates only.
 pub const BYTES_PER_PIXEL_ESTIMATE: f64 = 5.7;
 /// Samples per second on the reference machine (2 cores) at 256² with the `lut` quality, DSBRDF
 /// ground truth and no shadows, from the same measurement; scaled by pixel count for estimates.
-pub const SAMPLES_PER_SECOND_256: f64 = 0.92;
+pub const SAMPLES_PER_SECOND_256: f64 = 1.59;
 
 /// Prints what a manifest would produce.
 pub fn describe(l: &Loaded) -> String {
