@@ -55,6 +55,8 @@ const LANES: usize = 8;
 struct Level {
     w: usize,
     h: usize,
+    /// Smallest sin θ over each row's band (sizes the column range of a neighbourhood).
+    row_min_sin: Vec<f64>,
     dir: [Vec<f32>; 3],
     half: [Vec<f64>; 3],
     cos_d: Vec<f64>,
@@ -78,6 +80,13 @@ impl Level {
         Level {
             w,
             h,
+            row_min_sin: (0..h)
+                .map(|j| {
+                    (PI * j as f64 / h as f64)
+                        .sin()
+                        .min((PI * (j + 1) as f64 / h as f64).sin())
+                })
+                .collect(),
             dir: [0, 1, 2].map(|a| pad(dirs.iter().map(|d| d[a] as f32).collect())),
             half: [0, 1, 2].map(|a| pad(half.iter().map(|v| v[a]).collect())),
             cos_d: pad(dirs.iter().zip(&half).map(|(d, v)| d.dot(*v).clamp(0.0, 1.0)).collect()),
@@ -490,7 +499,14 @@ fn bicubic(grid: &[[f32; 3]], r: usize, a: f64, b: f64) -> [f32; 3] {
 }
 
 /// Column ranges (start, inclusive end) of row `j` within `radius` of direction (θ, φ).
-fn row_columns(lv: &Level, j: usize, theta: f64, phi: f64, radius: f64) -> Option<[(usize, usize); 2]> {
+fn row_columns(
+    lv: &Level,
+    j: usize,
+    theta: f64,
+    phi: f64,
+    radius: f64,
+    sin_radius: f64,
+) -> Option<[(usize, usize); 2]> {
     let (t0, t1) = (PI * j as f64 / lv.h as f64, PI * (j + 1) as f64 / lv.h as f64);
     // Angular distance from θ to the band, and the band's smallest sin θ.
     let dist = if theta < t0 {
@@ -504,11 +520,11 @@ fn row_columns(lv: &Level, j: usize, theta: f64, phi: f64, radius: f64) -> Optio
         return None;
     }
     let all = Some([(0, lv.w - 1), (1, 0)]);
-    let min_sin = t0.sin().min(t1.sin());
-    if radius >= std::f64::consts::FRAC_PI_2 || min_sin <= radius.sin() || min_sin < 1e-9 {
+    let min_sin = lv.row_min_sin[j];
+    if radius >= std::f64::consts::FRAC_PI_2 || min_sin <= sin_radius || min_sin < 1e-9 {
         return all;
     }
-    let dphi = (radius.sin() / min_sin).min(1.0).asin();
+    let dphi = (sin_radius / min_sin).min(1.0).asin();
     let width = 2.0 * PI / lv.w as f64;
     let lo = ((phi - dphi) / width).floor() as i64 - 1;
     let hi = ((phi + dphi) / width).floor() as i64 + 1;
@@ -557,8 +573,10 @@ fn eval_point_portable(levels: &[Level], g: &Group, n: [f32; 3]) -> [f32; 3] {
         phi += 2.0 * PI;
     }
     let mut acc = [[0.0_f32; LANES]; 3];
-    for j in 0..lv.h {
-        let Some(ranges) = row_columns(lv, j, theta, phi, radius) else {
+    let sin_radius = radius.min(std::f64::consts::FRAC_PI_2).sin();
+    let row = |t: f64| ((t / PI) * lv.h as f64).floor().clamp(0.0, (lv.h - 1) as f64) as usize;
+    for j in row(theta - radius)..=row(theta + radius) {
+        let Some(ranges) = row_columns(lv, j, theta, phi, radius, sin_radius) else {
             continue;
         };
         for (c0, c1) in ranges {
@@ -755,11 +773,14 @@ mod tests {
         let env = EnvMap::constant(64, [1.0; 3]);
         let lv = &pyramid(&env)[0];
         // Near φ = 0 the range wraps to the end of the row.
-        let r = row_columns(lv, 32, PI / 2.0, 0.01, 0.1).unwrap();
+        let r = row_columns(lv, 32, PI / 2.0, 0.01, 0.1, 0.1f64.sin()).unwrap();
         assert_eq!(r[0].1, lv.w - 1);
         assert_eq!(r[1].0, 0);
         // Far rows are skipped; polar rows take everything.
-        assert!(row_columns(lv, 0, PI / 2.0, 1.0, 0.1).is_none());
-        assert_eq!(row_columns(lv, 0, 0.05, 1.0, 0.2).unwrap()[0], (0, lv.w - 1));
+        assert!(row_columns(lv, 0, PI / 2.0, 1.0, 0.1, 0.1f64.sin()).is_none());
+        assert_eq!(
+            row_columns(lv, 0, 0.05, 1.0, 0.2, 0.2f64.sin()).unwrap()[0],
+            (0, lv.w - 1)
+        );
     }
 }
