@@ -196,6 +196,21 @@ impl Dsbrdf {
         &self.params
     }
 
+    /// The lobe members `(channel, lobe, knot, κ, γ)` whose peak expm1(κ) is at least `fraction`
+    /// of their channel's summed peaks at that knot: the members that shape the BRDF there.
+    pub fn significant_members(&self, fraction: f64) -> impl Iterator<Item = (usize, usize, usize, f64, f64)> + '_ {
+        let p = &self.params;
+        (0..CHANNELS).flat_map(move |c| {
+            (0..KNOTS).flat_map(move |j| {
+                let kappa = move |k| p[param_index(c, k, LobeParam::Kappa, j)];
+                let total: f64 = (0..LOBES).map(|k| kappa(k).exp_m1()).sum();
+                (0..LOBES)
+                    .filter(move |&k| kappa(k).exp_m1() >= fraction * total)
+                    .map(move |k| (c, k, j, kappa(k), p[param_index(c, k, LobeParam::Gamma, j)]))
+            })
+        })
+    }
+
     /// Normalised parameters in [−0.95, 0.95] (the network's target).
     pub fn to_normalised(&self) -> [f64; PARAMS] {
         let mut x = [0.0; PARAMS];

@@ -17,7 +17,6 @@
 //! against the exact path in `docs/PERFORMANCE.md`.
 
 use super::{Quality, make_shader, shade_image};
-use crate::brdf::dsbrdf::{CHANNELS, KNOTS, LOBES, LobeParam, param_index};
 use crate::{BrdfModel, EnvMap};
 use rayon::prelude::*;
 use std::f64::consts::FRAC_PI_2;
@@ -43,22 +42,11 @@ pub fn sharpness(brdf: &BrdfModel) -> Option<f64> {
         // GGX near its peak falls off like exp(−θ_h²/α²): γ ≈ 2/α².
         BrdfModel::Ggx(g) => Some(2.0 / (g.alpha * g.alpha)),
         BrdfModel::Plastic(p) => Some(2.0 / (p.coat.alpha * p.coat.alpha)),
-        BrdfModel::Dsbrdf(m) => {
-            let p = m.params();
-            let mut gamma: f64 = 1.0;
-            for c in 0..CHANNELS {
-                for j in 0..KNOTS {
-                    let peak = |k| p[param_index(c, k, LobeParam::Kappa, j)].exp_m1();
-                    let total: f64 = (0..LOBES).map(peak).sum();
-                    for k in 0..LOBES {
-                        if peak(k) >= SIGNIFICANT_PEAK * total {
-                            gamma = gamma.max(p[param_index(c, k, LobeParam::Gamma, j)]);
-                        }
-                    }
-                }
-            }
-            Some(gamma)
-        }
+        BrdfModel::Dsbrdf(m) => Some(
+            m.significant_members(SIGNIFICANT_PEAK)
+                .map(|(.., gamma)| gamma)
+                .fold(1.0, f64::max),
+        ),
         BrdfModel::Measured(_) => None,
     }
 }
@@ -96,6 +84,46 @@ pub fn table_normal(a: f64, b: f64) -> [f32; 3] {
     [(a * s) as f32, (b * s) as f32, theta.cos() as f32]
 }
 
+/// Table coordinates of every pixel with `mask > 0` and a usable normal.
+pub(crate) fn pixel_coords(normals: &[[f32; 3]], mask: &[f32]) -> Vec<Option<(f64, f64)>> {
+    normals
+        .iter()
+        .zip(mask)
+        .map(|(n, &m)| if m > 0.0 { table_coords(*n) } else { None })
+        .collect()
+}
+
+/// The cell (index of its lower node along one axis) of table coordinate `a` in an R-node
+/// table, whose node i sits at −1 + 2i/(R−1), and the fraction of the way to the next node.
+pub(crate) fn table_position(a: f64, r: usize) -> (usize, f32) {
+    let x = (a + 1.0) / (2.0 / (r - 1) as f64);
+    let cell = x.floor().clamp(0.0, (r - 2) as f64) as usize;
+    (cell, (x - cell as f64).clamp(0.0, 1.0) as f32)
+}
+
+/// Table coordinates (a, b) of node `k` of an R × R table.
+pub(crate) fn node_coords(k: usize, r: usize) -> (f64, f64) {
+    let step = 2.0 / (r - 1) as f64;
+    (-1.0 + (k % r) as f64 * step, -1.0 + (k / r) as f64 * step)
+}
+
+/// The nodes an interpolation at `coords` reads, in index order: per axis, from `before` nodes
+/// below the cell's lower node to `after` nodes above it, clamped to the table (bilinear: 0, 1;
+/// bicubic: 1, 2).
+pub(crate) fn needed_nodes(coords: &[Option<(f64, f64)>], r: usize, before: usize, after: usize) -> Vec<usize> {
+    let mut needed = vec![false; r * r];
+    let span = |i: usize| i.saturating_sub(before)..=(i + after).min(r - 1);
+    for &(a, b) in coords.iter().flatten() {
+        let (i, j) = (table_position(a, r).0, table_position(b, r).0);
+        for jj in span(j) {
+            for ii in span(i) {
+                needed[jj * r + ii] = true;
+            }
+        }
+    }
+    (0..r * r).filter(|&k| needed[k]).collect()
+}
+
 /// What the table path did for one image.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct LutStats {
@@ -128,22 +156,8 @@ pub fn shade_image_lut(
             ..Default::default()
         });
     };
-    // Cell of every shaded pixel; node (i, j) of the R × R grid sits at −1 + 2i/(R−1).
-    let step = 2.0 / (r - 1) as f64;
-    let cell = |a: f64| ((a + 1.0) / step).floor().clamp(0.0, (r - 2) as f64) as usize;
-    let coords: Vec<Option<(f64, f64)>> = normals
-        .iter()
-        .zip(mask)
-        .map(|(n, &m)| if m > 0.0 { table_coords(*n) } else { None })
-        .collect();
-    let mut needed = vec![false; r * r];
-    for &(a, b) in coords.iter().flatten() {
-        let (i, j) = (cell(a), cell(b));
-        for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-            needed[(j + dj) * r + i + di] = true;
-        }
-    }
-    let nodes: Vec<usize> = (0..r * r).filter(|&k| needed[k]).collect();
+    let coords = pixel_coords(normals, mask);
+    let nodes = needed_nodes(&coords, r, 0, 1);
     if nodes.len() as f64 >= MAX_NODES_PER_PIXEL * pixels as f64 {
         return per_pixel(LutStats {
             pixels,
@@ -154,7 +168,7 @@ pub fn shade_image_lut(
     let values: Vec<[f32; 3]> = nodes
         .par_iter()
         .map(|&k| {
-            let (a, b) = (-1.0 + (k % r) as f64 * step, -1.0 + (k / r) as f64 * step);
+            let (a, b) = node_coords(k, r);
             finite(shader.shade(table_normal(a, b), None))
         })
         .collect();
@@ -166,9 +180,7 @@ pub fn shade_image_lut(
         .par_iter()
         .map(|c| {
             let Some((a, b)) = *c else { return [0.0; 3] };
-            let (i, j) = (cell(a), cell(b));
-            let fa = (((a + 1.0) / step) - i as f64).clamp(0.0, 1.0) as f32;
-            let fb = (((b + 1.0) / step) - j as f64).clamp(0.0, 1.0) as f32;
+            let ((i, fa), (j, fb)) = (table_position(a, r), table_position(b, r));
             let at = |di: usize, dj: usize| table[(j + dj) * r + i + di];
             let (v00, v10, v01, v11) = (at(0, 0), at(1, 0), at(0, 1), at(1, 1));
             std::array::from_fn(|c| {

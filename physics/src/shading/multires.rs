@@ -22,10 +22,10 @@
 //! The three parameters trade speed for error; `docs/PERFORMANCE.md` has the measured trade-off
 //! against the exact path.
 
-use super::lut::{MAX_NODES_PER_PIXEL, table_coords, table_normal};
+use super::lut::{MAX_NODES_PER_PIXEL, needed_nodes, node_coords, pixel_coords, table_normal, table_position};
 use super::shading_normal;
 use crate::brdf::Dsbrdf;
-use crate::brdf::dsbrdf::{CHANNELS, KNOTS, LOBES, LobeParam, param_index};
+use crate::brdf::dsbrdf::LOBES;
 use crate::envmap::{EnvMap, texel_direction, texel_solid_angle};
 use crate::fastmath;
 use glam::DVec3;
@@ -43,8 +43,9 @@ pub const NODE_PER_WIDTH: f64 = 0.5;
 /// Pyramid levels (64×128 → 8×16).
 pub const LEVELS: usize = 3;
 /// A lobe member counts for the width when its peak expm1(κ) is at least this fraction of the
-/// channel's peak at that knot; weaker members are still summed, at the group's setting.
-pub const SIGNIFICANT: f64 = 0.02;
+/// channel's peak at that knot (the table path's criterion); weaker members are still summed,
+/// at the group's setting.
+pub const SIGNIFICANT: f64 = super::lut::SIGNIFICANT_PEAK;
 /// Smallest and largest table side.
 const MIN_RES: usize = 64;
 const MAX_RES: usize = 512;
@@ -207,53 +208,56 @@ pub fn effective_gamma(kappa: f64, gamma: f64) -> f64 {
 
 /// Width 1/√γ of lobe `k`'s sharpest significant member (γ taken as [`effective_gamma`]).
 fn lobe_width(m: &Dsbrdf, k: usize) -> f64 {
-    let p = m.params();
-    let mut gamma: f64 = 1.0;
-    for c in 0..CHANNELS {
-        for j in 0..KNOTS {
-            let peak = |k| p[param_index(c, k, LobeParam::Kappa, j)].exp_m1();
-            let total: f64 = (0..LOBES).map(peak).sum();
-            if peak(k) >= SIGNIFICANT * total {
-                let kappa = p[param_index(c, k, LobeParam::Kappa, j)];
-                gamma = gamma.max(effective_gamma(kappa, p[param_index(c, k, LobeParam::Gamma, j)]));
-            }
-        }
-    }
+    let gamma = m
+        .significant_members(SIGNIFICANT)
+        .filter(|&(_, lobe, ..)| lobe == k)
+        .map(|(.., kappa, gamma)| effective_gamma(kappa, gamma))
+        .fold(1.0, f64::max);
     1.0 / gamma.sqrt()
 }
 
-/// Widths 1/√γ of lobe `k`'s members (any channel) for θ_d within ±[`THETA_D_MARGIN_DEG`] of
-/// `deg` (near the mirror configuration θ_d is the normal's angle, so these are the lobes a
-/// normal at `deg` meets): the narrowest member whose *peak* is significant (it sets the
+/// For each normal angle 0°, 1°, …, 90°: widths 1/√γ of lobe `k`'s members (any channel) for θ_d
+/// within ±[`THETA_D_MARGIN_DEG`] of it (near the mirror configuration θ_d is the normal's angle,
+/// so these are the lobes a normal there meets): the narrowest member whose *peak* is significant (it sets the
 /// environment resolution), and the widest member whose *energy* is significant (it sets the
 /// neighbourhood: a broad lobe with a low peak can still carry much of the light). `None` for
 /// either when no member qualifies.
-fn member_widths(m: &Dsbrdf, k: usize, deg: f64) -> (Option<f64>, Option<f64>) {
-    let (mut sharpest, mut broadest) = (0.0_f64, f64::INFINITY);
-    let mut d = (deg - THETA_D_MARGIN_DEG).max(0.0);
-    while d <= (deg + THETA_D_MARGIN_DEG).min(90.0) {
-        let l = m.lobes_at(d.to_radians());
-        for ch in &l {
-            let peak = |j: usize| ch[j].0.exp_m1();
-            // ∫ cos^γ θ dω over the hemisphere is 2π/(γ + 1).
-            let energy = |j: usize| peak(j) * 2.0 * PI / (ch[j].1 + 1.0);
-            let (peaks, energies): (f64, f64) = (0..LOBES)
-                .map(|j| (peak(j), energy(j)))
-                .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
-            if peak(k) >= SIGNIFICANT * peaks {
-                sharpest = sharpest.max(effective_gamma(ch[k].0, ch[k].1));
+fn member_widths(m: &Dsbrdf, k: usize) -> Vec<(Option<f64>, Option<f64>)> {
+    // Sharpest (effective) and broadest γ of the qualifying members at each whole degree of θ_d,
+    // computed once; each normal angle then takes its window of them.
+    let per_degree: Vec<(f64, f64)> = (0..=90)
+        .map(|deg| {
+            let (mut sharpest, mut broadest) = (0.0_f64, f64::INFINITY);
+            for ch in &m.lobes_at((deg as f64).to_radians()) {
+                let peak = |j: usize| ch[j].0.exp_m1();
+                // ∫ cos^γ θ dω over the hemisphere is 2π/(γ + 1).
+                let energy = |j: usize| peak(j) * 2.0 * PI / (ch[j].1 + 1.0);
+                let (peaks, energies): (f64, f64) = (0..LOBES)
+                    .map(|j| (peak(j), energy(j)))
+                    .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+                if peak(k) >= SIGNIFICANT * peaks {
+                    sharpest = sharpest.max(effective_gamma(ch[k].0, ch[k].1));
+                }
+                if energy(k) >= SIGNIFICANT_ENERGY * energies {
+                    broadest = broadest.min(ch[k].1);
+                }
             }
-            if energy(k) >= SIGNIFICANT_ENERGY * energies {
-                broadest = broadest.min(ch[k].1);
-            }
-        }
-        d += 1.0;
-    }
+            (sharpest, broadest)
+        })
+        .collect();
+    let margin = THETA_D_MARGIN_DEG;
     let width = |g: f64| 1.0 / g.max(1e-9).sqrt();
-    (
-        (sharpest > 0.0).then(|| width(sharpest)),
-        broadest.is_finite().then(|| width(broadest)),
-    )
+    (0..=90usize)
+        .map(|deg| {
+            let window = &per_degree[deg.saturating_sub(margin)..=(deg + margin).min(90)];
+            let sharpest = window.iter().map(|w| w.0).fold(0.0_f64, f64::max);
+            let broadest = window.iter().map(|w| w.1).fold(f64::INFINITY, f64::min);
+            (
+                (sharpest > 0.0).then(|| width(sharpest)),
+                broadest.is_finite().then(|| width(broadest)),
+            )
+        })
+        .collect()
 }
 
 /// A lobe member whose energy is below this fraction of the channel's total may have its tails
@@ -261,7 +265,7 @@ fn member_widths(m: &Dsbrdf, k: usize, deg: f64) -> (Option<f64>, Option<f64>) {
 pub const SIGNIFICANT_ENERGY: f64 = 0.002;
 
 /// Margin in θ_d around the normal's angle when sizing a neighbourhood, degrees.
-pub const THETA_D_MARGIN_DEG: f64 = 10.0;
+pub const THETA_D_MARGIN_DEG: usize = 10;
 
 /// What the evaluator decided, per lobe index (for reports and tests).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -321,11 +325,7 @@ pub fn shade_with_params(
 ) -> (Vec<[f32; 3]>, usize, [GroupStats; LOBES]) {
     let levels = pyramid(env);
     let texel0 = PI / env.height() as f64;
-    let coords: Vec<Option<(f64, f64)>> = normals
-        .iter()
-        .zip(mask)
-        .map(|(n, &mk)| if mk > 0.0 { table_coords(*n) } else { None })
-        .collect();
+    let coords = pixel_coords(normals, mask);
     let pixels = coords.iter().flatten().count();
     let mut out = vec![[0.0_f32; 3]; normals.len()];
     let mut stats = [GroupStats {
@@ -342,8 +342,7 @@ pub fn shade_with_params(
         // the widest one needs.
         let mut level_at = Vec::with_capacity(91);
         let mut radius_at = Vec::with_capacity(91);
-        for deg in 0..=90 {
-            let (narrow, wide) = member_widths(m, k, deg as f64);
+        for (narrow, wide) in member_widths(m, k) {
             let mut l = 0;
             match narrow {
                 Some(narrow) => {
@@ -383,7 +382,7 @@ pub fn shade_with_params(
         };
         let radius = radius_at;
         // Table or per pixel?
-        let table = table_nodes(&coords, res);
+        let table = needed_nodes(&coords, res, 1, 2);
         let use_table = (table.len() as f64) < MAX_NODES_PER_PIXEL * pixels as f64;
         *st = GroupStats {
             level,
@@ -392,11 +391,10 @@ pub fn shade_with_params(
             points: if use_table { table.len() } else { pixels },
         };
         let add: Vec<[f32; 3]> = if use_table {
-            let step = 2.0 / (res - 1) as f64;
             let values: Vec<[f32; 3]> = table
                 .par_iter()
                 .map(|&node| {
-                    let (a, b) = (-1.0 + (node % res) as f64 * step, -1.0 + (node / res) as f64 * step);
+                    let (a, b) = node_coords(node, res);
                     eval_point(&levels, &group, table_normal(a, b))
                 })
                 .collect();
@@ -442,26 +440,6 @@ pub fn shade_with_params(
     (out, bad, stats)
 }
 
-/// Nodes of an R × R table that the pixels' bicubic stencils (4 × 4 nodes around the cell)
-/// touch.
-fn table_nodes(coords: &[Option<(f64, f64)>], r: usize) -> Vec<usize> {
-    let mut needed = vec![false; r * r];
-    for &(a, b) in coords.iter().flatten() {
-        let (i, j) = (cell(a, r), cell(b, r));
-        for dj in 0..4 {
-            for di in 0..4 {
-                needed[clamp_node(j, dj, r) * r + clamp_node(i, di, r)] = true;
-            }
-        }
-    }
-    (0..r * r).filter(|&k| needed[k]).collect()
-}
-
-fn cell(a: f64, r: usize) -> usize {
-    let step = 2.0 / (r - 1) as f64;
-    ((a + 1.0) / step).floor().clamp(0.0, (r - 2) as f64) as usize
-}
-
 /// Node `i − 1 + d` clamped to the table.
 fn clamp_node(i: usize, d: usize, r: usize) -> usize {
     (i + d).saturating_sub(1).min(r - 1)
@@ -480,10 +458,7 @@ fn catmull_rom(t: f32) -> [f32; 4] {
 
 /// Bicubic (Catmull–Rom) interpolation; its small overshoot next to sharp peaks is clamped at 0.
 fn bicubic(grid: &[[f32; 3]], r: usize, a: f64, b: f64) -> [f32; 3] {
-    let step = 2.0 / (r - 1) as f64;
-    let (i, j) = (cell(a, r), cell(b, r));
-    let fa = (((a + 1.0) / step) - i as f64).clamp(0.0, 1.0) as f32;
-    let fb = (((b + 1.0) / step) - j as f64).clamp(0.0, 1.0) as f32;
+    let ((i, fa), (j, fb)) = (table_position(a, r), table_position(b, r));
     let (wa, wb) = (catmull_rom(fa), catmull_rom(fb));
     let mut out = [0.0_f32; 3];
     for (dj, wj) in wb.iter().enumerate() {
@@ -735,7 +710,7 @@ mod tests {
 
     #[test]
     fn hard_normals_and_extreme_lobes_stay_finite() {
-        use crate::brdf::dsbrdf::{GAMMA_RANGE, KAPPA_RANGE, PARAMS};
+        use crate::brdf::dsbrdf::{GAMMA_RANGE, KAPPA_RANGE, KNOTS, PARAMS};
         let env = EnvMap::from_fn(16, |d| if d.y > 0.99 { [1e6; 3] } else { [1e-3; 3] });
         let normals = vec![
             [0.0, 0.0, 0.0],
