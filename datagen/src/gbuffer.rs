@@ -69,6 +69,22 @@ impl GBuffer {
         g
     }
 
+    /// Shadow rays for pixel `p` towards camera-space `dirs`: `out[t]` is 1 when direction t is
+    /// open, 0 when the object blocks it. `to_object` turns camera-space vectors into the frame
+    /// of `scene` (see [`trace_rotated`](GBuffer::trace_rotated)). Directions below the geometric
+    /// surface (the object itself blocks them) or behind the shading normal (they contribute
+    /// nothing) get no ray.
+    pub fn shadow_visibility(&self, scene: &Scene, to_object: Mat3, p: usize, dirs: &[[f32; 3]], out: &mut [f32]) {
+        let ng = Vec3::from(self.geometric_normal[p]);
+        let ns = Vec3::from(self.normal[p]);
+        let origin = to_object * (Vec3::from(self.position[p]) + ng * 1e-4);
+        for (o, d) in out.iter_mut().zip(dirs) {
+            let d = Vec3::from(*d);
+            let open = d.dot(ng) > 0.0 && d.dot(ns) > 0.0 && !scene.occluded(origin, to_object * d, 0.0);
+            *o = if open { 1.0 } else { 0.0 };
+        }
+    }
+
     /// Number of covered pixels.
     pub fn covered(&self) -> usize {
         self.mask.iter().filter(|&&m| m > 0.0).count()

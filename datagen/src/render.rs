@@ -5,7 +5,6 @@ use crate::gbuffer::GBuffer;
 use crate::io::{EnvSource, load_env, write_env_exr, write_exr_channels, write_png_preview};
 use crate::shapes::{Shape, UpAxis};
 use anyhow::{Context, Result, bail};
-use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
 use matedit_physics::shading::{Quality, VisibilityFn, make_shader, shade_image};
 use matedit_physics::{BrdfSpec, EnvMap};
@@ -172,16 +171,8 @@ pub fn render(opts: &RenderOptions) -> Result<Rendered> {
     let trace = opts.shadows == Shadows::On && scene.is_some();
     stats.shadows_traced = trace;
     let visibility = |p: usize, dirs: &[[f32; 3]], out: &mut [f32]| {
-        let Some(scene) = scene.as_ref() else { return };
-        let ng = Vec3::from(g.geometric_normal[p]);
-        let ns = Vec3::from(g.normal[p]);
-        let origin = Vec3::from(g.position[p]) + ng * 1e-4;
-        for (o, d) in out.iter_mut().zip(dirs) {
-            let d = Vec3::from(*d);
-            // Below the geometric surface the object itself blocks the light; texels behind
-            // the shading normal contribute nothing, so neither needs a ray.
-            let open = d.dot(ng) > 0.0 && d.dot(ns) > 0.0 && !scene.occluded(origin, d, 0.0);
-            *o = if open { 1.0 } else { 0.0 };
+        if let Some(scene) = scene.as_ref() {
+            g.shadow_visibility(scene, glam::Mat3::IDENTITY, p, dirs, out);
         }
     };
 

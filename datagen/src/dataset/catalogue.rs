@@ -187,6 +187,18 @@ fn not_for(
     Ok(())
 }
 
+/// `value`, or an error at `span` naming `FIELD.NAME` with `message` (why it is required).
+fn required<'a, T>(
+    mf: &ManifestFile,
+    span: &std::ops::Range<usize>,
+    field: &str,
+    name: &str,
+    value: Option<&'a T>,
+    message: &str,
+) -> Result<&'a T, ManifestError> {
+    value.ok_or_else(|| mf.invalid(span.clone(), &format!("{field}.{name}"), message))
+}
+
 fn category(
     mf: &ManifestFile,
     span: std::ops::Range<usize>,
@@ -235,14 +247,9 @@ fn shapes_of(
                     ("fallback_count", s.fallback_count.is_some()),
                 ],
             )?;
-            let name = s
-                .category
-                .as_ref()
-                .ok_or_else(|| mf.invalid(span.clone(), &format!("{field}.category"), "required"))?;
+            let name = required(mf, &span, &field, "category", s.category.as_ref(), "required")?;
             let c = category(mf, span.clone(), &format!("{field}.category"), name)?;
-            let count = s
-                .count
-                .ok_or_else(|| mf.invalid(span.clone(), &format!("{field}.count"), "required"))?;
+            let count = *required(mf, &span, &field, "count", s.count.as_ref(), "required")?;
             procedural(cat, c, s.first_seed.unwrap_or(0), count);
         }
         "folder" | "shapenet" => {
@@ -255,13 +262,14 @@ fn shapes_of(
             )?;
             let cats: Vec<Category> = if s.source == "folder" {
                 not_for(mf, &span, &field, "folder", &[("categories", s.categories.is_some())])?;
-                let name = s.category.as_ref().ok_or_else(|| {
-                    mf.invalid(
-                        span.clone(),
-                        &format!("{field}.category"),
-                        "required: the split counts shapes per category",
-                    )
-                })?;
+                let name = required(
+                    mf,
+                    &span,
+                    &field,
+                    "category",
+                    s.category.as_ref(),
+                    "required: the split counts shapes per category",
+                )?;
                 vec![category(mf, span.clone(), &format!("{field}.category"), name)?]
             } else {
                 not_for(mf, &span, &field, "shapenet", &[("category", s.category.is_some())])?;
@@ -299,13 +307,14 @@ fn shapes_of(
                     }
                 }
                 None => {
-                    let n = s.fallback_count.ok_or_else(|| {
-                        mf.invalid(
-                            span.clone(),
-                            &format!("{field}.fallback_count"),
-                            "required with if_missing = \"procedural\"",
-                        )
-                    })?;
+                    let n = *required(
+                        mf,
+                        &span,
+                        &field,
+                        "fallback_count",
+                        s.fallback_count.as_ref(),
+                        "required with if_missing = \"procedural\"",
+                    )?;
                     for c in &cats {
                         procedural(cat, *c, 0, n);
                     }
@@ -537,13 +546,8 @@ fn envs_of(
                     ("fallback_count", s.fallback_count.is_some()),
                 ],
             )?;
-            let family = s
-                .family
-                .as_ref()
-                .ok_or_else(|| mf.invalid(span.clone(), &format!("{field}.family"), "required"))?;
-            let count = s
-                .count
-                .ok_or_else(|| mf.invalid(span.clone(), &format!("{field}.count"), "required"))?;
+            let family = required(mf, &span, &field, "family", s.family.as_ref(), "required")?;
+            let count = *required(mf, &span, &field, "count", s.count.as_ref(), "required")?;
             let items = procedural_envs(family, s.first_seed.unwrap_or(0), count)
                 .map_err(|e| mf.invalid(span.clone(), &format!("{field}.family"), e))?;
             cat.envs.extend(items);
@@ -616,13 +620,14 @@ fn envs_of(
                     }
                 }
                 None => {
-                    let n = s.fallback_count.ok_or_else(|| {
-                        mf.invalid(
-                            span.clone(),
-                            &format!("{field}.fallback_count"),
-                            "required with if_missing = \"procedural\"",
-                        )
-                    })?;
+                    let n = *required(
+                        mf,
+                        &span,
+                        &field,
+                        "fallback_count",
+                        s.fallback_count.as_ref(),
+                        "required with if_missing = \"procedural\"",
+                    )?;
                     let items = procedural_envs("all", 0, n).map_err(|e| mf.invalid(span.clone(), &field, e))?;
                     cat.substitutions.push(format!(
                         "{field}: {} is missing; using {} procedural environments",

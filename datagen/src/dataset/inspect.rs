@@ -3,9 +3,8 @@
 
 use super::sample::SampleRecord;
 use crate::assets::envmaps::thumbnail;
-use crate::io::{read_exr_channels, write_contact_sheet};
+use crate::io::{load_env, read_exr_channels, write_contact_sheet};
 use anyhow::{Context, Result, bail};
-use matedit_physics::EnvMap;
 use matedit_physics::tonemap::tonemap_u8;
 use std::path::Path;
 
@@ -113,9 +112,12 @@ fn sample_tiles(dir: &Path, rec: &SampleRecord) -> Result<Vec<Vec<[u8; 4]>>> {
         }
     }));
     let env_file = rec.files.get("env").context("no env file recorded")?;
-    let (ew, eh, ech) = read_exr_channels(&dir.join(env_file))?;
-    let texels: Vec<[f32; 3]> = (0..ew * eh).map(|p| [ech["R"][p], ech["G"][p], ech["B"][p]]).collect();
-    let (map, _) = EnvMap::from_texels(ew, eh, texels).map_err(|e| anyhow::anyhow!("{env_file}: {e}"))?;
+    let env_path = dir.join(env_file);
+    let (map, _) = load_env(
+        env_path
+            .to_str()
+            .with_context(|| format!("{env_file}: path is not UTF-8"))?,
+    )?;
     let thumb = thumbnail(&map, TILE / 2);
     let mut env_tile = vec![[0u8; 4]; TILE * TILE];
     let top = TILE / 4;

@@ -17,11 +17,11 @@ use super::plan::{Plan, RotationMode, SplitPlan};
 use crate::accel::Scene;
 use crate::assets::random::Draw;
 use crate::gbuffer::GBuffer;
-use crate::io::{encode_exr_channels, load_env};
+use crate::io::{encode_env_exr, encode_exr_channels, load_env};
 use crate::render::Shadows;
 use crate::shapes::{Mesh, Shape};
 use anyhow::{Context, Result};
-use glam::{DMat3, Mat3, Vec3};
+use glam::{DMat3, Mat3};
 use matedit_physics::EnvMap;
 use matedit_physics::shading::{VisibilityFn, shade_with};
 use serde::{Deserialize, Serialize};
@@ -108,12 +108,43 @@ pub fn is_convex(mesh: &Mesh, budget: usize) -> bool {
     true
 }
 
+/// Assets loaded once and shared between threads, by catalogue index. Loading happens outside
+/// the lock (two threads may load the same asset once each; both get equal values). When
+/// `capacity` is reached the cache starts over.
+struct Cache<T> {
+    map: Mutex<HashMap<usize, Arc<T>>>,
+    capacity: usize,
+}
+
+impl<T> Cache<T> {
+    fn new(capacity: usize) -> Self {
+        Self {
+            map: Mutex::new(HashMap::new()),
+            capacity,
+        }
+    }
+
+    fn get_or_load(&self, k: usize, load: impl FnOnce() -> Result<T>) -> Result<Arc<T>> {
+        let poisoned = || anyhow::anyhow!("asset cache poisoned by a panicked thread");
+        if let Some(v) = self.map.lock().map_err(|_| poisoned())?.get(&k) {
+            return Ok(v.clone());
+        }
+        let v = Arc::new(load()?);
+        let mut map = self.map.lock().map_err(|_| poisoned())?;
+        if map.len() >= self.capacity {
+            map.clear();
+        }
+        map.insert(k, v.clone());
+        Ok(v)
+    }
+}
+
 /// Shared, thread-safe state for rendering the samples of a plan.
 pub struct Renderer<'a> {
     plan: &'a Plan,
     materials: &'a [Option<MaterialEntry>],
-    shapes: Mutex<HashMap<usize, Arc<LoadedShape>>>,
-    envs: Mutex<HashMap<usize, Arc<EnvMap>>>,
+    shapes: Cache<LoadedShape>,
+    envs: Cache<EnvMap>,
 }
 
 /// Shapes kept loaded at once; samples are ordered by shape, so a small cache suffices.
@@ -135,56 +166,31 @@ impl<'a> Renderer<'a> {
         Self {
             plan,
             materials,
-            shapes: Mutex::new(HashMap::new()),
-            envs: Mutex::new(HashMap::new()),
+            shapes: Cache::new(SHAPE_CACHE),
+            // Environments are small (a few hundred KB at 2 × 64 rows): keep them all.
+            envs: Cache::new(usize::MAX),
         }
     }
 
     fn shape(&self, k: usize) -> Result<Arc<LoadedShape>> {
-        if let Some(s) = self
-            .shapes
-            .lock()
-            .map_err(|_| anyhow::anyhow!("shape cache poisoned"))?
-            .get(&k)
-        {
-            return Ok(s.clone());
-        }
-        let item: &ShapeItem = &self.plan.catalogue.shapes[k];
-        let shape = Shape::load(&item.spec, item.up).with_context(|| format!("shape {}", item.id))?;
-        let (scene, convex) = match &shape {
-            Shape::Mesh(m) => (Some(Scene::new(m)), is_convex(m, 200_000_000)),
-            Shape::Sphere => (None, true),
-        };
-        let loaded = Arc::new(LoadedShape { shape, scene, convex });
-        let mut cache = self
-            .shapes
-            .lock()
-            .map_err(|_| anyhow::anyhow!("shape cache poisoned"))?;
-        if cache.len() >= SHAPE_CACHE {
-            cache.clear();
-        }
-        cache.insert(k, loaded.clone());
-        Ok(loaded)
+        self.shapes.get_or_load(k, || {
+            let item: &ShapeItem = &self.plan.catalogue.shapes[k];
+            let shape = Shape::load(&item.spec, item.up).with_context(|| format!("shape {}", item.id))?;
+            let (scene, convex) = match &shape {
+                Shape::Mesh(m) => (Some(Scene::new(m)), is_convex(m, 200_000_000)),
+                Shape::Sphere => (None, true),
+            };
+            Ok(LoadedShape { shape, scene, convex })
+        })
     }
 
     /// The environment at twice the output resolution (what [`EnvMap::rotated`] reads).
     fn env(&self, k: usize) -> Result<Arc<EnvMap>> {
-        if let Some(e) = self
-            .envs
-            .lock()
-            .map_err(|_| anyhow::anyhow!("env cache poisoned"))?
-            .get(&k)
-        {
-            return Ok(e.clone());
-        }
-        let item = &self.plan.catalogue.envs[k];
-        let (map, _) = load_env(&item.spec).with_context(|| format!("environment {}", item.id))?;
-        let map = Arc::new(map.resampled(2 * self.plan.settings.env_rows, 0.0));
-        self.envs
-            .lock()
-            .map_err(|_| anyhow::anyhow!("env cache poisoned"))?
-            .insert(k, map.clone());
-        Ok(map)
+        self.envs.get_or_load(k, || {
+            let item = &self.plan.catalogue.envs[k];
+            let (map, _) = load_env(&item.spec).with_context(|| format!("environment {}", item.id))?;
+            Ok(map.resampled(2 * self.plan.settings.env_rows, 0.0))
+        })
     }
 
     fn material(&self, k: usize) -> Result<&MaterialEntry> {
@@ -265,14 +271,8 @@ impl<'a> Renderer<'a> {
         let shadows = st.shadows.for_shape(loaded.convex) == Shadows::On && loaded.scene.is_some();
         let to_object = rot.transpose();
         let visibility = |p: usize, dirs: &[[f32; 3]], out: &mut [f32]| {
-            let Some(scene) = loaded.scene.as_ref() else { return };
-            let ng = Vec3::from(g.geometric_normal[p]);
-            let ns = Vec3::from(g.normal[p]);
-            let origin = to_object * (Vec3::from(g.position[p]) + ng * 1e-4);
-            for (o, d) in out.iter_mut().zip(dirs) {
-                let d = Vec3::from(*d);
-                let open = d.dot(ng) > 0.0 && d.dot(ns) > 0.0 && !scene.occluded(origin, to_object * d, 0.0);
-                *o = if open { 1.0 } else { 0.0 };
+            if let Some(scene) = loaded.scene.as_ref() {
+                g.shadow_visibility(scene, to_object, p, dirs, out);
             }
         };
         let vis: Option<&VisibilityFn<'_>> = if shadows { Some(&visibility) } else { None };
@@ -343,14 +343,7 @@ impl<'a> Renderer<'a> {
 pub fn encode(px: SamplePixels) -> Result<(SampleRecord, Vec<u8>, Vec<u8>)> {
     let res = (px.image[0].1.len() as f64).sqrt() as usize;
     let image = encode_exr_channels(res, res, px.image).with_context(|| px.record.id.clone())?;
-    let t = px.env.texels();
-    let ch = |c: usize| t.iter().map(|p| p[c]).collect::<Vec<f32>>();
-    let env = encode_exr_channels(
-        px.env.width(),
-        px.env.height(),
-        vec![("R", ch(0)), ("G", ch(1)), ("B", ch(2))],
-    )
-    .with_context(|| px.record.id.clone())?;
+    let env = encode_env_exr(&px.env).with_context(|| px.record.id.clone())?;
     Ok((px.record, image, env))
 }
 
@@ -363,6 +356,7 @@ pub fn checksum(bytes: &[u8]) -> String {
 mod tests {
     use super::*;
     use crate::shapes::procedural::Category;
+    use glam::Vec3;
 
     #[test]
     fn convexity_is_detected() {

@@ -47,14 +47,18 @@ pub fn encode_exr_channels(width: usize, height: usize, channels: Vec<(&str, Vec
 
 /// Writes an environment map as an RGB EXR.
 pub fn write_env_exr(path: &Path, env: &EnvMap) -> Result<()> {
+    write_exr_channels(path, env.width(), env.height(), env_channels(env))
+}
+
+/// Encodes an environment map as an RGB EXR in memory (see [`encode_exr_channels`]).
+pub fn encode_env_exr(env: &EnvMap) -> Result<Vec<u8>> {
+    encode_exr_channels(env.width(), env.height(), env_channels(env))
+}
+
+fn env_channels(env: &EnvMap) -> Vec<(&'static str, Vec<f32>)> {
     let t = env.texels();
     let ch = |c: usize| t.iter().map(|p| p[c]).collect::<Vec<f32>>();
-    write_exr_channels(
-        path,
-        env.width(),
-        env.height(),
-        vec![("R", ch(0)), ("G", ch(1)), ("B", ch(2))],
-    )
+    vec![("R", ch(0)), ("G", ch(1)), ("B", ch(2))]
 }
 
 /// Reads every channel of the first layer as `f32`, keyed by name, with the image size.

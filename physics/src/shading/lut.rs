@@ -136,8 +136,8 @@ pub struct LutStats {
 }
 
 /// Shades every pixel with `mask[p] > 0` through a table (or per pixel when that is cheaper;
-/// see the module docs). Returns radiance, the number of non-finite values replaced (as
-/// [`shade_image`]) and what was done.
+/// see the module docs). Returns radiance, the number of non-finite values replaced (pixels
+/// when shaded per pixel, table nodes otherwise; policy of [`shade_image`]) and what was done.
 pub fn shade_image_lut(
     brdf: &BrdfModel,
     env: &EnvMap,
@@ -165,16 +165,20 @@ pub fn shade_image_lut(
         });
     }
     let shader = make_shader(brdf, env, Quality::Fast);
-    let values: Vec<[f32; 3]> = nodes
+    let values: Vec<([f32; 3], usize)> = nodes
         .par_iter()
         .map(|&k| {
             let (a, b) = node_coords(k, r);
-            finite(shader.shade(table_normal(a, b), None))
+            let mut v = shader.shade(table_normal(a, b), None);
+            let bad = super::sanitize(&mut v);
+            (v, bad)
         })
         .collect();
     let mut table = vec![[0.0_f32; 3]; r * r];
-    for (&k, v) in nodes.iter().zip(values) {
+    let mut bad = 0;
+    for (&k, (v, b)) in nodes.iter().zip(values) {
         table[k] = v;
+        bad += b;
     }
     let rgb: Vec<[f32; 3]> = coords
         .par_iter()
@@ -192,25 +196,13 @@ pub fn shade_image_lut(
         .collect();
     (
         rgb,
-        0,
+        bad,
         LutStats {
             resolution: r,
             nodes: nodes.len(),
             pixels,
         },
     )
-}
-
-fn finite(v: [f32; 3]) -> [f32; 3] {
-    v.map(|c| {
-        if c.is_finite() {
-            c.max(0.0)
-        } else if c.is_nan() {
-            0.0
-        } else {
-            f32::MAX
-        }
-    })
 }
 
 #[cfg(test)]

@@ -102,6 +102,24 @@ pub fn make_shader(brdf: &BrdfModel, env: &EnvMap, quality: Quality) -> Box<dyn 
     }
 }
 
+/// The policy for a non-finite result (possible only for absurd inputs such as radiance near
+/// `f32::MAX`): +Inf becomes `f32::MAX`, NaN and −Inf become 0. Returns 1 if anything was
+/// replaced, else 0 (callers count replaced pixels).
+pub(crate) fn sanitize(rgb: &mut [f32; 3]) -> usize {
+    let mut bad = 0;
+    for c in rgb.iter_mut() {
+        if !c.is_finite() {
+            bad = 1;
+            *c = if c.is_nan() {
+                0.0
+            } else {
+                f32::MAX.copysign(*c).max(0.0)
+            };
+        }
+    }
+    bad
+}
+
 /// Fills a visibility slice (aligned with [`Shader::light_dirs`]) for one pixel.
 pub type VisibilityFn<'a> = dyn Fn(usize, &[[f32; 3]], &mut [f32]) + Sync + 'a;
 
@@ -131,17 +149,7 @@ pub fn shade_image(
                     &vis[..]
                 });
                 let mut rgb = shader.shade(*n, v);
-                let mut bad = 0;
-                for c in rgb.iter_mut() {
-                    if !c.is_finite() {
-                        bad = 1;
-                        *c = if c.is_nan() {
-                            0.0
-                        } else {
-                            f32::MAX.copysign(*c).max(0.0)
-                        };
-                    }
-                }
+                let bad = sanitize(&mut rgb);
                 (rgb, bad)
             },
         )

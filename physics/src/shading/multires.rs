@@ -428,15 +428,7 @@ pub fn shade_with_params(
             }
         }
     }
-    let mut bad = 0;
-    for o in &mut out {
-        for v in o.iter_mut() {
-            if !v.is_finite() {
-                bad += 1;
-                *v = if v.is_nan() { 0.0 } else { f32::MAX };
-            }
-        }
-    }
+    let bad = out.iter_mut().map(super::sanitize).sum();
     (out, bad, stats)
 }
 
