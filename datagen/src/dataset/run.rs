@@ -69,7 +69,7 @@ impl std::str::FromStr for Worker {
 pub const BYTES_PER_PIXEL_ESTIMATE: f64 = 5.7;
 /// Samples per second on the reference machine (2 cores) at 256² with the `lut` quality, DSBRDF
 /// ground truth and no shadows, from the same measurement; scaled by pixel count for estimates.
-pub const SAMPLES_PER_SECOND_256: f64 = 1.59;
+pub const SAMPLES_PER_SECOND_256: f64 = 1.66;
 
 /// Prints what a manifest would produce.
 pub fn describe(l: &Loaded) -> String {
