@@ -7,4 +7,6 @@
 
 #![warn(missing_docs)]
 
+pub mod model;
+pub mod render;
 pub mod targets;

@@ -133,11 +133,19 @@ pub fn describe(l: &Loaded) -> String {
     );
     let _ = writeln!(
         s,
-        "estimate: {:.1} GB on disk, {} on 2 cores at the reference rate without shadows (docs/PERFORMANCE.md); scale by cores",
-        bytes / 1e9,
+        "estimate: {} on disk, {} on 2 cores at the reference rate without shadows (docs/PERFORMANCE.md); scale by cores",
+        human_bytes(bytes),
         human_duration(secs)
     );
     s
+}
+
+fn human_bytes(bytes: f64) -> String {
+    if bytes < 1e9 {
+        format!("{:.0} MB", bytes / 1e6)
+    } else {
+        format!("{:.1} GB", bytes / 1e9)
+    }
 }
 
 fn human_duration(secs: f64) -> String {
