@@ -7,6 +7,8 @@
 
 #![warn(missing_docs)]
 
+pub mod alloc;
 pub mod model;
 pub mod render;
 pub mod targets;
+pub mod train;

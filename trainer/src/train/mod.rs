@@ -1,0 +1,10 @@
+//! Training: the network, its losses, one step of each stage, and manifest-driven runs with
+//! checkpoints and resume.
+
+pub mod batch;
+pub mod loss;
+pub mod network;
+pub mod step;
+pub mod synthetic;
+#[cfg(test)]
+mod tests;
