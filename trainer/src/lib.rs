@@ -8,6 +8,7 @@
 #![warn(missing_docs)]
 
 pub mod alloc;
+pub mod bench;
 pub mod model;
 pub mod render;
 pub mod targets;

@@ -420,3 +420,23 @@ fn bad_shapes_and_regions_are_errors() {
     let e = layer.forward(&b).unwrap_err();
     assert!(e.to_string().contains("region 3"), "{e}");
 }
+
+#[test]
+#[ignore = "timing, run by hand"]
+fn timing_forward_backward() {
+    let s = sphere(128, 1, 64, true, 1);
+    let layer = RenderingLayer::new(64);
+    let g = upstream(&s, 1);
+    let t = std::time::Instant::now();
+    let _ = layer.forward(&s.batch()).unwrap();
+    let f = t.elapsed().as_secs_f64();
+    let t = std::time::Instant::now();
+    let _ = layer.backward(&s.batch(), &g).unwrap();
+    let b = t.elapsed().as_secs_f64();
+    let pairs = s.region_map.iter().filter(|&&r| r > 0).count() as f64 * 8192.0;
+    eprintln!(
+        "forward {f:.3} s ({:.2} ns/pair), backward {b:.3} s ({:.2} ns/pair)",
+        f * 1e9 / pairs,
+        b * 1e9 / pairs
+    );
+}

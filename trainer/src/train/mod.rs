@@ -3,6 +3,7 @@
 
 pub mod batch;
 pub mod loss;
+pub mod manifest;
 pub mod network;
 pub mod step;
 pub mod synthetic;

@@ -1,0 +1,110 @@
+//! `trainer bench`: the rendering layer's forward + backward time and peak memory (fused against
+//! the tensor reference), and training images/s per network configuration.
+
+use crate::alloc::PeakAlloc;
+use crate::model::Widths;
+use crate::render::{Batch, RenderingLayer, reference};
+use crate::train::network::NetConfig;
+use crate::train::step::{LossWeights, StageKind, train_step};
+use crate::train::synthetic::sphere_batch;
+use anyhow::Result;
+use burn::optim::AdamConfig;
+use burn::tensor::Device;
+use std::time::Instant;
+
+/// One measured operation.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Measure {
+    /// What was measured.
+    pub name: String,
+    /// Median wall time, seconds.
+    pub seconds: f64,
+    /// Peak heap growth during the operation, bytes (0 when no counting allocator is installed).
+    pub peak_bytes: usize,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn measure(name: &str, runs: usize, alloc: Option<&PeakAlloc>, mut f: impl FnMut()) -> Measure {
+    let mut times = Vec::new();
+    let mut peak = 0;
+    for _ in 0..runs.max(1) {
+        let base = alloc.map_or(0, |a| {
+            a.reset_peak();
+            a.live()
+        });
+        let t = Instant::now();
+        f();
+        times.push(t.elapsed().as_secs_f64());
+        peak = peak.max(alloc.map_or(0, |a| a.peak().saturating_sub(base)));
+    }
+    Measure {
+        name: name.to_string(),
+        seconds: median(times),
+        peak_bytes: peak,
+    }
+}
+
+/// Forward + backward of the fused layer and of the tensor reference on `batch` spheres at
+/// `size`² with a `2·env_height × env_height` environment.
+pub fn rendering_layer(
+    batch: usize,
+    size: usize,
+    env_height: usize,
+    runs: usize,
+    alloc: Option<&PeakAlloc>,
+) -> Result<(Measure, Measure)> {
+    let layer = RenderingLayer::new(env_height);
+    let hb = sphere_batch(batch, size, env_height, 1, &layer);
+    let b = Batch {
+        batch,
+        size: (size, size),
+        regions: 1,
+        normals: &hb.normals,
+        region_map: &hb.region_map,
+        materials: &hb.materials,
+        env: &hb.env,
+    };
+    let upstream: Vec<f32> = hb.input.iter().map(|v| 0.5 - v.min(1.0)).collect();
+    let fused = measure("fused", runs, alloc, || {
+        let out = layer.forward(&b).map(|o| o.len()).unwrap_or(0);
+        let g = layer.backward(&b, &upstream).map(|g| g.normals.len()).unwrap_or(0);
+        std::hint::black_box((out, g));
+    });
+    let device = Device::flex().autodiff();
+    let reference = measure("tensor reference", 1, alloc, || {
+        let r = reference::forward_backward(&layer, &b, &upstream, &device).map(|(o, _)| o.len());
+        std::hint::black_box(r.ok());
+    });
+    Ok((fused, reference))
+}
+
+/// Training images/s of a joint step for a network configuration.
+pub fn training(name: &str, widths: Widths, size: usize, batch: usize, steps: usize) -> Result<Measure> {
+    let device = Device::flex().autodiff();
+    device.seed(1);
+    let layer = RenderingLayer::new(64);
+    let net_cfg = NetConfig::new(size, widths);
+    let mut net = net_cfg.init(&device);
+    let mut optim = AdamConfig::new().init();
+    let hb = sphere_batch(batch, size, 64, 2, &layer);
+    let w = LossWeights::default();
+    // One warm-up step (allocations, kernel selection), then the measured ones.
+    let (n, _) = train_step(net, &mut optim, 1e-4, &hb, StageKind::Joint, &w, &layer, &device)?;
+    net = n;
+    let mut times = Vec::new();
+    for _ in 0..steps.max(1) {
+        let t = Instant::now();
+        let (n, _) = train_step(net, &mut optim, 1e-4, &hb, StageKind::Joint, &w, &layer, &device)?;
+        net = n;
+        times.push(t.elapsed().as_secs_f64());
+    }
+    Ok(Measure {
+        name: format!("{name} {size}² batch {batch}"),
+        seconds: median(times),
+        peak_bytes: 0,
+    })
+}

@@ -1,0 +1,428 @@
+//! Training manifests (`manifests/train/*.toml`): what to train, on which data, in which stages.
+//! Field reference: `manifests/README.md` (section "Training manifests"). Errors name the file,
+//! the line and the field, before any work starts.
+
+use super::network::NetConfig;
+use super::step::{LossWeights, StageKind};
+use crate::model::{Init, Widths};
+use matedit_datagen::dataset::manifest::{ManifestError, expand_vars};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use toml::Spanned;
+
+/// A training manifest as written.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainManifest {
+    /// Run identity and output.
+    pub run: RunSection,
+    /// Network shape.
+    pub model: ModelSection,
+    /// Eq. 5 weights.
+    #[serde(default)]
+    pub loss: LossWeights,
+    /// Data pipeline.
+    pub data: DataSection,
+    /// Stages, in order.
+    pub stages: Vec<Spanned<StageSection>>,
+    /// Evaluation after the last stage.
+    #[serde(default)]
+    pub eval: EvalSection,
+}
+
+/// `[run]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunSection {
+    /// Run name.
+    pub name: String,
+    /// Seed of initialisation, data order and dropout.
+    pub seed: u64,
+    /// Output folder (relative to the working directory); `trainer run --out` overrides.
+    pub output: String,
+    /// `cpu` (Burn's flex backend) or `cuda` (needs the `cuda` feature).
+    #[serde(default = "default_device")]
+    pub device: Spanned<String>,
+}
+
+fn default_device() -> Spanned<String> {
+    Spanned::new(0..0, "cpu".to_string())
+}
+
+/// `[model]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelSection {
+    /// Input side; must equal the dataset's image resolution.
+    pub input_size: Spanned<usize>,
+    /// Environment height (64 in the paper; the datasets' maps are 64×128).
+    #[serde(default = "default_env_height")]
+    pub env_height: Spanned<usize>,
+    /// `cpu-small`, `paper`, or a table of widths.
+    pub widths: Spanned<WidthsSpec>,
+    /// `uniform-0.08` (the paper) or `default` (Burn's Kaiming uniform).
+    #[serde(default = "default_init")]
+    pub init: Spanned<String>,
+}
+
+fn default_env_height() -> Spanned<usize> {
+    Spanned::new(0..0, 64)
+}
+
+fn default_init() -> Spanned<String> {
+    Spanned::new(0..0, "uniform-0.08".into())
+}
+
+/// Widths by preset name or explicitly.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(untagged)]
+pub enum WidthsSpec {
+    /// `cpu-small` or `paper`.
+    Preset(String),
+    /// Every width.
+    Explicit {
+        /// First strided convolution's channels.
+        base_channels: usize,
+        /// Channel cap.
+        max_channels: usize,
+        /// Fully connected width.
+        hidden: usize,
+        /// Normal module's fine-scale channels.
+        normal_channels: usize,
+        /// Dropout probability.
+        #[serde(default = "default_dropout")]
+        dropout: f64,
+    },
+}
+
+fn default_dropout() -> f64 {
+    0.5
+}
+
+/// `[data]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DataSection {
+    /// Dataset folder (a `datagen` output: `index.jsonl`, `dataset.json`, `shards/`).
+    pub dataset: String,
+    /// Shuffle buffer, in samples.
+    #[serde(default = "default_shuffle")]
+    pub shuffle_buffer: usize,
+    /// Background decoding threads.
+    #[serde(default = "default_workers")]
+    pub workers: usize,
+    /// `stop` (default): a corrupt or truncated file ends the run naming it; `skip`: it is
+    /// skipped and reported.
+    #[serde(default = "default_on_corrupt")]
+    pub on_corrupt: Spanned<String>,
+    /// Recompute every file's checksum when reading it.
+    #[serde(default = "default_true")]
+    pub verify_checksums: bool,
+}
+
+fn default_shuffle() -> usize {
+    64
+}
+fn default_workers() -> usize {
+    2
+}
+fn default_on_corrupt() -> Spanned<String> {
+    Spanned::new(0..0, "stop".into())
+}
+fn default_true() -> bool {
+    true
+}
+
+/// One `[[stages]]` entry.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageSection {
+    /// Stage name (`pretrain`, `joint`, `finetune`, `multi-material`, …).
+    pub name: String,
+    /// What it trains: `pretrain` (normal + material modules, L2 only) or `joint` (Eq. 5
+    /// through the rendering layer; also used for finetuning and multi-material stages).
+    pub kind: StageKind,
+    /// Dataset of this stage, when not `[data].dataset`.
+    #[serde(default)]
+    pub dataset: Option<String>,
+    /// Split to train on.
+    #[serde(default = "default_split")]
+    pub split: String,
+    /// Optimisation steps.
+    pub steps: usize,
+    /// Samples per step.
+    pub batch_size: usize,
+    /// Learning-rate schedule: `[[from_step, lr], …]` (the paper: 1e-4, later 1e-6 and 1e-8).
+    pub learning_rate: Vec<(usize, f64)>,
+    /// Adam β1 (the paper: 0.9, later 0.5).
+    #[serde(default = "default_beta1")]
+    pub beta1: f64,
+    /// Adam β2.
+    #[serde(default = "default_beta2")]
+    pub beta2: f64,
+    /// Steps between checkpoints (0: only at the end of the stage).
+    #[serde(default)]
+    pub checkpoint_every: usize,
+}
+
+fn default_split() -> String {
+    "train".into()
+}
+fn default_beta1() -> f64 {
+    0.9
+}
+fn default_beta2() -> f64 {
+    0.999
+}
+
+impl StageSection {
+    /// The learning rate at `step`.
+    pub fn lr_at(&self, step: usize) -> f64 {
+        self.learning_rate
+            .iter()
+            .rev()
+            .find(|(from, _)| *from <= step)
+            .map_or(self.learning_rate[0].1, |&(_, lr)| lr)
+    }
+}
+
+/// `[eval]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EvalSection {
+    /// Held-out split.
+    #[serde(default = "default_test")]
+    pub split: String,
+    /// At most this many samples (0: all).
+    #[serde(default)]
+    pub max_samples: usize,
+}
+
+fn default_test() -> String {
+    "test".into()
+}
+
+impl Default for EvalSection {
+    fn default() -> Self {
+        Self {
+            split: default_test(),
+            max_samples: 0,
+        }
+    }
+}
+
+/// A validated manifest with its resolved values.
+#[derive(Clone, Debug)]
+pub struct TrainPlan {
+    /// Manifest path.
+    pub path: PathBuf,
+    /// The manifest's text (hashed into checkpoints so a resume refuses a changed manifest).
+    pub text: String,
+    /// As written.
+    pub manifest: TrainManifest,
+    /// Network configuration.
+    pub net: NetConfig,
+    /// Default dataset folder.
+    pub dataset: PathBuf,
+    /// Skip corrupt samples instead of stopping.
+    pub skip_corrupt: bool,
+}
+
+fn invalid(
+    path: &Path,
+    text: &str,
+    span: std::ops::Range<usize>,
+    field: &str,
+    message: impl Into<String>,
+) -> ManifestError {
+    let end = span.start.min(text.len());
+    ManifestError::Invalid {
+        file: path.display().to_string(),
+        line: text.as_bytes()[..end].iter().filter(|&&b| b == b'\n').count() + 1,
+        field: field.to_string(),
+        message: message.into(),
+    }
+}
+
+/// Reads and validates a training manifest.
+pub fn load(path: &Path) -> Result<TrainPlan, ManifestError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ManifestError::Io {
+        file: path.display().to_string(),
+        source,
+    })?;
+    parse(path, text)
+}
+
+/// Validates manifest text that came from `path`.
+pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
+    let m: TrainManifest = toml::from_str(&text).map_err(|e| ManifestError::Syntax {
+        file: path.display().to_string(),
+        message: e.to_string().trim_end().to_string(),
+    })?;
+    let bad = |span: std::ops::Range<usize>, field: &str, msg: String| invalid(path, &text, span, field, msg);
+    let widths = match m.model.widths.get_ref() {
+        WidthsSpec::Preset(p) if p == "cpu-small" => Widths::cpu_small(),
+        WidthsSpec::Preset(p) if p == "paper" => Widths::paper(),
+        WidthsSpec::Preset(p) => {
+            return Err(bad(
+                m.model.widths.span(),
+                "model.widths",
+                format!("unknown preset {p:?} (cpu-small, paper, or a table)"),
+            ));
+        }
+        WidthsSpec::Explicit {
+            base_channels,
+            max_channels,
+            hidden,
+            normal_channels,
+            dropout,
+        } => {
+            if [*base_channels, *max_channels, *hidden, *normal_channels].contains(&0) || !(0.0..1.0).contains(dropout)
+            {
+                return Err(bad(
+                    m.model.widths.span(),
+                    "model.widths",
+                    "widths must be positive and dropout in [0, 1)".into(),
+                ));
+            }
+            Widths::new(*base_channels, *max_channels, *hidden, *normal_channels).with_dropout(*dropout)
+        }
+    };
+    let init = match m.model.init.get_ref().as_str() {
+        "uniform-0.08" => Init::Uniform008,
+        "default" => Init::Default,
+        other => {
+            return Err(bad(
+                m.model.init.span(),
+                "model.init",
+                format!("unknown initialisation {other:?} (uniform-0.08, default)"),
+            ));
+        }
+    };
+    let net = NetConfig::new(*m.model.input_size.get_ref(), widths)
+        .with_env_height(*m.model.env_height.get_ref())
+        .with_init(init);
+    if let Err(e) = net.validate() {
+        let span = if e.starts_with("input_size") {
+            m.model.input_size.span()
+        } else {
+            m.model.env_height.span()
+        };
+        return Err(bad(
+            span,
+            if e.starts_with("input_size") {
+                "model.input_size"
+            } else {
+                "model.env_height"
+            },
+            e,
+        ));
+    }
+    match m.run.device.get_ref().as_str() {
+        "cpu" => {}
+        "cuda" if cfg!(feature = "cuda") => {}
+        "cuda" => {
+            return Err(bad(
+                m.run.device.span(),
+                "run.device",
+                "this build has no CUDA backend: build with `--features cuda`".into(),
+            ));
+        }
+        other => {
+            return Err(bad(
+                m.run.device.span(),
+                "run.device",
+                format!("unknown device {other:?} (cpu, cuda)"),
+            ));
+        }
+    }
+    let skip_corrupt = match m.data.on_corrupt.get_ref().as_str() {
+        "stop" => false,
+        "skip" => true,
+        other => {
+            return Err(bad(
+                m.data.on_corrupt.span(),
+                "data.on_corrupt",
+                format!("expected stop or skip, got {other:?}"),
+            ));
+        }
+    };
+    if m.stages.is_empty() {
+        return Err(bad(0..0, "stages", "at least one [[stages]] entry is needed".into()));
+    }
+    for (i, st) in m.stages.iter().enumerate() {
+        let s = st.get_ref();
+        let field = |f: &str| format!("stages[{i}].{f}");
+        if s.steps == 0 || s.batch_size == 0 {
+            return Err(bad(
+                st.span(),
+                &field("steps"),
+                "steps and batch_size must be positive".into(),
+            ));
+        }
+        if s.learning_rate.is_empty()
+            || s.learning_rate[0].0 != 0
+            || s.learning_rate.windows(2).any(|w| w[1].0 <= w[0].0)
+        {
+            return Err(bad(
+                st.span(),
+                &field("learning_rate"),
+                "a list of [from_step, lr] starting at step 0, in increasing steps".into(),
+            ));
+        }
+        if s.learning_rate.iter().any(|(_, lr)| !(lr.is_finite() && *lr > 0.0)) {
+            return Err(bad(
+                st.span(),
+                &field("learning_rate"),
+                "learning rates must be positive".into(),
+            ));
+        }
+        for (name, b) in [("beta1", s.beta1), ("beta2", s.beta2)] {
+            if !(0.0..1.0).contains(&b) {
+                return Err(bad(st.span(), &field(name), format!("must lie in [0, 1), got {b}")));
+            }
+        }
+        if m.stages[..i].iter().any(|o| o.get_ref().name == s.name) {
+            return Err(bad(
+                st.span(),
+                &field("name"),
+                format!("stage name {:?} is used twice", s.name),
+            ));
+        }
+    }
+    let resolve = |w: &str, field: &str| -> Result<PathBuf, ManifestError> {
+        expand_vars(w).map(PathBuf::from).map_err(|e| bad(0..0, field, e))
+    };
+    let dataset = resolve(&m.data.dataset, "data.dataset")?;
+    Ok(TrainPlan {
+        path: path.to_path_buf(),
+        manifest: m,
+        net,
+        dataset,
+        skip_corrupt,
+        text,
+    })
+}
+
+impl TrainPlan {
+    /// The dataset folder of stage `i`.
+    pub fn stage_dataset(&self, i: usize) -> Result<PathBuf, ManifestError> {
+        match &self.manifest.stages[i].get_ref().dataset {
+            Some(d) => expand_vars(d).map(PathBuf::from).map_err(|e| {
+                invalid(
+                    &self.path,
+                    &self.text,
+                    self.manifest.stages[i].span(),
+                    &format!("stages[{i}].dataset"),
+                    e,
+                )
+            }),
+            None => Ok(self.dataset.clone()),
+        }
+    }
+
+    /// blake3 of the manifest text.
+    pub fn hash(&self) -> String {
+        blake3::hash(self.text.as_bytes()).to_hex().to_string()
+    }
+}
