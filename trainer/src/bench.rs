@@ -5,7 +5,8 @@ use crate::alloc::PeakAlloc;
 use crate::model::Widths;
 use crate::render::{Batch, RenderingLayer, reference};
 use crate::train::network::NetConfig;
-use crate::train::step::{LossWeights, StageKind, train_step};
+use crate::train::perceptual::Perceptual;
+use crate::train::step::{LossWeights, StepContext, StepKind, train_step};
 use crate::train::synthetic::sphere_batch;
 use anyhow::Result;
 use burn::optim::AdamConfig;
@@ -92,13 +93,19 @@ pub fn training(name: &str, widths: Widths, size: usize, batch: usize, steps: us
     let mut optim = AdamConfig::new().init();
     let hb = sphere_batch(batch, size, 64, 2, &layer);
     let w = LossWeights::default();
+    let ctx = StepContext {
+        layer: &layer,
+        weights: &w,
+        perceptual: &Perceptual::Fallback,
+        device: &device,
+    };
     // One warm-up step (allocations, kernel selection), then the measured ones.
-    let (n, _) = train_step(net, &mut optim, 1e-4, &hb, StageKind::Joint, &w, &layer, &device)?;
+    let (n, _) = train_step(net, &mut optim, 1e-4, &hb, StepKind::JOINT, &ctx)?;
     net = n;
     let mut times = Vec::new();
     for _ in 0..steps.max(1) {
         let t = Instant::now();
-        let (n, _) = train_step(net, &mut optim, 1e-4, &hb, StageKind::Joint, &w, &layer, &device)?;
+        let (n, _) = train_step(net, &mut optim, 1e-4, &hb, StepKind::JOINT, &ctx)?;
         net = n;
         times.push(t.elapsed().as_secs_f64());
     }

@@ -9,6 +9,8 @@
 
 pub mod alloc;
 pub mod bench;
+pub mod data;
+pub mod eval;
 pub mod model;
 pub mod render;
 pub mod targets;

@@ -1,11 +1,15 @@
-//! `trainer`: the material-editing network's trainer (material targets for now).
+//! `trainer`: trains the material-editing network of Fig. 2 from manifests, evaluates it like
+//! Sec. 4 of the paper, and measures the rendering layer.
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use matedit_trainer::alloc::PeakAlloc;
 use matedit_trainer::bench;
+use matedit_trainer::eval::{EvalOptions, evaluate};
 use matedit_trainer::model::Widths;
 use matedit_trainer::targets::{material_from_prediction, normalised_target};
+use matedit_trainer::train::manifest;
+use matedit_trainer::train::run::{open_dataset_stream, run as run_manifest};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -22,6 +26,49 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Train the stages of a training manifest (manifests/train/*.toml), then evaluate every
+    /// stage's final checkpoint on the manifest's [eval] split.
+    Run {
+        /// Training manifest.
+        manifest: PathBuf,
+        /// Output folder (default: the manifest's run.output).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Continue the run in the output folder from its latest checkpoint.
+        #[arg(long)]
+        resume: bool,
+        /// No progress bars.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Score checkpoints on a dataset split: METRICS.json and Markdown tables shaped like the
+    /// paper's Tables 1–3 (with both trivial baselines).
+    Eval {
+        /// Checkpoint folder (`OUT/checkpoints/STAGE`); repeat to compare several.
+        #[arg(long, required = true)]
+        checkpoint: Vec<PathBuf>,
+        /// Dataset folder.
+        #[arg(long)]
+        data: PathBuf,
+        /// Split to score.
+        #[arg(long, default_value = "test")]
+        split: String,
+        /// Dataset whose training splits define the mean-material baseline (default: --data).
+        #[arg(long)]
+        train_data: Option<PathBuf>,
+        /// Output JSON; the tables go next to it as .md.
+        #[arg(long)]
+        out: PathBuf,
+        /// Samples per batch.
+        #[arg(long, default_value_t = 8)]
+        batch: usize,
+        /// At most this many samples (0: all).
+        #[arg(long, default_value_t = 0)]
+        max_samples: usize,
+        /// No progress bar.
+        #[arg(long)]
+        quiet: bool,
+    },
     /// Print a material file's 108 normalised parameters (the material module's target) as JSON.
     MaterialTarget {
         /// DSBRDF material file.
@@ -56,8 +103,78 @@ enum Command {
     },
 }
 
+/// Runs evaluation and writes `out` (JSON) and its `.md` tables; prints the tables.
+fn eval_to(checkpoints: &[PathBuf], opts: &EvalOptions, out: &std::path::Path) -> Result<()> {
+    let report = evaluate(checkpoints, opts)?;
+    matedit_trainer::eval::run::write_report(&report, out)?;
+    let md = report.markdown();
+    let md_path = out.with_extension("md");
+    matedit_datagen::io::write_atomically(&md_path, |p| Ok(std::fs::write(p, &md)?))?;
+    println!("{md}");
+    if let Some(last) = report.checkpoints.last() {
+        match report.beats_baselines(&last.name) {
+            Some(true) => println!("{}: O' beats both trivial baselines on L2 and SSIM.", last.name),
+            Some(false) => println!("{}: O' does NOT beat both trivial baselines on L2 and SSIM.", last.name),
+            None => {}
+        }
+    }
+    eprintln!("wrote {} and {}", out.display(), md_path.display());
+    Ok(())
+}
+
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
+        Command::Run {
+            manifest: path,
+            out,
+            resume,
+            quiet,
+        } => {
+            let plan = manifest::load(&path)?;
+            let out = out.unwrap_or_else(|| PathBuf::from(&plan.manifest.run.output));
+            let summary = run_manifest(&plan, &out, resume, &open_dataset_stream, quiet)?;
+            eprintln!(
+                "{} steps run; checkpoints: {}",
+                summary.steps_run,
+                summary
+                    .stage_checkpoints
+                    .iter()
+                    .map(|(_, p)| p.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+            let e = &plan.manifest.eval;
+            let checkpoints: Vec<PathBuf> = summary.stage_checkpoints.iter().map(|(_, p)| p.clone()).collect();
+            let opts = EvalOptions {
+                data: plan.dataset.clone(),
+                split: e.split.clone(),
+                train_data: None,
+                batch: 8,
+                max_samples: e.max_samples,
+                progress: !quiet,
+            };
+            eval_to(&checkpoints, &opts, &out.join("eval.json"))?;
+        }
+        Command::Eval {
+            checkpoint,
+            data,
+            split,
+            train_data,
+            out,
+            batch,
+            max_samples,
+            quiet,
+        } => {
+            let opts = EvalOptions {
+                data,
+                split,
+                train_data,
+                batch,
+                max_samples,
+                progress: !quiet,
+            };
+            eval_to(&checkpoint, &opts, &out)?;
+        }
         Command::MaterialTarget { material } => {
             println!("{}", serde_json::to_string(&normalised_target(&material)?.to_vec())?);
         }

@@ -65,7 +65,7 @@ impl std::str::FromStr for Worker {
 }
 
 /// Encoded bytes (both EXR files) per image pixel: 371,428 bytes per 256² sample, the mean of
-/// `datagen bench manifests/quickstart.toml --res 256` (docs/PERFORMANCE.md). Estimates only.
+/// `datagen bench manifests/bench.toml --res 256` (docs/PERFORMANCE.md). Estimates only.
 pub const BYTES_PER_PIXEL_ESTIMATE: f64 = 5.7;
 /// Samples per second on the reference machine (2 cores) at 256² with the `lut` quality, DSBRDF
 /// ground truth and no shadows, from the same measurement; scaled by pixel count for estimates.

@@ -16,6 +16,7 @@ pub mod encoder;
 pub mod illumination;
 pub mod material;
 pub mod normal;
+pub mod vgg16;
 
 use burn::config::Config;
 use burn::nn::Initializer;

@@ -4,97 +4,30 @@
 //! Loops run texel-group-outer, pixel-inner: one group's constants (directions, half vectors,
 //! L·dω and 18 lobe parameters) stay in L1 while every pixel of the tile uses them, and in the
 //! backward pass the group's gradient accumulators stay in registers instead of streaming
-//! 21 × T floats per pixel. Every lane computation is branch-free so that it vectorises; groups of
-//! eight texels behind every pixel's surface, and lobes whose cos^γ is below e^−30 on a whole
-//! group, are skipped (they add less than κ·e^−30 ≤ 2e-12 of L·dω to a value or a gradient).
+//! 21 × T floats per pixel. Lane arithmetic goes through [`F8`] (AVX2 with FMA where the CPU
+//! has it, plain arrays otherwise). Groups of eight texels behind every pixel's surface, and lobes
+//! whose cos^γ is below e^−30 on a whole group, are skipped (they add less than
+//! κ·e^−30 ≤ 2e-12 of L·dω to a value or a gradient).
 
 use super::material::{MEMBERS, MaterialTexels};
+#[cfg(target_arch = "x86_64")]
+use super::simd::Avx2;
+use super::simd::{F8, Portable, exp_fast, expm1, ln_1m};
 use super::texels::{LANES, TexelTable};
-use matedit_physics::fastmath;
 
 /// A lobe whose γ·ln cos θ_h is below this on all lanes is skipped.
 const SKIP_EXPONENT: f32 = -30.0;
 
-type Lanes = [f32; LANES];
-
-#[inline(always)]
-fn map8(x: Lanes, f: impl Fn(f32) -> f32) -> Lanes {
-    let mut o = [0.0; LANES];
-    for l in 0..LANES {
-        o[l] = f(x[l]);
+/// Whether this CPU runs the AVX2 + FMA kernel.
+pub fn simd_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
     }
-    o
-}
-
-/// Taylor polynomial of e^x − 1 to x⁸/8! (truncation below 3e-10 relative for |x| < 0.35).
-#[inline(always)]
-fn expm1_taylor(x: f32) -> f32 {
-    let mut t = 1.0 / 40320.0_f32;
-    t = t * x + 1.0 / 5040.0;
-    t = t * x + 1.0 / 720.0;
-    t = t * x + 1.0 / 120.0;
-    t = t * x + 1.0 / 24.0;
-    t = t * x + 1.0 / 6.0;
-    t = t * x + 0.5;
-    (t * x) * x + x
-}
-
-/// Largest |x| of eight lanes.
-#[inline(always)]
-fn max_abs(x: &Lanes) -> f32 {
-    let mut m = 0.0f32;
-    for v in x {
-        m = m.max(v.abs());
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
     }
-    m
-}
-
-/// e^x − 1 on eight lanes. A lobe far from its peak, or a weak one, has small arguments on a
-/// whole group of texels: then the polynomial alone is exact to 3e-10 and costs a third of the
-/// general path, which evaluates both the polynomial and e^x and selects per lane.
-#[inline(always)]
-fn expm1_8(x: Lanes) -> Lanes {
-    if max_abs(&x) < 0.35 {
-        map8(x, expm1_taylor)
-    } else {
-        map8(x, fastmath::expm1)
-    }
-}
-
-/// e^x on eight lanes (the same shortcut for small arguments: broad lobes, γ ≪ 1).
-#[inline(always)]
-fn exp_8(x: Lanes) -> Lanes {
-    if max_abs(&x) < 0.35 {
-        map8(x, |v| 1.0 + expm1_taylor(v))
-    } else {
-        map8(x, fastmath::exp)
-    }
-}
-
-#[inline(always)]
-fn mul8(a: &Lanes, b: &Lanes) -> Lanes {
-    let mut o = [0.0; LANES];
-    for l in 0..LANES {
-        o[l] = a[l] * b[l];
-    }
-    o
-}
-
-#[inline(always)]
-fn lanes(v: &[f32], b: usize) -> Lanes {
-    let mut out = [0.0; LANES];
-    out.copy_from_slice(&v[b..b + LANES]);
-    out
-}
-
-/// Sums the lanes in a fixed order.
-#[inline(always)]
-fn reduce(v: Lanes) -> f32 {
-    let mut s = [0.0f32; 4];
-    for l in 0..4 {
-        s[l] = v[l] + v[l + 4];
-    }
-    (s[0] + s[2]) + (s[1] + s[3])
 }
 
 /// A normal the layer can shade: finite and facing the camera (n_z > 0). Others render black and
@@ -104,34 +37,36 @@ pub fn usable(n: [f32; 3]) -> bool {
     n[2] > 0.0 && n.iter().all(|v| v.is_finite())
 }
 
-/// Geometric terms of one pixel against eight texels: clamped cos θ_i, ln cos θ_h, cos θ_h, and
-/// whether cos θ_h is positive. 1 − cos θ_h is computed as ½|n − h|², exact near the lobe peak
-/// where 1 − n·h cancels (and the definition the gradient differentiates).
+/// Geometric terms of one pixel against the eight texels at `b`: the front mask, clamped
+/// cos θ_i, ln cos θ_h and cos θ_h. 1 − cos θ_h is computed as ½|n − h|², exact near the lobe
+/// peak where 1 − n·h cancels (and the definition the gradient differentiates).
 #[inline(always)]
-fn geometry(n: [f32; 3], tex: &TexelTable, b: usize) -> (Lanes, Lanes, Lanes) {
-    let (mut wt, mut omc, mut ch) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
-    let w = [lanes(&tex.w[0], b), lanes(&tex.w[1], b), lanes(&tex.w[2], b)];
-    let h = [lanes(&tex.h[0], b), lanes(&tex.h[1], b), lanes(&tex.h[2], b)];
-    for l in 0..LANES {
-        let ci = n[0] * w[0][l] + n[1] * w[1][l] + n[2] * w[2][l];
-        let d = [n[0] - h[0][l], n[1] - h[1][l], n[2] - h[2][l]];
-        let o = 0.5 * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-        let front = ci > 0.0 && o < 1.0;
-        wt[l] = if front { ci } else { 0.0 };
-        // Back lanes get 1 − cos θ_h = 1, whose log is the floor −103.3: cos^γ = 0 there.
-        omc[l] = if front { o } else { 1.0 };
-        ch[l] = 1.0 - o;
-    }
-    (wt, map8(omc, fastmath::ln_1m), ch)
+fn geometry<V: F8>(n: [V; 3], tex: &TexelTable, b: usize) -> (V::M, V, V, V) {
+    let w = [
+        V::load(&tex.w[0][b..]),
+        V::load(&tex.w[1][b..]),
+        V::load(&tex.w[2][b..]),
+    ];
+    let ci = n[0].mul_add(w[0], n[1].mul_add(w[1], n[2].mul(w[2])));
+    let d: [V; 3] = std::array::from_fn(|a| n[a].sub(V::load(&tex.h[a][b..])));
+    let o = d[0]
+        .mul_add(d[0], d[1].mul_add(d[1], d[2].mul(d[2])))
+        .mul(V::splat(0.5));
+    let front = V::and(V::splat(0.0).lt(ci), o.lt(V::splat(1.0)));
+    let wt = V::select(front, ci, V::splat(0.0));
+    // Back lanes get 1 − cos θ_h = 1, whose log is the floor −103.3: cos^γ = 0 there.
+    let omc = V::select(front, o, V::splat(1.0));
+    (front, wt, ln_1m(omc), V::splat(1.0).sub(o))
 }
 
+/// Whether lobe `gam` is negligible on the whole group: γ·ln cos θ_h < −30 on every lane.
 #[inline(always)]
-fn skip(gam: &Lanes, lc: &Lanes) -> bool {
-    let mut top = f32::MIN;
-    for l in 0..LANES {
-        top = top.max(gam[l] * lc[l]);
-    }
-    top < SKIP_EXPONENT
+fn skip<V: F8>(gam: V, lc: V) -> bool {
+    !V::any(gam.mul(lc).ge(V::splat(SKIP_EXPONENT)))
+}
+
+fn splat3<V: F8>(n: [f32; 3]) -> [V; 3] {
+    n.map(V::splat)
 }
 
 /// Radiance of every pixel of a tile (`normals[i]`, usable ones only) into `out[i]`.
@@ -144,16 +79,16 @@ pub fn forward_tile(
     out: &mut [[f32; 3]],
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2, checked just above.
+    if simd_available() {
+        // SAFETY: the CPU supports AVX2 and FMA, checked just above.
         unsafe { forward_avx2(normals, tex, mat, lsa, out) };
         return;
     }
-    forward_portable(normals, tex, mat, lsa, out);
+    forward::<Portable>(normals, tex, mat, lsa, out);
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,fma")]
 fn forward_avx2(
     normals: &[[f32; 3]],
     tex: &TexelTable,
@@ -161,51 +96,50 @@ fn forward_avx2(
     lsa: &[Vec<f32>; 3],
     out: &mut [[f32; 3]],
 ) {
-    forward_portable(normals, tex, mat, lsa, out)
+    forward::<Avx2>(normals, tex, mat, lsa, out)
 }
 
 #[inline(always)]
-fn forward_portable(
+fn forward<V: F8>(
     normals: &[[f32; 3]],
     tex: &TexelTable,
     mat: &MaterialTexels,
     lsa: &[Vec<f32>; 3],
     out: &mut [[f32; 3]],
 ) {
-    let mut acc = vec![[[0.0f32; LANES]; 3]; normals.len()];
+    let zero = V::splat(0.0);
+    let mut acc = vec![[zero; 3]; normals.len()];
+    let pixels: Vec<(usize, [V; 3])> = normals
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| usable(**n))
+        .map(|(i, n)| (i, splat3(*n)))
+        .collect();
     for b in (0..tex.padded()).step_by(LANES) {
-        let light = [lanes(&lsa[0], b), lanes(&lsa[1], b), lanes(&lsa[2], b)];
-        let kap: [Lanes; MEMBERS] = std::array::from_fn(|q| lanes(&mat.kappa[q], b));
-        let gam: [Lanes; MEMBERS] = std::array::from_fn(|q| lanes(&mat.gamma[q], b));
-        for (&n, acc) in normals.iter().zip(acc.iter_mut()) {
-            if !usable(n) {
-                continue;
-            }
-            let (wt, lc, _) = geometry(n, tex, b);
-            if wt.iter().all(|&w| w == 0.0) {
+        let light: [V; 3] = std::array::from_fn(|c| V::load(&lsa[c][b..]));
+        let kap: [V; MEMBERS] = std::array::from_fn(|q| V::load(&mat.kappa[q][b..]));
+        let gam: [V; MEMBERS] = std::array::from_fn(|q| V::load(&mat.gamma[q][b..]));
+        for &(i, n) in &pixels {
+            let (front, wt, lc, _) = geometry(n, tex, b);
+            if !V::any(front) {
                 continue;
             }
             for c in 0..3 {
-                let mut rho = [0.0f32; LANES];
+                let mut rho = zero;
                 for k in 0..3 {
                     let q = c * 3 + k;
-                    if skip(&gam[q], &lc) {
+                    if skip(gam[q], lc) {
                         continue;
                     }
-                    let pw = exp_8(mul8(&gam[q], &lc));
-                    let e = expm1_8(mul8(&kap[q], &pw));
-                    for l in 0..LANES {
-                        rho[l] += e[l];
-                    }
+                    let pw = exp_fast(gam[q].mul(lc));
+                    rho = rho.add(expm1(kap[q].mul(pw)));
                 }
-                for l in 0..LANES {
-                    acc[c][l] += rho[l] * wt[l] * light[c][l];
-                }
+                acc[i][c] = rho.mul(wt).mul_add(light[c], acc[i][c]);
             }
         }
     }
     for (o, a) in out.iter_mut().zip(&acc) {
-        *o = a.map(reduce);
+        *o = a.map(F8::sum);
     }
 }
 
@@ -233,7 +167,7 @@ impl TexelGrads {
 }
 
 /// Vector–Jacobian product of [`forward_tile`]: given ∂loss/∂out per pixel (`upstream`), adds
-/// ∂loss/∂n into `grad_n` and the texel gradients into `acc`. `lsa` and `env` are L·dω and L.
+/// ∂loss/∂n into `grad_n` and the texel gradients into `acc`. `lsa` is L·dω.
 pub fn backward_tile(
     normals: &[[f32; 3]],
     upstream: &[[f32; 3]],
@@ -244,16 +178,16 @@ pub fn backward_tile(
     acc: &mut TexelGrads,
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2, checked just above.
+    if simd_available() {
+        // SAFETY: the CPU supports AVX2 and FMA, checked just above.
         unsafe { backward_avx2(normals, upstream, tex, mat, lsa, grad_n, acc) };
         return;
     }
-    backward_portable(normals, upstream, tex, mat, lsa, grad_n, acc);
+    backward::<Portable>(normals, upstream, tex, mat, lsa, grad_n, acc);
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,fma")]
 fn backward_avx2(
     normals: &[[f32; 3]],
     upstream: &[[f32; 3]],
@@ -263,11 +197,11 @@ fn backward_avx2(
     grad_n: &mut [[f32; 3]],
     acc: &mut TexelGrads,
 ) {
-    backward_portable(normals, upstream, tex, mat, lsa, grad_n, acc)
+    backward::<Avx2>(normals, upstream, tex, mat, lsa, grad_n, acc)
 }
 
 #[inline(always)]
-fn backward_portable(
+fn backward<V: F8>(
     normals: &[[f32; 3]],
     upstream: &[[f32; 3]],
     tex: &TexelTable,
@@ -276,91 +210,149 @@ fn backward_portable(
     grad_n: &mut [[f32; 3]],
     acc: &mut TexelGrads,
 ) {
-    // Per pixel, lane-wise coefficients of ω_i and of (h − n) in ∂loss/∂n.
-    let mut gw = vec![[[0.0f32; LANES]; 3]; normals.len()];
+    let zero = V::splat(0.0);
+    // Per pixel, lane-wise ∂loss/∂n.
+    let mut gw = vec![[zero; 3]; normals.len()];
+    let pixels: Vec<(usize, [V; 3], [f32; 3])> = normals
+        .iter()
+        .zip(upstream)
+        .enumerate()
+        .filter(|(_, (n, g))| usable(**n) && g.iter().any(|&v| v != 0.0))
+        .map(|(i, (n, g))| (i, splat3(*n), *g))
+        .collect();
     for b in (0..tex.padded()).step_by(LANES) {
-        let light = [lanes(&lsa[0], b), lanes(&lsa[1], b), lanes(&lsa[2], b)];
-        let kap: [Lanes; MEMBERS] = std::array::from_fn(|q| lanes(&mat.kappa[q], b));
-        let gam: [Lanes; MEMBERS] = std::array::from_fn(|q| lanes(&mat.gamma[q], b));
-        let w = [lanes(&tex.w[0], b), lanes(&tex.w[1], b), lanes(&tex.w[2], b)];
-        let h = [lanes(&tex.h[0], b), lanes(&tex.h[1], b), lanes(&tex.h[2], b)];
-        let mut gk = [[0.0f32; LANES]; MEMBERS];
-        let mut gg = [[0.0f32; LANES]; MEMBERS];
-        let mut gl = [[0.0f32; LANES]; 3];
+        let light: [V; 3] = std::array::from_fn(|c| V::load(&lsa[c][b..]));
+        let kap: [V; MEMBERS] = std::array::from_fn(|q| V::load(&mat.kappa[q][b..]));
+        let gam: [V; MEMBERS] = std::array::from_fn(|q| V::load(&mat.gamma[q][b..]));
+        let w: [V; 3] = std::array::from_fn(|a| V::load(&tex.w[a][b..]));
+        let h: [V; 3] = std::array::from_fn(|a| V::load(&tex.h[a][b..]));
+        let mut gk = [zero; MEMBERS];
+        let mut gg = [zero; MEMBERS];
+        let mut gl = [zero; 3];
         let mut touched = false;
-        for ((&n, g), gw) in normals.iter().zip(upstream).zip(gw.iter_mut()) {
-            if !usable(n) {
-                continue;
-            }
-            let (wt, lc, ch) = geometry(n, tex, b);
-            if wt.iter().all(|&w| w == 0.0) {
+        for &(i, n, g) in &pixels {
+            let (front, wt, lc, ch) = geometry(n, tex, b);
+            if !V::any(front) {
                 continue;
             }
             touched = true;
             // ∂(ci)/∂n = ω_i where ci > 0; ∂(cos θ_h)/∂n = h − n (from 1 − ½|n − h|²).
-            let mut cw = [0.0f32; LANES];
-            let mut chh = [0.0f32; LANES];
+            let mut cw = zero;
+            let mut chh = zero;
+            // ci/cos θ_h: at most 2 for a unit normal, so grazing pixels stay finite.
+            let ratio = V::select(ch.ge(V::splat(1e-20)), wt.div(ch.max(V::splat(1e-20))), zero);
             for c in 0..3 {
                 if g[c] == 0.0 {
                     continue;
                 }
-                let mut rho = [0.0f32; LANES];
-                let mut dsum = [0.0f32; LANES];
-                let mut wc = [0.0f32; LANES];
-                for l in 0..LANES {
-                    wc[l] = g[c] * light[c][l] * wt[l];
-                }
+                let gc = V::splat(g[c]);
+                let gl_c = gc.mul(light[c]);
+                let wc = gl_c.mul(wt);
+                let mut rho = zero;
+                let mut dsum = zero;
                 for k in 0..3 {
                     let q = c * 3 + k;
-                    if skip(&gam[q], &lc) {
+                    if skip(gam[q], lc) {
                         continue;
                     }
-                    let pw = exp_8(mul8(&gam[q], &lc));
-                    let e = expm1_8(mul8(&kap[q], &pw));
-                    for l in 0..LANES {
-                        // ∂ρ/∂ln κ = e^{κ c^γ} κ c^γ; ∂ρ/∂ln γ = that · γ ln c.
-                        let pw = pw[l];
-                        let e = e[l];
-                        let d = (e + 1.0) * kap[q][l] * pw;
-                        rho[l] += e;
-                        gk[q][l] += wc[l] * d;
-                        gg[q][l] += wc[l] * d * gam[q][l] * lc[l];
-                        dsum[l] += d * gam[q][l];
-                    }
+                    let pw = exp_fast(gam[q].mul(lc));
+                    let kp = kap[q].mul(pw);
+                    let e = expm1(kp);
+                    // ∂ρ/∂ln κ = e^{κ c^γ} κ c^γ; ∂ρ/∂ln γ = that · γ ln c.
+                    let d = e.add(V::splat(1.0)).mul(kp);
+                    let wd = wc.mul(d);
+                    rho = rho.add(e);
+                    gk[q] = gk[q].add(wd);
+                    gg[q] = wd.mul(gam[q]).mul_add(lc, gg[q]);
+                    dsum = d.mul_add(gam[q], dsum);
                 }
-                for l in 0..LANES {
-                    gl[c][l] += g[c] * rho[l] * wt[l];
-                    let front = if wt[l] > 0.0 { 1.0 } else { 0.0 };
-                    cw[l] += g[c] * light[c][l] * rho[l] * front;
-                    // ci · ∂ρ/∂cos θ_h = ci/cos θ_h · Σ κγ c^γ e^{κc^γ}: the ratio is at most 2
-                    // for a unit normal, so grazing pixels stay finite.
-                    let ratio = if ch[l] > 1e-20 { wt[l] / ch[l] } else { 0.0 };
-                    chh[l] += g[c] * light[c][l] * dsum[l] * ratio;
-                }
+                gl[c] = gc.mul(rho).mul_add(wt, gl[c]);
+                cw = V::select(front, gl_c.mul_add(rho, cw), cw);
+                chh = gl_c.mul(dsum).mul_add(ratio, chh);
             }
             for a in 0..3 {
-                for l in 0..LANES {
-                    gw[a][l] += cw[l] * w[a][l] + chh[l] * (h[a][l] - n[a]);
-                }
+                let dir = h[a].sub(n[a]);
+                gw[i][a] = cw.mul_add(w[a], chh.mul_add(dir, gw[i][a]));
             }
         }
         if touched {
             for q in 0..MEMBERS {
-                for l in 0..LANES {
-                    acc.kappa[q][b + l] += gk[q][l];
-                    acc.gamma[q][b + l] += gg[q][l];
-                }
+                V::load(&acc.kappa[q][b..]).add(gk[q]).store(&mut acc.kappa[q][b..]);
+                V::load(&acc.gamma[q][b..]).add(gg[q]).store(&mut acc.gamma[q][b..]);
             }
-            for c in 0..3 {
-                for l in 0..LANES {
-                    acc.light[c][b + l] += gl[c][l];
-                }
+            for (c, g) in gl.iter().enumerate() {
+                V::load(&acc.light[c][b..]).add(*g).store(&mut acc.light[c][b..]);
             }
         }
     }
     for (o, g) in grad_n.iter_mut().zip(&gw) {
-        for a in 0..3 {
-            o[a] += reduce(g[a]);
+        for (o, g) in o.iter_mut().zip(g) {
+            *o += g.sum();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The AVX2 + FMA kernel and the portable one compute the same sums up to rounding.
+    #[test]
+    fn simd_and_portable_kernels_agree() {
+        if !simd_available() {
+            eprintln!("no AVX2 + FMA on this CPU: only the portable kernel runs here");
+            return;
+        }
+        let tex = TexelTable::new(16);
+        let x: Vec<f32> = (0..matedit_physics::brdf::dsbrdf::PARAMS)
+            .map(|i| ((i * 53 % 97) as f32 / 48.0 - 1.0) * 0.9)
+            .collect();
+        let mat = MaterialTexels::new(&x, &tex);
+        let lsa: [Vec<f32>; 3] = std::array::from_fn(|c| {
+            (0..tex.padded())
+                .map(|t| tex.sa[t] * (1.0 + ((t * 7 + c) % 13) as f32))
+                .collect()
+        });
+        let normals: Vec<[f32; 3]> = (0..40)
+            .map(|i| {
+                let (a, z) = (i as f32 * 0.61, 0.02 + 0.98 * (i as f32 / 40.0));
+                let r = (1.0 - z * z).sqrt();
+                [r * a.cos(), r * a.sin(), z]
+            })
+            .collect();
+        let up: Vec<[f32; 3]> = (0..40).map(|i| [1.0, -0.5, (i % 3) as f32 - 1.0]).collect();
+        let mut fa = vec![[0.0; 3]; 40];
+        let mut fp = vec![[0.0; 3]; 40];
+        forward_tile(&normals, &tex, &mat, &lsa, &mut fa);
+        forward::<Portable>(&normals, &tex, &mat, &lsa, &mut fp);
+        let (mut ga, mut gp) = (vec![[0.0; 3]; 40], vec![[0.0; 3]; 40]);
+        let (mut aa, mut ap) = (TexelGrads::zeros(tex.padded()), TexelGrads::zeros(tex.padded()));
+        backward_tile(&normals, &up, &tex, &mat, &lsa, &mut ga, &mut aa);
+        backward::<Portable>(&normals, &up, &tex, &mat, &lsa, &mut gp, &mut ap);
+        let close = |a: f32, b: f32, scale: f32| (a - b).abs() <= 2e-5 * scale;
+        let scale = |v: &[[f32; 3]]| v.iter().flatten().fold(0.0f32, |m, x| m.max(x.abs()));
+        let (sf, sg) = (scale(&fp), scale(&gp));
+        for i in 0..40 {
+            for c in 0..3 {
+                assert!(
+                    close(fa[i][c], fp[i][c], sf),
+                    "forward {i} {c}: {} vs {}",
+                    fa[i][c],
+                    fp[i][c]
+                );
+                assert!(
+                    close(ga[i][c], gp[i][c], sg),
+                    "grad n {i} {c}: {} vs {}",
+                    ga[i][c],
+                    gp[i][c]
+                );
+            }
+        }
+        for (a, p) in [(&aa.kappa, &ap.kappa), (&aa.gamma, &ap.gamma), (&aa.light, &ap.light)] {
+            let s = p.iter().flatten().fold(0.0f32, |m, x| m.max(x.abs()));
+            for (a, p) in a.iter().flatten().zip(p.iter().flatten()) {
+                assert!(close(*a, *p, s), "texel gradient {a} vs {p}");
+            }
         }
     }
 }

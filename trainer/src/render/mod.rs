@@ -25,6 +25,7 @@ pub mod kernel;
 pub mod material;
 pub mod op;
 pub mod reference;
+mod simd;
 #[cfg(test)]
 mod tests;
 pub mod texels;
@@ -110,6 +111,13 @@ pub struct Gradients {
     pub materials: Vec<f32>,
     /// `[B, 3, He, 2·He]`.
     pub env: Vec<f32>,
+}
+
+/// `sums[i] += group[i]` in `f64`, over the shorter of the two (the group is padded).
+fn add_f64(sums: &mut [f64], group: &[f32]) {
+    for (s, &g) in sums.iter_mut().zip(group) {
+        *s += g as f64;
+    }
 }
 
 /// The fused rendering layer for one environment resolution.
@@ -276,8 +284,8 @@ impl RenderingLayer {
         for (&(k, pixels), rgb) in tiles.iter().zip(&shaded) {
             let i = parts[k].image;
             for (&px, v) in pixels.iter().zip(rgb) {
-                for c in 0..3 {
-                    out[(i * 3 + c) * p + px] = v[c];
+                for (c, v) in v.iter().enumerate() {
+                    out[(i * 3 + c) * p + px] = *v;
                 }
             }
         }
@@ -335,20 +343,15 @@ impl RenderingLayer {
             let mut gg = vec![vec![0.0f64; t]; material::MEMBERS];
             for ((gn, acc), pixels) in groups.iter().zip(part.pixels.chunks(per_group)) {
                 for (&px, g) in pixels.iter().zip(gn) {
-                    for c in 0..3 {
-                        grads.normals[(part.image * 3 + c) * p + px] = g[c];
+                    for (c, g) in g.iter().enumerate() {
+                        grads.normals[(part.image * 3 + c) * p + px] = *g;
                     }
                 }
-                for q in 0..material::MEMBERS {
-                    for i in 0..t {
-                        gk[q][i] += acc.kappa[q][i] as f64;
-                        gg[q][i] += acc.gamma[q][i] as f64;
-                    }
+                for (sums, group) in gk.iter_mut().zip(&acc.kappa).chain(gg.iter_mut().zip(&acc.gamma)) {
+                    add_f64(sums, group);
                 }
-                for c in 0..3 {
-                    for i in 0..t {
-                        light_acc[part.image][c][i] += acc.light[c][i] as f64;
-                    }
+                for (sums, group) in light_acc[part.image].iter_mut().zip(&acc.light) {
+                    add_f64(sums, group);
                 }
             }
             let o = (part.image * b.regions + part.region) * PARAMS;
@@ -356,12 +359,13 @@ impl RenderingLayer {
             grads.materials[o..o + PARAMS].copy_from_slice(&gm);
         }
         for (i, acc) in light_acc.iter().enumerate() {
-            for c in 0..3 {
-                for k in 0..t {
-                    let l = b.env[(i * 3 + c) * t + k];
+            for (c, acc) in acc.iter().enumerate() {
+                let o = (i * 3 + c) * t;
+                let (env, out) = (&b.env[o..o + t], &mut grads.env[o..o + t]);
+                for (((g, &l), &a), &sa) in out.iter_mut().zip(env).zip(acc).zip(&self.tex.sa) {
                     // Radiance clamped to 0 (negative or non-finite) receives no gradient.
-                    grads.env[(i * 3 + c) * t + k] = if l.is_finite() && (0.0..=MAX_RADIANCE).contains(&l) {
-                        (acc[c][k] * self.tex.sa[k] as f64) as f32
+                    *g = if l.is_finite() && (0.0..=MAX_RADIANCE).contains(&l) {
+                        (a * sa as f64) as f32
                     } else {
                         0.0
                     };

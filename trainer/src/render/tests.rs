@@ -286,8 +286,8 @@ fn hard_inputs_give_finite_values_and_gradients() {
     for (k, n) in hard.iter().enumerate() {
         let px = 27 + k;
         s.region_map[px] = 1;
-        for a in 0..3 {
-            s.normals[a * p + px] = n[a];
+        for (a, v) in n.iter().enumerate() {
+            s.normals[a * p + px] = *v;
         }
     }
     // Extreme lobes: the largest κ with the sharpest and the flattest γ, and NaN.

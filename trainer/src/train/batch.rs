@@ -84,3 +84,23 @@ impl HostBatch {
         }
     }
 }
+
+impl From<crate::data::Batch> for HostBatch {
+    fn from(b: crate::data::Batch) -> Self {
+        Self {
+            batch: b.batch,
+            size: b.size,
+            regions: b.regions,
+            env_height: b.env_height,
+            ids: b.ids,
+            input: b.input,
+            target: b.target,
+            normals: b.normals,
+            mask: b.mask,
+            region_map: b.region_map,
+            env: b.env,
+            materials: b.materials,
+            target_materials: b.target_materials,
+        }
+    }
+}

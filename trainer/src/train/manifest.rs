@@ -3,7 +3,8 @@
 //! the line and the field, before any work starts.
 
 use super::network::NetConfig;
-use super::step::{LossWeights, StageKind};
+use super::step::{LossWeights, RenderWith, Source, StageKind};
+use crate::model::vgg16::Layer;
 use crate::model::{Init, Widths};
 use matedit_datagen::dataset::manifest::{ManifestError, expand_vars};
 use serde::{Deserialize, Serialize};
@@ -18,9 +19,9 @@ pub struct TrainManifest {
     pub run: RunSection,
     /// Network shape.
     pub model: ModelSection,
-    /// Eq. 5 weights.
+    /// Eq. 5 weights and the perceptual loss.
     #[serde(default)]
-    pub loss: LossWeights,
+    pub loss: LossSection,
     /// Data pipeline.
     pub data: DataSection,
     /// Stages, in order.
@@ -71,6 +72,53 @@ fn default_env_height() -> Spanned<usize> {
 
 fn default_init() -> Spanned<String> {
     Spanned::new(0..0, "uniform-0.08".into())
+}
+
+/// `[loss]`: the weights of Eq. 5 and the perceptual loss's network.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LossSection {
+    /// w_n (the paper: 1e4).
+    #[serde(default = "default_wn")]
+    pub normal: Spanned<f64>,
+    /// w_m (the paper: 1e3).
+    #[serde(default = "default_wm")]
+    pub material: Spanned<f64>,
+    /// w_p (the paper: 1).
+    #[serde(default = "default_wp")]
+    pub perceptual: Spanned<f64>,
+    /// Pretrained VGG16 weights (torchvision `.pth`/`.pt`, or safetensors) for the perceptual
+    /// loss; without, the documented fallback is used and the log says so.
+    #[serde(default)]
+    pub vgg16: Option<Spanned<String>>,
+    /// VGG16 layers compared (default: relu1_2, relu2_2, relu3_3, relu4_3).
+    #[serde(default = "default_layers")]
+    pub vgg16_layers: Spanned<Vec<Layer>>,
+}
+
+fn default_wn() -> Spanned<f64> {
+    Spanned::new(0..0, LossWeights::default().normal)
+}
+fn default_wm() -> Spanned<f64> {
+    Spanned::new(0..0, LossWeights::default().material)
+}
+fn default_wp() -> Spanned<f64> {
+    Spanned::new(0..0, LossWeights::default().perceptual)
+}
+fn default_layers() -> Spanned<Vec<Layer>> {
+    Spanned::new(0..0, super::perceptual::DEFAULT_LAYERS.to_vec())
+}
+
+impl Default for LossSection {
+    fn default() -> Self {
+        Self {
+            normal: default_wn(),
+            material: default_wm(),
+            perceptual: default_wp(),
+            vgg16: None,
+            vgg16_layers: default_layers(),
+        }
+    }
 }
 
 /// Widths by preset name or explicitly.
@@ -142,6 +190,11 @@ pub struct StageSection {
     /// What it trains: `pretrain` (normal + material modules, L2 only) or `joint` (Eq. 5
     /// through the rendering layer; also used for finetuning and multi-material stages).
     pub kind: StageKind,
+    /// Joint stages: where the rendering layer takes n, m and L from (`predicted`, the default,
+    /// or `truth`: the "combined" rows of Tables 1 and 2 train one module through the layer
+    /// given the other two ground truths).
+    #[serde(default)]
+    pub render_with: RenderWith,
     /// Dataset of this stage, when not `[data].dataset`.
     #[serde(default)]
     pub dataset: Option<String>,
@@ -224,6 +277,10 @@ pub struct TrainPlan {
     pub net: NetConfig,
     /// Default dataset folder.
     pub dataset: PathBuf,
+    /// Eq. 5 weights.
+    pub weights: LossWeights,
+    /// VGG16 weights for the perceptual loss, if configured.
+    pub vgg16: Option<PathBuf>,
     /// Skip corrupt samples instead of stopping.
     pub skip_corrupt: bool,
 }
@@ -382,6 +439,21 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
                 return Err(bad(st.span(), &field(name), format!("must lie in [0, 1), got {b}")));
             }
         }
+        let rw = s.render_with;
+        if s.kind == StageKind::Pretrain && rw != RenderWith::default() {
+            return Err(bad(
+                st.span(),
+                &field("render_with"),
+                "a pretrain stage does not render; render_with applies to joint stages".into(),
+            ));
+        }
+        if [rw.normals, rw.material, rw.illumination] == [Source::Truth; 3] {
+            return Err(bad(
+                st.span(),
+                &field("render_with"),
+                "with n, m and L all ground truth the rendering layer trains nothing".into(),
+            ));
+        }
         if m.stages[..i].iter().any(|o| o.get_ref().name == s.name) {
             return Err(bad(
                 st.span(),
@@ -394,11 +466,51 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         expand_vars(w).map(PathBuf::from).map_err(|e| bad(0..0, field, e))
     };
     let dataset = resolve(&m.data.dataset, "data.dataset")?;
+    let l = &m.loss;
+    for (name, v) in [
+        ("loss.normal", &l.normal),
+        ("loss.material", &l.material),
+        ("loss.perceptual", &l.perceptual),
+    ] {
+        if !(v.get_ref().is_finite() && *v.get_ref() >= 0.0) {
+            return Err(bad(
+                v.span(),
+                name,
+                format!("a weight must be finite and ≥ 0, got {}", v.get_ref()),
+            ));
+        }
+    }
+    if l.vgg16_layers.get_ref().is_empty() {
+        return Err(bad(
+            l.vgg16_layers.span(),
+            "loss.vgg16_layers",
+            "at least one layer (relu1_2, relu2_2, relu3_3, relu4_3)".into(),
+        ));
+    }
+    let vgg16 = match &l.vgg16 {
+        None => None,
+        Some(v) => {
+            let p = expand_vars(v.get_ref())
+                .map(PathBuf::from)
+                .map_err(|e| bad(v.span(), "loss.vgg16", e))?;
+            if !p.is_file() {
+                return Err(bad(v.span(), "loss.vgg16", format!("{}: no such file", p.display())));
+            }
+            Some(p)
+        }
+    };
+    let weights = LossWeights {
+        normal: *l.normal.get_ref(),
+        material: *l.material.get_ref(),
+        perceptual: *l.perceptual.get_ref(),
+    };
     Ok(TrainPlan {
         path: path.to_path_buf(),
         manifest: m,
         net,
         dataset,
+        weights,
+        vgg16,
         skip_corrupt,
         text,
     })

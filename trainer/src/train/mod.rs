@@ -2,9 +2,13 @@
 //! checkpoints and resume.
 
 pub mod batch;
+pub mod checkpoint;
 pub mod loss;
 pub mod manifest;
 pub mod network;
+pub mod perceptual;
+pub mod plot;
+pub mod run;
 pub mod step;
 pub mod synthetic;
 #[cfg(test)]

@@ -3,8 +3,9 @@
 //! l = w_n·l_normal + w_m·l_material + w_p·l_perceptual (Eq. 5).
 
 use super::batch::{HostBatch, TensorBatch};
-use super::loss::{material_loss, normal_loss, perceptual_fallback};
+use super::loss::{material_loss, normal_loss};
 use super::network::Net;
+use super::perceptual::Perceptual;
 use crate::render::RenderingLayer;
 use crate::render::op::{Rendered, host};
 use anyhow::{Context, Result};
@@ -19,8 +20,36 @@ pub enum StageKind {
     /// Normal and material modules alone, L2 losses only (Sec. 4: "pre-trained using L2 loss").
     /// A model stopped after this stage is the paper's *standalone* baseline of Tables 1 and 2.
     Pretrain,
-    /// All three modules through the rendering layer with the joint loss of Eq. 5.
+    /// The modules through the rendering layer with the joint loss of Eq. 5.
     Joint,
+}
+
+/// Where the rendering layer takes one of its inputs from in a joint stage.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Source {
+    /// The network's prediction (n', m' or L').
+    #[default]
+    Predicted,
+    /// The sample's ground truth (n, m or L): the protocol of Tables 1 and 2, where the
+    /// material module is trained given ground-truth normals and illumination, or the normal
+    /// module given ground-truth material and illumination.
+    Truth,
+}
+
+/// The rendering layer's inputs in a joint stage (all predicted by default: Fig. 2).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RenderWith {
+    /// n.
+    #[serde(default)]
+    pub normals: Source,
+    /// m (of I'; O' always uses the target material m_t).
+    #[serde(default)]
+    pub material: Source,
+    /// L.
+    #[serde(default)]
+    pub illumination: Source,
 }
 
 /// The weights of Eq. 5.
@@ -71,33 +100,73 @@ pub struct Losses {
     pub perceptual: f64,
 }
 
+/// What every step of a run shares.
+pub struct StepContext<'a> {
+    /// The fused rendering layer.
+    pub layer: &'a RenderingLayer,
+    /// Eq. 5 weights.
+    pub weights: &'a LossWeights,
+    /// The perceptual loss (VGG16 features or the documented fallback).
+    pub perceptual: &'a Perceptual,
+    /// The Burn device (with autodiff).
+    pub device: &'a Device,
+}
+
+/// What one step does: the stage's kind and the rendering layer's inputs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StepKind {
+    /// Pretrain (L2 only) or joint (Eq. 5).
+    pub kind: StageKind,
+    /// Joint stages: where n, m and L come from.
+    pub render_with: RenderWith,
+}
+
+impl StepKind {
+    /// Pretraining: L2 losses only.
+    pub const PRETRAIN: StepKind = StepKind {
+        kind: StageKind::Pretrain,
+        render_with: RenderWith {
+            normals: Source::Predicted,
+            material: Source::Predicted,
+            illumination: Source::Predicted,
+        },
+    };
+
+    /// Joint training of Fig. 2: every input of the rendering layer predicted.
+    pub const JOINT: StepKind = StepKind {
+        kind: StageKind::Joint,
+        render_with: RenderWith {
+            normals: Source::Predicted,
+            material: Source::Predicted,
+            illumination: Source::Predicted,
+        },
+    };
+
+    fn joint(&self) -> bool {
+        self.kind == StageKind::Joint
+    }
+}
+
 fn scalar(t: &Tensor<1>) -> f64 {
     host(t).first().copied().unwrap_or(f32::NAN) as f64
 }
 
-/// The two renderings of a joint step and the predictions they came from.
+/// The predictions of a step.
 pub struct Predictions {
     /// n'.
     pub normals: Tensor<4>,
     /// m'.
     pub materials: Tensor<3>,
-    /// L'.
-    pub env: Tensor<4>,
+    /// L' (`None` when the illumination module was not run).
+    pub env: Option<Tensor<4>>,
 }
 
-/// Predicts n', m' and L' for a batch.
+/// Predicts n', m' and, with `with_light`, L' for a batch.
 pub fn predict(net: &Net, b: &TensorBatch, with_light: bool) -> Predictions {
-    let normals = net.normal.forward(b.input.clone(), b.mask.clone());
-    let materials = net.material.forward(b.input.clone(), b.region_masks.clone());
-    let env = if with_light {
-        net.illumination.forward(b.input.clone(), b.mask.clone())
-    } else {
-        b.env.clone()
-    };
     Predictions {
-        normals,
-        materials,
-        env,
+        normals: net.normal.forward(b.input.clone(), b.mask.clone()),
+        materials: net.material.forward(b.input.clone(), b.region_masks.clone()),
+        env: with_light.then(|| net.illumination.forward(b.input.clone(), b.mask.clone())),
     }
 }
 
@@ -107,14 +176,14 @@ pub fn train_step(
     optim: &mut ModuleOptimizer,
     lr: f64,
     host_batch: &HostBatch,
-    kind: StageKind,
-    w: &LossWeights,
-    layer: &RenderingLayer,
-    device: &Device,
+    step: StepKind,
+    ctx: &StepContext,
 ) -> Result<(Net, Losses)> {
+    let (w, device) = (ctx.weights, ctx.device);
     let b = host_batch.to_device(device);
-    let joint = kind == StageKind::Joint;
-    let p = predict(&net, &b, joint);
+    let rw = step.render_with;
+    let light = step.joint() && rw.illumination == Source::Predicted;
+    let p = predict(&net, &b, light);
     let ln = normal_loss(p.normals.clone(), b.normals.clone(), b.mask.clone());
     let lm = material_loss(p.materials.clone(), b.materials.clone());
     let mut losses = Losses {
@@ -123,34 +192,60 @@ pub fn train_step(
         ..Losses::default()
     };
     let mut total = ln.mul_scalar(w.normal) + lm.mul_scalar(w.material);
-    if joint {
+    if step.joint() {
+        let pick = |s: Source| s == Source::Predicted;
+        let normals = if pick(rw.normals) {
+            p.normals.clone()
+        } else {
+            b.normals.clone()
+        };
+        let materials = if pick(rw.material) {
+            p.materials.clone()
+        } else {
+            b.materials.clone()
+        };
+        let env = match (&p.env, rw.illumination) {
+            (Some(e), Source::Predicted) => e.clone(),
+            _ => b.env.clone(),
+        };
         let regions = &host_batch.region_map;
-        let i_r = Rendered::new(layer, &p.normals, &p.materials, &p.env, regions).context("rendering I'")?;
-        let o_r = Rendered::new(layer, &p.normals, &b.target_materials, &p.env, regions).context("rendering O'")?;
+        let i_r = Rendered::new(ctx.layer, &normals, &materials, &env, regions).context("rendering I'")?;
+        // O' = R(n, m_t, L) depends on the network only through predicted n or L.
+        let o_r = if pick(rw.normals) || pick(rw.illumination) {
+            Some(Rendered::new(ctx.layer, &normals, &b.target_materials, &env, regions).context("rendering O'")?)
+        } else {
+            None
+        };
         // The perceptual loss on leaves: its backward gives ∂l/∂I' and ∂l/∂O'.
-        let (ip, op) = (i_r.image(device), o_r.image(device));
-        let lp = perceptual_fallback(ip.clone(), b.input.clone(), b.mask.clone())
-            + perceptual_fallback(op.clone(), b.target.clone(), b.mask.clone());
+        let ip = i_r.image(device);
+        let op = o_r.as_ref().map(|o| o.image(device));
+        let mut lp = ctx.perceptual.loss(ip.clone(), b.input.clone(), b.mask.clone());
+        if let Some(op) = &op {
+            lp = lp + ctx.perceptual.loss(op.clone(), b.target.clone(), b.mask.clone());
+        }
         losses.perceptual = scalar(&lp);
         let grads = lp.mul_scalar(w.perceptual).backward();
-        let g_i = ip
-            .grad(&grads)
-            .map(|g| host(&g))
-            .unwrap_or_else(|| vec![0.0; i_r.values().len()]);
-        let g_o = op
-            .grad(&grads)
-            .map(|g| host(&g))
-            .unwrap_or_else(|| vec![0.0; o_r.values().len()]);
+        let upstream = |t: &Tensor<4>, n: usize| t.grad(&grads).map(|g| host(&g)).unwrap_or_else(|| vec![0.0; n]);
+        let tracked = |s: Source, t: &Tensor<4>| pick(s).then(|| t.clone());
+        let g_i = upstream(&ip, i_r.values().len());
         let si = i_r.pullback(
-            layer,
+            ctx.layer,
             &g_i,
-            Some(p.normals.clone()),
-            Some(p.materials.clone()),
-            Some(p.env.clone()),
+            tracked(rw.normals, &normals),
+            pick(rw.material).then(|| materials.clone()),
+            tracked(rw.illumination, &env),
         )?;
-        let so = o_r.pullback(layer, &g_o, Some(p.normals.clone()), None, Some(p.env.clone()))?;
-        for s in [si, so].into_iter().flatten() {
-            total = total + s;
+        total = si.map_or(total.clone(), |s| total.clone() + s);
+        if let (Some(o_r), Some(op)) = (&o_r, &op) {
+            let g_o = upstream(op, o_r.values().len());
+            let so = o_r.pullback(
+                ctx.layer,
+                &g_o,
+                tracked(rw.normals, &normals),
+                None,
+                tracked(rw.illumination, &env),
+            )?;
+            total = so.map_or(total.clone(), |s| total.clone() + s);
         }
     }
     losses.total = w.normal * losses.normal + w.material * losses.material + w.perceptual * losses.perceptual;

@@ -23,14 +23,15 @@ pub fn sphere_batch(batch: usize, size: usize, env_height: usize, seed: u64, lay
         ids: (0..batch).map(|i| format!("synthetic-{seed}-{i}")).collect(),
         ..HostBatch::default()
     };
+    let axes: [Vec<_>; 3] = std::array::from_fn(|a| n.iter().take(p).map(|v| v[a]).collect());
     for _ in 0..batch {
-        for a in 0..3 {
-            hb.normals.extend((0..p).map(|k| n[k][a]));
+        for axis in &axes {
+            hb.normals.extend_from_slice(axis);
         }
         hb.mask.extend_from_slice(&mask);
         hb.region_map.extend(mask.iter().map(|&m| u8::from(m > 0.0)));
         let sun = (u() * t as f32) as usize % t;
-        for c in 0..3 {
+        for _channel in 0..3 {
             let tint = 0.6 + 0.4 * u();
             hb.env.extend((0..t).map(|k| {
                 if k == sun {
@@ -39,7 +40,6 @@ pub fn sphere_batch(batch: usize, size: usize, env_height: usize, seed: u64, lay
                     tint * (0.3 + 0.7 * (1.0 - (k / (2 * env_height)) as f32 / env_height as f32))
                 }
             }));
-            let _ = c;
         }
         for target in [false, true] {
             let x: Vec<f32> = (0..PARAMS).map(|_| -0.8 + 1.4 * u()).collect();

@@ -1,0 +1,125 @@
+//! Samples stacked into channel-first batch buffers (the layout of `train::batch::HostBatch`).
+
+use super::sample::Sample;
+use super::stream::Skipped;
+use anyhow::{Result, bail};
+use matedit_physics::brdf::dsbrdf::PARAMS;
+
+/// A batch of B samples, stacked channel-first. Field names and layouts match the trainer's
+/// `HostBatch`, so converting is a field-by-field move.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Batch {
+    /// Samples B.
+    pub batch: usize,
+    /// Image side S.
+    pub size: usize,
+    /// Material regions R: the largest region count of the batch's samples.
+    pub regions: usize,
+    /// Environment height He (width 2He).
+    pub env_height: usize,
+    /// Sample ids.
+    pub ids: Vec<String>,
+    /// Stream position of each sample (see [`Loader`](super::Loader)).
+    pub positions: Vec<u64>,
+    /// The stream position after this batch: where a resumed loader continues.
+    pub next_position: u64,
+    /// Regions of each sample before padding.
+    pub region_counts: Vec<usize>,
+    /// Input images I `[B, 3, S, S]`.
+    pub input: Vec<f32>,
+    /// Target images O `[B, 3, S, S]`.
+    pub target: Vec<f32>,
+    /// Unit, facing camera-space normals `[B, 3, S, S]` (zero off the mask).
+    pub normals: Vec<f32>,
+    /// Object mask `[B, S, S]`.
+    pub mask: Vec<f32>,
+    /// Region map `[B, S, S]`: 0 = background, r = material r − 1 (never a padded material).
+    pub region_map: Vec<u8>,
+    /// Camera-space environments `[B, 3, He, 2He]`.
+    pub env: Vec<f32>,
+    /// Normalised materials m `[B, R, 108]`; a sample with fewer regions repeats its last one.
+    pub materials: Vec<f32>,
+    /// Normalised target materials m_t `[B, R, 108]`, padded like `materials`.
+    pub target_materials: Vec<f32>,
+    /// Non-finite file values replaced by 0, summed over the samples.
+    pub sanitized: usize,
+    /// Covered pixels taken out of the masks (unshadeable normals), summed over the samples.
+    pub dropped: usize,
+    /// Corrupt samples passed over while this batch was assembled (`OnCorrupt::Skip`).
+    pub skipped: Vec<Skipped>,
+}
+
+impl Batch {
+    /// Stacks samples (all of one image and environment size) at the given stream positions.
+    pub fn stack(samples: &[Sample], positions: &[u64], next_position: u64) -> Result<Batch> {
+        let Some(first) = samples.first() else {
+            bail!("cannot stack an empty batch");
+        };
+        if positions.len() != samples.len() {
+            bail!("{} positions for {} samples", positions.len(), samples.len());
+        }
+        let (size, env_height) = (first.size, first.env_height);
+        for s in samples {
+            if s.size != size || s.env_height != env_height {
+                bail!(
+                    "sample {} is {}² with a {}-row environment, sample {} is {size}² with {env_height} rows: \
+                     one batch needs one size",
+                    s.id,
+                    s.size,
+                    s.env_height,
+                    first.id
+                );
+            }
+        }
+        let regions = samples.iter().map(Sample::region_count).max().unwrap_or(1);
+        let b = samples.len();
+        let (p, t) = (size * size, 2 * env_height * env_height);
+        let mut out = Batch {
+            batch: b,
+            size,
+            regions,
+            env_height,
+            ids: samples.iter().map(|s| s.id.clone()).collect(),
+            positions: positions.to_vec(),
+            next_position,
+            region_counts: samples.iter().map(Sample::region_count).collect(),
+            input: Vec::with_capacity(b * 3 * p),
+            target: Vec::with_capacity(b * 3 * p),
+            normals: Vec::with_capacity(b * 3 * p),
+            mask: Vec::with_capacity(b * p),
+            region_map: Vec::with_capacity(b * p),
+            env: Vec::with_capacity(b * 3 * t),
+            materials: Vec::with_capacity(b * regions * PARAMS),
+            target_materials: Vec::with_capacity(b * regions * PARAMS),
+            sanitized: 0,
+            dropped: 0,
+            skipped: Vec::new(),
+        };
+        for s in samples {
+            out.input.extend_from_slice(&s.input);
+            out.target.extend_from_slice(&s.target);
+            out.normals.extend_from_slice(&s.normals);
+            out.mask.extend_from_slice(&s.mask);
+            out.region_map.extend_from_slice(&s.regions);
+            out.env.extend_from_slice(&s.env);
+            pad(&mut out.materials, &s.materials, regions);
+            pad(&mut out.target_materials, &s.target_materials, regions);
+            out.sanitized += s.sanitized;
+            out.dropped += s.dropped;
+        }
+        Ok(out)
+    }
+}
+
+/// Appends `mats` and repeats the last one up to `regions`: a padded slot then holds a real
+/// material (finite, in range) that no pixel refers to, so it adds nothing to any loss.
+fn pad(out: &mut Vec<f32>, mats: &[[f32; PARAMS]], regions: usize) {
+    for m in mats {
+        out.extend_from_slice(m);
+    }
+    if let Some(last) = mats.last() {
+        for _ in mats.len()..regions {
+            out.extend_from_slice(last);
+        }
+    }
+}

@@ -1,0 +1,370 @@
+//! `trainer eval`: a trained network on a dataset split, scored like Sec. 4 of the paper.
+//!
+//! For every sample the network predicts n', m', L' (inference mode: no dropout) and the fused
+//! rendering layer renders
+//!
+//! * I' = R(n', m', L') and O' = R(n', m_t, L'): the full pipeline of Fig. 2 (Table 3's "ours");
+//! * R(n, m', L): the material module given ground-truth normals and illumination (Table 1);
+//! * R(n', m, L): the normal module given ground-truth material and illumination (Table 2);
+//! * R(n', m̄, L'): the trivial baseline that edits to the mean training material m̄ (the mean
+//!   of the normalised parameters of the training splits' materials) instead of m_t.
+//!
+//! The other trivial baseline, O' = I (no edit at all), needs no network. All images are scored
+//! on the ground-truth object mask against I or O.
+
+use super::{I_PRIME, Metrics, O_PRIME, Pair, Sample, TableRow};
+use crate::data::{Dataset, Loader, LoaderConfig};
+use crate::render::op::host;
+use crate::render::{Batch, RenderingLayer};
+use crate::train::batch::HostBatch;
+use crate::train::checkpoint;
+use crate::train::step::predict;
+use anyhow::{Context, Result, bail};
+use burn::tensor::Device;
+use matedit_physics::brdf::dsbrdf::PARAMS;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// What to evaluate on.
+#[derive(Clone, Debug)]
+pub struct EvalOptions {
+    /// Dataset folder.
+    pub data: PathBuf,
+    /// Split to score.
+    pub split: String,
+    /// Dataset whose training splits define the mean material (default: `data`).
+    pub train_data: Option<PathBuf>,
+    /// Samples per batch.
+    pub batch: usize,
+    /// At most this many samples (0: all).
+    pub max_samples: usize,
+    /// Show a progress bar.
+    pub progress: bool,
+}
+
+/// One checkpoint's scores.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointEval {
+    /// Row label (the checkpoint's stage name).
+    pub name: String,
+    /// The checkpoint folder.
+    pub checkpoint: String,
+    /// n', m', L' all predicted: I', O', normal cosine, material L2.
+    pub network: Metrics,
+    /// R(n, m', L) against I, and the material L2 (Table 1).
+    pub material_protocol: Metrics,
+    /// R(n', m, L) against I, and the normal cosine (Table 2).
+    pub normal_protocol: Metrics,
+    /// O' = R(n', m̄, L') against O (trivial baseline).
+    pub mean_material: Metrics,
+}
+
+/// `METRICS.json`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct EvalReport {
+    /// Dataset folder.
+    pub dataset: String,
+    /// Scored split.
+    pub split: String,
+    /// Samples scored.
+    pub samples: u64,
+    /// Material ids averaged into m̄.
+    pub mean_material_of: Vec<String>,
+    /// O' = I against O (trivial baseline, no network).
+    pub copy_input: Metrics,
+    /// Per checkpoint, in the order given.
+    pub checkpoints: Vec<CheckpointEval>,
+}
+
+/// The mean normalised parameters of the materials of `ds`'s training splits, with their ids.
+pub fn mean_training_material(ds: &Dataset) -> Result<([f32; PARAMS], Vec<String>)> {
+    let mut ids: Vec<String> = ds
+        .info()
+        .plan
+        .splits
+        .iter()
+        .filter(|s| s.role == "train")
+        .flat_map(|s| s.materials.iter().cloned())
+        .collect();
+    ids.sort();
+    ids.dedup();
+    if ids.is_empty() {
+        bail!(
+            "{}: no split with role \"train\": pass --train-data with the training dataset for the mean-material baseline",
+            ds.dir().display()
+        );
+    }
+    let mut sum = [0.0f64; PARAMS];
+    for id in &ids {
+        let m = ds
+            .normalised_material(id)
+            .with_context(|| format!("{}: material {id} is not in the table", ds.dir().display()))?;
+        for (s, v) in sum.iter_mut().zip(m) {
+            *s += *v as f64;
+        }
+    }
+    Ok((sum.map(|s| (s / ids.len() as f64) as f32), ids))
+}
+
+/// Evaluates `checkpoints` (folders written by `trainer run`) on `opts.split`.
+pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalReport> {
+    if checkpoints.is_empty() {
+        bail!("no checkpoint to evaluate");
+    }
+    let ds = Arc::new(Dataset::open(&opts.data)?);
+    let train_ds = match &opts.train_data {
+        Some(d) => Dataset::open(d)?,
+        None => (*ds).clone(),
+    };
+    let (mean, mean_ids) = mean_training_material(&train_ds)?;
+    let device = Device::flex();
+    let mut nets = Vec::new();
+    for c in checkpoints {
+        let (net, state) = checkpoint::load_net(c, &device).with_context(|| format!("checkpoint {}", c.display()))?;
+        nets.push((net, state));
+    }
+    let env_height = nets[0].1.net.env_height;
+    let layer = RenderingLayer::new(env_height);
+    let mut report = EvalReport {
+        dataset: opts.data.display().to_string(),
+        split: opts.split.clone(),
+        mean_material_of: mean_ids,
+        checkpoints: nets
+            .iter()
+            .zip(checkpoints)
+            .map(|((_, s), c)| CheckpointEval {
+                name: s.stage_name.clone(),
+                checkpoint: c.display().to_string(),
+                ..Default::default()
+            })
+            .collect(),
+        ..Default::default()
+    };
+    let total = ds
+        .split(&opts.split)
+        .with_context(|| {
+            format!(
+                "{}: no split {:?} (splits: {})",
+                opts.data.display(),
+                opts.split,
+                ds.split_names().join(", ")
+            )
+        })?
+        .len();
+    let limit = if opts.max_samples == 0 {
+        total
+    } else {
+        opts.max_samples.min(total)
+    };
+    let loader = Loader::new(ds.clone(), &opts.split, LoaderConfig::evaluation(opts.batch.max(1)))?;
+    let bar = if opts.progress {
+        indicatif::ProgressBar::new(limit as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("eval [{bar:30}] {pos}/{len} samples  ETA {eta}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    let mut seen = 0usize;
+    for batch in loader {
+        if seen >= limit {
+            break;
+        }
+        let mut hb = HostBatch::from(batch?);
+        let keep = (limit - seen).min(hb.batch);
+        truncate(&mut hb, keep);
+        for (_, state) in &nets {
+            if state.net.input_size != hb.size || state.net.env_height != hb.env_height {
+                bail!(
+                    "the network is for {}² images and {}-row environments, the dataset has {}² and {}",
+                    state.net.input_size,
+                    state.net.env_height,
+                    hb.size,
+                    hb.env_height
+                );
+            }
+        }
+        let copy = score_batch(&hb, &[(O_PRIME, &hb.input, &hb.target)], None, None);
+        report.copy_input.merge(&copy);
+        for ((net, _), row) in nets.iter().zip(report.checkpoints.iter_mut()) {
+            let tb = hb.to_device(&device);
+            let p = predict(net, &tb, true);
+            let (n_p, m_p) = (host(&p.normals), host(&p.materials));
+            let l_p = p.env.as_ref().map(host).unwrap_or_default();
+            let mean_mats: Vec<f32> = (0..hb.batch * hb.regions).flat_map(|_| mean).collect();
+            let render = |n: &[f32], m: &[f32], env: &[f32]| {
+                layer.forward(&Batch {
+                    batch: hb.batch,
+                    size: (hb.size, hb.size),
+                    regions: hb.regions,
+                    normals: n,
+                    region_map: &hb.region_map,
+                    materials: m,
+                    env,
+                })
+            };
+            let (n, m, l, m_t) = (&hb.normals, &hb.materials, &hb.env, &hb.target_materials);
+            let i_p = render(&n_p, &m_p, &l_p)?;
+            let o_p = render(&n_p, m_t, &l_p)?;
+            let i_given_n_l = render(n, &m_p, l)?;
+            let i_given_m_l = render(&n_p, m, l)?;
+            let o_mean = render(&n_p, &mean_mats, &l_p)?;
+            let (i, o) = (&hb.input, &hb.target);
+            row.network.merge(&score_batch(
+                &hb,
+                &[(I_PRIME, &i_p, i), (O_PRIME, &o_p, o)],
+                Some(&n_p),
+                Some(&m_p),
+            ));
+            row.material_protocol
+                .merge(&score_batch(&hb, &[(I_PRIME, &i_given_n_l, i)], None, Some(&m_p)));
+            row.normal_protocol
+                .merge(&score_batch(&hb, &[(I_PRIME, &i_given_m_l, i)], Some(&n_p), None));
+            row.mean_material
+                .merge(&score_batch(&hb, &[(O_PRIME, &o_mean, o)], None, None));
+        }
+        seen += hb.batch;
+        bar.set_position(seen as u64);
+    }
+    bar.finish_and_clear();
+    report.samples = seen as u64;
+    if seen == 0 {
+        bail!(
+            "{}: split {} has no samples to evaluate",
+            opts.data.display(),
+            opts.split
+        );
+    }
+    Ok(report)
+}
+
+/// Keeps the first `keep` samples of a batch.
+fn truncate(hb: &mut HostBatch, keep: usize) {
+    if keep >= hb.batch {
+        return;
+    }
+    let (p, t, r) = (hb.size * hb.size, 2 * hb.env_height * hb.env_height, hb.regions);
+    hb.batch = keep;
+    hb.ids.truncate(keep);
+    for v in [&mut hb.input, &mut hb.target, &mut hb.normals] {
+        v.truncate(keep * 3 * p);
+    }
+    hb.mask.truncate(keep * p);
+    hb.region_map.truncate(keep * p);
+    hb.env.truncate(keep * 3 * t);
+    hb.materials.truncate(keep * r * PARAMS);
+    hb.target_materials.truncate(keep * r * PARAMS);
+}
+
+/// Scores the images of a batch (`(name, prediction, truth)`, all `[B, 3, S, S]`) and, when
+/// given, predicted normals `[B, 3, S, S]` and materials `[B, R, 108]` (regions present only:
+/// padded slots repeat the last material).
+fn score_batch(
+    hb: &HostBatch,
+    images: &[(&str, &[f32], &[f32])],
+    normals: Option<&[f32]>,
+    materials: Option<&[f32]>,
+) -> Metrics {
+    let (s, r) = (hb.size, hb.regions);
+    let p = s * s;
+    let mut m = Metrics::default();
+    for i in 0..hb.batch {
+        let px = i * 3 * p..(i + 1) * 3 * p;
+        let images: Vec<(&str, Pair)> = images
+            .iter()
+            .map(|(name, a, b)| {
+                let pair = Pair {
+                    pred: &a[px.clone()],
+                    truth: &b[px.clone()],
+                };
+                (*name, pair)
+            })
+            .collect();
+        let normals = normals.map(|n| Pair {
+            pred: &n[px.clone()],
+            truth: &hb.normals[px.clone()],
+        });
+        let regions = &hb.region_map[i * p..(i + 1) * p];
+        let mats: Vec<Pair> = materials.map_or_else(Vec::new, |q| {
+            (0..r)
+                .filter(|&k| regions.iter().any(|&v| v as usize == k + 1))
+                .map(|k| {
+                    let o = (i * r + k) * PARAMS;
+                    Pair {
+                        pred: &q[o..o + PARAMS],
+                        truth: &hb.materials[o..o + PARAMS],
+                    }
+                })
+                .collect()
+        });
+        m.add(&Sample {
+            h: s,
+            w: s,
+            mask: &hb.mask[i * p..(i + 1) * p],
+            images,
+            normals,
+            materials: mats,
+        });
+    }
+    m
+}
+
+impl EvalReport {
+    /// The Markdown report: Tables 1–3 and the full pipeline.
+    pub fn markdown(&self) -> String {
+        let rows = |f: &dyn Fn(&CheckpointEval) -> Metrics| -> Vec<TableRow> {
+            self.checkpoints
+                .iter()
+                .map(|c| TableRow {
+                    name: c.name.clone(),
+                    metrics: f(c),
+                })
+                .collect()
+        };
+        let mut t3 = vec![TableRow {
+            name: "O' = I".into(),
+            metrics: self.copy_input.clone(),
+        }];
+        if let Some(last) = self.checkpoints.last() {
+            t3.push(TableRow {
+                name: format!("mean material (n', L' of {})", last.name),
+                metrics: last.mean_material.clone(),
+            });
+        }
+        t3.extend(rows(&|c| c.network.clone()));
+        let mut out = format!(
+            "Evaluation of {} on split {} ({} samples; L2 on tone-mapped [0, 255] images, SSIM 11×11 σ 1.5, \
+             object pixels only).\n\n",
+            self.dataset, self.split, self.samples
+        );
+        out += "Table 1 (material module, given ground-truth normals and illumination):\n\n";
+        out += &super::table1_markdown(&rows(&|c| c.material_protocol.clone()));
+        out += "\nTable 2 (normal module, given ground-truth material and illumination):\n\n";
+        out += &super::table2_markdown(&rows(&|c| c.normal_protocol.clone()));
+        out += "\nTable 3 (material transfer: O' = R(n', m_t, L') against O; trivial baselines first):\n\n";
+        out += &super::table3_markdown(&t3);
+        out += "\nFull pipeline (n', m', L' all predicted):\n\n";
+        out += &super::tables::pipeline_markdown(&rows(&|c| c.network.clone()));
+        out
+    }
+
+    /// Whether `name`'s O' beats both trivial baselines on L2 (lower) and SSIM (higher).
+    pub fn beats_baselines(&self, name: &str) -> Option<bool> {
+        let c = self.checkpoints.iter().find(|c| c.name == name)?;
+        let (l2, ssim) = (c.network.image_l2(O_PRIME)?, c.network.image_ssim(O_PRIME)?);
+        let baselines = [&self.copy_input, &c.mean_material];
+        Some(
+            baselines.iter().all(|b| {
+                b.image_l2(O_PRIME).is_some_and(|v| l2 < v) && b.image_ssim(O_PRIME).is_some_and(|v| ssim > v)
+            }),
+        )
+    }
+}
+
+/// Writes `report` as JSON to `path`, atomically.
+pub fn write_report(report: &EvalReport, path: &Path) -> Result<()> {
+    matedit_datagen::io::write_atomically(path, |p| Ok(std::fs::write(p, serde_json::to_string_pretty(report)?)?))
+}

@@ -1,0 +1,168 @@
+//! Atomic, checksummed checkpoints: a folder per checkpoint with the network (`model.bpk`), the
+//! optimiser state (`optimizer.bpk`) and `state.json` (where the run stood, and the blake3 of
+//! both files). The folder is written under a temporary name and renamed into place, then
+//! `latest.json` is replaced atomically, so a kill at any moment leaves either the previous or the
+//! new checkpoint, never a partial one.
+
+use super::network::{Net, NetConfig};
+use anyhow::{Context, Result, bail};
+use burn::module::Module;
+use burn::optim::ModuleOptimizer;
+use burn::store::ModuleRecord;
+use burn::tensor::Device;
+use matedit_datagen::io::write_atomically;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Format version of `state.json`.
+pub const VERSION: u32 = 1;
+
+/// Where a run stood when a checkpoint was written.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct State {
+    /// [`VERSION`].
+    pub version: u32,
+    /// blake3 of the training manifest (a resume refuses a changed manifest).
+    pub manifest_hash: String,
+    /// Index of the stage in the manifest.
+    pub stage: usize,
+    /// Its name.
+    pub stage_name: String,
+    /// Steps completed in this stage.
+    pub step: usize,
+    /// Steps completed in the whole run (= lines of `metrics.jsonl`).
+    pub global_step: usize,
+    /// Position of the next sample in the stage's data stream.
+    pub data_position: u64,
+    /// Whether the stage is finished.
+    pub stage_done: bool,
+    /// Network shape.
+    pub net: NetConfig,
+    /// `blake3:HEX` of `model.bpk`.
+    pub model_checksum: String,
+    /// `blake3:HEX` of `optimizer.bpk`.
+    pub optimizer_checksum: String,
+}
+
+fn checksum(path: &Path) -> Result<String> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    Ok(format!("blake3:{}", blake3::hash(&bytes).to_hex()))
+}
+
+/// Writes checkpoint `name` under `root/checkpoints/` and points `root/latest.json` at it.
+pub fn save(root: &Path, name: &str, net: &Net, optim: &ModuleOptimizer, mut state: State) -> Result<PathBuf> {
+    let dir = root.join("checkpoints");
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let fin = dir.join(name);
+    let tmp = dir.join(format!(".tmp-{name}-{}", std::process::id()));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp)?;
+    }
+    std::fs::create_dir_all(&tmp)?;
+    let model = tmp.join("model.bpk");
+    net.clone()
+        .into_record()
+        .save(&model)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", model.display()))?;
+    let opt = tmp.join("optimizer.bpk");
+    optim
+        .save(&opt)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", opt.display()))?;
+    state.model_checksum = checksum(&model)?;
+    state.optimizer_checksum = checksum(&opt)?;
+    std::fs::write(tmp.join("state.json"), serde_json::to_string_pretty(&state)?)?;
+    for f in ["model.bpk", "optimizer.bpk", "state.json"] {
+        std::fs::File::open(tmp.join(f))?.sync_all()?;
+    }
+    if fin.exists() {
+        // Same name again (a resumed run re-writing a checkpoint): move the old one aside first,
+        // so that the rename below cannot fail on a non-empty folder.
+        let old = dir.join(format!(".old-{name}-{}", std::process::id()));
+        std::fs::rename(&fin, &old)?;
+        std::fs::remove_dir_all(&old)?;
+    }
+    std::fs::rename(&tmp, &fin).with_context(|| format!("cannot move {} to {}", tmp.display(), fin.display()))?;
+    write_atomically(&root.join("latest.json"), |p| {
+        std::fs::write(
+            p,
+            serde_json::to_string_pretty(&serde_json::json!({ "checkpoint": format!("checkpoints/{name}") }))?,
+        )?;
+        Ok(())
+    })?;
+    Ok(fin)
+}
+
+/// Removes the half-written (`.tmp-*`) and half-replaced (`.old-*`) checkpoint folders a killed
+/// run can leave. Call only while holding the output's lock.
+pub fn remove_stale_temporaries(root: &Path) -> Result<()> {
+    let dir = root.join("checkpoints");
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        return Ok(());
+    };
+    for e in entries {
+        let p = e?.path();
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        if name.starts_with(".tmp-") || name.starts_with(".old-") {
+            std::fs::remove_dir_all(&p).with_context(|| format!("cannot remove {}", p.display()))?;
+        }
+    }
+    Ok(())
+}
+
+/// Reads and checks a checkpoint folder's state.
+pub fn read_state(dir: &Path) -> Result<State> {
+    let p = dir.join("state.json");
+    let text = std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()))?;
+    let s: State = serde_json::from_str(&text).with_context(|| format!("{}: not a checkpoint state", p.display()))?;
+    if s.version != VERSION {
+        bail!("{}: version {} (this trainer reads {VERSION})", p.display(), s.version);
+    }
+    for (f, want) in [
+        ("model.bpk", &s.model_checksum),
+        ("optimizer.bpk", &s.optimizer_checksum),
+    ] {
+        let got = checksum(&dir.join(f))?;
+        if &got != want {
+            bail!(
+                "{}: checksum mismatch (state.json says {want}, the file has {got}): the checkpoint is corrupt",
+                dir.join(f).display()
+            );
+        }
+    }
+    Ok(s)
+}
+
+/// The checkpoint `latest.json` points at, if any.
+pub fn latest(root: &Path) -> Result<Option<PathBuf>> {
+    let p = root.join("latest.json");
+    if !p.exists() {
+        return Ok(None);
+    }
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&p)?).with_context(|| format!("{}: not JSON", p.display()))?;
+    let rel = v["checkpoint"]
+        .as_str()
+        .with_context(|| format!("{}: no \"checkpoint\" field", p.display()))?;
+    Ok(Some(root.join(rel)))
+}
+
+/// The network stored in checkpoint folder `dir` (or a `model.bpk` file), on `device`.
+pub fn load_net(dir: &Path, device: &Device) -> Result<(Net, State)> {
+    let state = read_state(dir)?;
+    let net = state.net.init(device);
+    let model = dir.join("model.bpk");
+    let record = ModuleRecord::load(&model).map_err(|e| anyhow::anyhow!("{}: {e}", model.display()))?;
+    let net = net
+        .try_load_record(record)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", model.display()))?;
+    Ok((net, state))
+}
+
+/// Restores the optimiser state of checkpoint `dir` into a freshly configured optimiser.
+pub fn load_optimizer(dir: &Path, fresh: ModuleOptimizer) -> Result<ModuleOptimizer> {
+    let p = dir.join("optimizer.bpk");
+    fresh.load(&p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+}

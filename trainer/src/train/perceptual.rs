@@ -1,0 +1,82 @@
+//! The perceptual loss of Eq. 5 between a re-rendered image (I' or O') and its ground truth.
+//!
+//! * With VGG16 weights (a torchvision checkpoint or its safetensors export, named in the
+//!   training manifest): Johnson et al.'s feature reconstruction loss, the mean squared difference
+//!   of VGG16 activations, summed over the chosen layers. Both images are masked to the object and
+//!   mapped to display values first (the tone map of [`super::loss::display`], divided by 255), so
+//!   the network sees what a viewer would.
+//! * Without: the documented fallback of [`super::loss::perceptual_fallback`] (tone-mapped
+//!   multi-scale L2). The run's log says which one is in use; the fallback is never silent.
+
+use super::loss::{display, perceptual_fallback};
+use crate::model::vgg16::{Layer, Vgg16};
+use anyhow::Result;
+use burn::tensor::{Device, Tensor};
+use std::path::{Path, PathBuf};
+
+/// The layers compared by default: the four block ends, as in most perceptual losses built on
+/// Johnson et al.
+pub const DEFAULT_LAYERS: [Layer; 4] = [Layer::Relu1_2, Layer::Relu2_2, Layer::Relu3_3, Layer::Relu4_3];
+
+/// Which perceptual loss a run uses.
+#[derive(Debug)]
+pub enum Perceptual {
+    /// Tone-mapped multi-scale L2 (no VGG16 weights configured).
+    Fallback,
+    /// VGG16 feature reconstruction loss.
+    Vgg16 {
+        /// The frozen network.
+        net: Box<Vgg16>,
+        /// Compared layers (sorted).
+        layers: Vec<Layer>,
+        /// Where the weights came from.
+        source: PathBuf,
+    },
+}
+
+impl Perceptual {
+    /// VGG16 from `weights` on `device`, comparing `layers`.
+    pub fn vgg16(weights: &Path, layers: &[Layer], device: &Device) -> Result<Self> {
+        let mut layers = layers.to_vec();
+        layers.sort();
+        layers.dedup();
+        if layers.is_empty() {
+            anyhow::bail!("at least one VGG16 layer is needed for the perceptual loss");
+        }
+        Ok(Self::Vgg16 {
+            net: Box::new(Vgg16::load(weights, device)?),
+            layers,
+            source: weights.to_path_buf(),
+        })
+    }
+
+    /// One line for the run's log.
+    pub fn description(&self) -> String {
+        match self {
+            Self::Fallback => "perceptual loss: fallback (tone-mapped multi-scale L2 in [0, 255], see \
+                 trainer/src/train/loss.rs): no VGG16 weights are configured ([loss].vgg16)"
+                .into(),
+            Self::Vgg16 { layers, source, .. } => {
+                format!("perceptual loss: VGG16 features {layers:?} from {}", source.display())
+            }
+        }
+    }
+
+    /// The loss between `pred` and `truth` (`[B, 3, H, W]`, linear radiance) on the object
+    /// (`mask`, `[B, 1, H, W]`).
+    pub fn loss(&self, pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -> Tensor<1> {
+        match self {
+            Self::Fallback => perceptual_fallback(pred, truth, mask),
+            Self::Vgg16 { net, layers, .. } => {
+                let show = |x: Tensor<4>| (display(x) * mask.clone()).div_scalar(255.0);
+                let fp = net.features(show(pred), layers);
+                let ft = net.features(show(truth).detach(), layers);
+                fp.into_iter()
+                    .zip(ft)
+                    .map(|(a, b)| (a - b).powi_scalar(2).mean())
+                    .reduce(|a, b| a + b)
+                    .unwrap_or_else(|| Tensor::zeros([1], &mask.device()))
+            }
+        }
+    }
+}

@@ -1,0 +1,380 @@
+//! `trainer run MANIFEST`: the stages of a training manifest, in order, with checkpoints,
+//! `--resume`, metrics and loss curves.
+//!
+//! Reproducibility: the network is initialised from the run seed; every step re-seeds Burn's
+//! random source from (seed, stage, step) before its forward pass (dropout), and the data stream
+//! of a stage is a pure function of (seed, stage, position). A resumed run therefore continues
+//! with exactly the batches, dropout masks and optimiser state an uninterrupted run would have
+//! had, and writes the same `metrics.jsonl` (wall-clock times live in `log.jsonl`, not in the
+//! metrics).
+
+use super::batch::HostBatch;
+use super::checkpoint::{self, State};
+use super::manifest::TrainPlan;
+use super::network::Net;
+use super::perceptual::Perceptual;
+use super::step::{Losses, StepContext, StepKind, train_step};
+use crate::data::{Dataset, Epochs, Loader, LoaderConfig, OnCorrupt};
+use crate::render::RenderingLayer;
+use anyhow::{Context, Result, bail};
+use burn::optim::{AdamConfig, ModuleOptimizer};
+use burn::tensor::Device;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// A stream of training batches that can be positioned (for resume).
+pub trait BatchSource {
+    /// The next batch.
+    fn next_batch(&mut self) -> Result<super::batch::HostBatch>;
+    /// Position of the next sample in the stream.
+    fn position(&self) -> u64;
+}
+
+/// Opens the data stream of stage `stage` at `position`.
+pub type OpenStream<'a> = dyn Fn(&TrainPlan, usize, u64) -> Result<Box<dyn BatchSource>> + 'a;
+
+/// The training stream of a stage from its dataset: shuffled from (run seed, stage), endless,
+/// decoded in the background, positioned for resume.
+pub struct DatasetStream {
+    loader: Loader,
+    reported: usize,
+}
+
+impl DatasetStream {
+    /// Opens stage `stage`'s dataset and split at stream `position`, checking that its images
+    /// and environments have the network's sizes.
+    pub fn open(plan: &TrainPlan, stage: usize, position: u64) -> Result<Self> {
+        let st = plan.manifest.stages[stage].get_ref();
+        let dir = plan.stage_dataset(stage)?;
+        let dataset = std::sync::Arc::new(Dataset::open(&dir)?);
+        let records = dataset.split(&st.split).with_context(|| {
+            format!(
+                "{}: stage {}: the dataset {} has no split {:?} (splits: {})",
+                plan.path.display(),
+                st.name,
+                dir.display(),
+                st.split,
+                dataset.split_names().join(", ")
+            )
+        })?;
+        if let Some(r) = records.first() {
+            let s = dataset.load(r, false)?;
+            if s.size != plan.net.input_size || s.env_height != plan.net.env_height {
+                bail!(
+                    "{}: stage {}: the dataset {} has {}² images with {}×{} environments, but [model] asks for \
+                     input_size = {} and env_height = {} (set them to the dataset's, or render the dataset at that size)",
+                    plan.path.display(),
+                    st.name,
+                    dir.display(),
+                    s.size,
+                    s.env_height,
+                    2 * s.env_height,
+                    plan.net.input_size,
+                    plan.net.env_height
+                );
+            }
+        }
+        let d = &plan.manifest.data;
+        let seed = blake3::hash(format!("{}/data/{stage}", plan.manifest.run.seed).as_bytes());
+        let config = LoaderConfig {
+            seed: u64::from_le_bytes(seed.as_bytes()[..8].try_into().unwrap_or([0; 8])),
+            shuffle: true,
+            shuffle_buffer: d.shuffle_buffer,
+            batch_size: st.batch_size,
+            workers: d.workers,
+            prefetch: 2,
+            on_corrupt: if plan.skip_corrupt {
+                OnCorrupt::Skip
+            } else {
+                OnCorrupt::Stop
+            },
+            verify_checksums: d.verify_checksums,
+            epochs: Epochs::Infinite,
+            start_position: position,
+        };
+        Ok(Self {
+            loader: Loader::new(dataset, &st.split, config)?,
+            reported: 0,
+        })
+    }
+}
+
+impl BatchSource for DatasetStream {
+    fn next_batch(&mut self) -> Result<HostBatch> {
+        let b = self.loader.next_batch().context("the training stream ended")??;
+        for s in &self.loader.skipped()[self.reported..] {
+            eprintln!(
+                "warning: skipped corrupt sample {} ({}: {})",
+                s.id,
+                s.file.display(),
+                s.reason
+            );
+        }
+        self.reported = self.loader.skipped().len();
+        Ok(HostBatch::from(b))
+    }
+
+    fn position(&self) -> u64 {
+        self.loader.position()
+    }
+}
+
+/// [`OpenStream`] over the stages' datasets.
+pub fn open_dataset_stream(plan: &TrainPlan, stage: usize, position: u64) -> Result<Box<dyn BatchSource>> {
+    Ok(Box::new(DatasetStream::open(plan, stage, position)?))
+}
+
+/// One line of `metrics.jsonl`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MetricsLine {
+    /// Stage name.
+    pub stage: String,
+    /// Step within the stage (1-based: steps completed).
+    pub step: usize,
+    /// Steps completed in the run.
+    pub global_step: usize,
+    /// Learning rate of the step.
+    pub lr: f64,
+    /// Loss terms.
+    pub losses: Losses,
+}
+
+/// What a finished run produced.
+#[derive(Clone, Debug)]
+pub struct RunSummary {
+    /// Output folder.
+    pub out: PathBuf,
+    /// Final checkpoint of each stage, in order.
+    pub stage_checkpoints: Vec<(String, PathBuf)>,
+    /// Steps run in this invocation.
+    pub steps_run: usize,
+}
+
+fn step_seed(seed: u64, stage: usize, step: usize) -> u64 {
+    let h = blake3::hash(format!("{seed}/{stage}/{step}").as_bytes());
+    u64::from_le_bytes(h.as_bytes()[..8].try_into().unwrap_or([0; 8]))
+}
+
+/// The Burn device of a run.
+pub fn device_for(name: &str) -> Result<Device> {
+    match name {
+        "cpu" => Ok(Device::flex().autodiff()),
+        #[cfg(feature = "cuda")]
+        "cuda" => Ok(Device::cuda(0).autodiff()),
+        other => bail!("device {other:?} is not available in this build"),
+    }
+}
+
+fn adam(stage: &super::manifest::StageSection) -> ModuleOptimizer {
+    AdamConfig::new()
+        .with_beta_1(stage.beta1 as f32)
+        .with_beta_2(stage.beta2 as f32)
+        .init()
+}
+
+/// Keeps the first `lines` lines of `path` (drops what a killed run wrote after its last
+/// checkpoint), atomically.
+fn truncate_lines(path: &Path, lines: usize) -> Result<()> {
+    if !path.exists() {
+        return Ok(());
+    }
+    let text = std::fs::read_to_string(path)?;
+    let kept: String = text.lines().take(lines).map(|l| format!("{l}\n")).collect();
+    matedit_datagen::io::write_atomically(path, |p| Ok(std::fs::write(p, kept)?))
+}
+
+/// Runs (or, with `resume`, continues) the manifest's stages into `out`.
+pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet: bool) -> Result<RunSummary> {
+    let _lock =
+        matedit_datagen::dataset::run::lock_output(out, matedit_datagen::dataset::run::Worker { index: 0, count: 1 })
+            .with_context(|| format!("{} is in use by another trainer run", out.display()))?;
+    let m = &plan.manifest;
+    let metrics_path = out.join("metrics.jsonl");
+    checkpoint::remove_stale_temporaries(out)?;
+    let latest = checkpoint::latest(out)?;
+    let device = device_for(m.run.device.get_ref())?;
+    // Where to start: a fresh run, or the latest checkpoint.
+    let (mut net, mut start): (Net, Option<(State, PathBuf)>) = match (&latest, resume) {
+        (Some(_), false) => bail!(
+            "{} already holds a run (latest.json); pass --resume to continue it, or choose another --out",
+            out.display()
+        ),
+        (Some(dir), true) => {
+            let (net, state) = checkpoint::load_net(dir, &device)?;
+            if state.manifest_hash != plan.hash() {
+                bail!(
+                    "{}: the manifest changed since this run started (hash {} ≠ {}); resume with the original manifest",
+                    plan.path.display(),
+                    plan.hash(),
+                    state.manifest_hash
+                );
+            }
+            truncate_lines(&metrics_path, state.global_step)?;
+            (net, Some((state, dir.clone())))
+        }
+        (None, _) => {
+            if metrics_path.exists() {
+                std::fs::remove_file(&metrics_path)?;
+            }
+            device.seed(m.run.seed);
+            (plan.net.init(&device), None)
+        }
+    };
+    matedit_datagen::io::write_atomically(&out.join("manifest.toml"), |p| Ok(std::fs::write(p, &plan.text)?))?;
+    let layer = RenderingLayer::new(plan.net.env_height);
+    let perceptual = match &plan.vgg16 {
+        Some(w) => Perceptual::vgg16(w, plan.manifest.loss.vgg16_layers.get_ref(), &device)?,
+        None => Perceptual::Fallback,
+    };
+    if !quiet {
+        eprintln!("{}", perceptual.description());
+    }
+    let ctx = StepContext {
+        layer: &layer,
+        weights: &plan.weights,
+        perceptual: &perceptual,
+        device: &device,
+    };
+    let mut metrics = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&metrics_path)?;
+    let mut log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(out.join("log.jsonl"))?;
+    let mut summary = RunSummary {
+        out: out.to_path_buf(),
+        stage_checkpoints: Vec::new(),
+        steps_run: 0,
+    };
+    let mut global = start.as_ref().map_or(0, |(s, _)| s.global_step);
+    for (si, st) in m.stages.iter().enumerate() {
+        let st = st.get_ref();
+        let final_name = st.name.clone();
+        // Stages already finished before the resume.
+        if let Some((s, _)) = &start
+            && (si < s.stage || (si == s.stage && s.stage_done))
+        {
+            summary
+                .stage_checkpoints
+                .push((st.name.clone(), out.join("checkpoints").join(&final_name)));
+            continue;
+        }
+        let mut optim = adam(st);
+        let (mut step, position) = match start.take() {
+            Some((s, dir)) if s.stage == si => {
+                optim = checkpoint::load_optimizer(&dir, optim)?;
+                (s.step, s.data_position)
+            }
+            _ => (0, 0),
+        };
+        let mut data = open(plan, si, position)?;
+        let bar = if quiet {
+            ProgressBar::hidden()
+        } else {
+            ProgressBar::new(st.steps as u64)
+        };
+        bar.set_style(
+            ProgressStyle::with_template("{prefix:>10} [{bar:30}] {pos}/{len} steps  {msg}  ETA {eta}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+        );
+        bar.set_prefix(st.name.clone());
+        bar.set_position(step as u64);
+        while step < st.steps {
+            let lr = st.lr_at(step);
+            let t0 = std::time::Instant::now();
+            let batch = data.next_batch()?;
+            device.seed(step_seed(m.run.seed, si, step));
+            let kind = StepKind {
+                kind: st.kind,
+                render_with: st.render_with,
+            };
+            let (n, losses) = train_step(net, &mut optim, lr, &batch, kind, &ctx)
+                .with_context(|| format!("stage {}, step {}", st.name, step + 1))?;
+            net = n;
+            step += 1;
+            global += 1;
+            summary.steps_run += 1;
+            let line = MetricsLine {
+                stage: st.name.clone(),
+                step,
+                global_step: global,
+                lr,
+                losses,
+            };
+            writeln!(metrics, "{}", serde_json::to_string(&line)?)?;
+            let secs = t0.elapsed().as_secs_f64();
+            writeln!(
+                log,
+                "{}",
+                serde_json::json!({"stage": st.name, "step": step, "seconds": secs, "images_per_second": batch.batch as f64 / secs})
+            )?;
+            bar.set_message(format!("loss {:.4e}", losses.total));
+            bar.inc(1);
+            let done = step == st.steps;
+            if done || (st.checkpoint_every > 0 && step % st.checkpoint_every == 0) {
+                metrics.sync_data()?;
+                let state = State {
+                    version: checkpoint::VERSION,
+                    manifest_hash: plan.hash(),
+                    stage: si,
+                    stage_name: st.name.clone(),
+                    step,
+                    global_step: global,
+                    data_position: data.position(),
+                    stage_done: done,
+                    net: plan.net.clone(),
+                    model_checksum: String::new(),
+                    optimizer_checksum: String::new(),
+                };
+                let name = if done {
+                    final_name.clone()
+                } else {
+                    format!("{}-step-{step:07}", st.name)
+                };
+                checkpoint::save(out, &name, &net, &optim, state)?;
+                // Keep the stage ends and the newest intermediate checkpoint only.
+                remove_older_intermediates(out, &st.name, &name)?;
+            }
+        }
+        bar.finish();
+        summary
+            .stage_checkpoints
+            .push((st.name.clone(), out.join("checkpoints").join(&final_name)));
+    }
+    drop(metrics);
+    let lines = read_metrics(&metrics_path)?;
+    super::plot::loss_curves(&lines, &out.join("loss.png"), &plan.weights)?;
+    Ok(summary)
+}
+
+fn remove_older_intermediates(out: &Path, stage: &str, keep: &str) -> Result<()> {
+    let dir = out.join("checkpoints");
+    let prefix = format!("{stage}-step-");
+    for e in std::fs::read_dir(&dir)? {
+        let p = e?.path();
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        if name.starts_with(&prefix) && name != keep {
+            std::fs::remove_dir_all(&p).with_context(|| format!("cannot remove {}", p.display()))?;
+        }
+    }
+    Ok(())
+}
+
+/// Reads `metrics.jsonl`.
+pub fn read_metrics(path: &Path) -> Result<Vec<MetricsLine>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    text.lines()
+        .enumerate()
+        .map(|(i, l)| {
+            serde_json::from_str(l).with_context(|| format!("{}:{}: not a metrics line", path.display(), i + 1))
+        })
+        .collect()
+}
