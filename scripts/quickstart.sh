@@ -1,20 +1,27 @@
 #!/usr/bin/env bash
-# The main job on the embedded default data: builds the workspace, then runs the dataset factory
-# on manifests/quickstart.toml (procedural cars and chairs, library materials, procedural skies):
-#   1. `datagen plan`    counts per split, disk and time estimate;
+# The main job on the embedded default data: the whole small pipeline of the paper.
+#   1. `datagen plan`    counts per split, disk and time estimate (manifests/quickstart.toml:
+#                        procedural cars and chairs, library materials, procedural skies);
 #   2. `datagen run`     renders the train and test splits into out/quickstart/ (resumable:
 #                        rerunning continues where an interrupted run stopped);
 #   3. `datagen verify`  checksums, schema and split integrity;
-#   4. `datagen inspect` a contact sheet out/quickstart/inspect.png (I, O, normals, mask,
-#                        regions, environment per sample).
+#   4. `datagen inspect` a contact sheet out/quickstart/inspect.png;
+#   5. `trainer run`     manifests/train/quickstart.toml: pretrains the normal and material
+#                        modules (L2), trains all three jointly through the rendering layer
+#                        (Eq. 5), then evaluates every stage on the held-out test split and
+#                        prints the tables (out/train/quickstart/eval.md, eval.json, eval.png,
+#                        loss.png). After a kill, `trainer run ... --resume` continues.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --workspace --quiet
 dg=target/release/datagen
+tr=target/release/trainer
 manifest=manifests/quickstart.toml
-out=${1:-out/quickstart}
+out=out/quickstart
 "$dg" plan "$manifest"
 "$dg" run "$manifest" --out "$out"
 "$dg" verify "$out"
 "$dg" inspect "$out" --samples 8
 echo "quickstart: $(wc -l < "$out/index.jsonl") samples in $out/ (index.jsonl, dataset.json, shards/, inspect.png)"
+"$tr" run manifests/train/quickstart.toml --out out/train/quickstart
+echo "quickstart: model, metrics and tables in out/train/quickstart/ (eval.md, eval.json, eval.png, loss.png)"

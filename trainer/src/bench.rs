@@ -49,15 +49,17 @@ fn measure(name: &str, runs: usize, alloc: Option<&PeakAlloc>, mut f: impl FnMut
     }
 }
 
-/// Forward + backward of the fused layer and of the tensor reference on `batch` spheres at
-/// `size`² with a `2·env_height × env_height` environment.
+/// Forward + backward of the fused layer and, with `with_reference`, of the tensor reference
+/// (once: it is slow) on `batch` spheres at `size`² with a `2·env_height × env_height`
+/// environment.
 pub fn rendering_layer(
     batch: usize,
     size: usize,
     env_height: usize,
     runs: usize,
+    with_reference: bool,
     alloc: Option<&PeakAlloc>,
-) -> Result<(Measure, Measure)> {
+) -> Result<(Measure, Option<Measure>)> {
     let layer = RenderingLayer::new(env_height);
     let hb = sphere_batch(batch, size, env_height, 1, &layer);
     let b = Batch {
@@ -75,12 +77,15 @@ pub fn rendering_layer(
         let g = layer.backward(&b, &upstream).map(|g| g.normals.len()).unwrap_or(0);
         std::hint::black_box((out, g));
     });
+    if !with_reference {
+        return Ok((fused, None));
+    }
     let device = Device::flex().autodiff();
     let reference = measure("tensor reference", 1, alloc, || {
         let r = reference::forward_backward(&layer, &b, &upstream, &device).map(|(o, _)| o.len());
         std::hint::black_box(r.ok());
     });
-    Ok((fused, reference))
+    Ok((fused, Some(reference)))
 }
 
 /// Training images/s of a joint step for a network configuration.
@@ -89,6 +94,12 @@ pub fn training(name: &str, widths: Widths, size: usize, batch: usize, steps: us
     device.seed(1);
     let layer = RenderingLayer::new(64);
     let net_cfg = NetConfig::new(size, widths);
+    net_cfg
+        .validate()
+        .map_err(|e| anyhow::anyhow!("training configuration {name}:{size}:{batch}: {e}"))?;
+    if batch == 0 {
+        anyhow::bail!("training configuration {name}:{size}:{batch}: the batch size must be at least 1");
+    }
     let mut net = net_cfg.init(&device);
     let mut optim = AdamConfig::new().init();
     let hb = sphere_batch(batch, size, 64, 2, &layer);

@@ -65,6 +65,9 @@ enum Command {
         /// At most this many samples (0: all).
         #[arg(long, default_value_t = 0)]
         max_samples: usize,
+        /// Samples in the contact sheet written next to --out as .png (0: none).
+        #[arg(long, default_value_t = 8)]
+        sheet: usize,
         /// No progress bar.
         #[arg(long)]
         quiet: bool,
@@ -152,6 +155,7 @@ fn run(cli: Cli) -> Result<()> {
                 batch: 8,
                 max_samples: e.max_samples,
                 progress: !quiet,
+                sheet: Some((out.join("eval.png"), 8)),
             };
             eval_to(&checkpoints, &opts, &out.join("eval.json"))?;
         }
@@ -163,6 +167,7 @@ fn run(cli: Cli) -> Result<()> {
             out,
             batch,
             max_samples,
+            sheet,
             quiet,
         } => {
             let opts = EvalOptions {
@@ -172,6 +177,7 @@ fn run(cli: Cli) -> Result<()> {
                 batch,
                 max_samples,
                 progress: !quiet,
+                sheet: Some((out.with_extension("png"), sheet)),
             };
             eval_to(&checkpoint, &opts, &out)?;
         }
@@ -191,13 +197,7 @@ fn run(cli: Cli) -> Result<()> {
             train,
         } => {
             println!("# trainer bench ({} threads)", rayon::current_num_threads());
-            let (fused, reference) = if no_reference {
-                let layer = bench::rendering_layer(batch, size, 64, runs, Some(&ALLOC));
-                (layer?.0, None)
-            } else {
-                let (f, r) = bench::rendering_layer(batch, size, 64, runs, Some(&ALLOC))?;
-                (f, Some(r))
-            };
+            let (fused, reference) = bench::rendering_layer(batch, size, 64, runs, !no_reference, Some(&ALLOC))?;
             println!("rendering layer, batch {batch} at {size}², 64x128 environment, forward+backward:");
             println!(
                 "  fused             {:9.3} s  peak {:9.1} MB",

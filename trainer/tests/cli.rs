@@ -337,3 +337,173 @@ fn bad_manifests_name_file_line_and_field() {
         "{e}"
     );
 }
+
+#[test]
+fn stages_can_branch_from_an_earlier_stage() {
+    // C starts from A's weights with a learning rate too small to move an f32 weight (Adam's step
+    // is lr-sized), so it must score exactly like A, and unlike B, which trained on from A.
+    let text = format!(
+        r#"
+[run]
+name = "branch"
+seed = 4
+output = "unused"
+
+[model]
+input_size = 16
+env_height = 4
+widths = {{ base_channels = 4, max_channels = 16, hidden = 32, normal_channels = 8, dropout = 0.0 }}
+
+[data]
+dataset = "{}"
+workers = 0
+
+[[stages]]
+name = "a"
+kind = "pretrain"
+steps = 3
+batch_size = 4
+learning_rate = [[0, 1e-3]]
+
+[[stages]]
+name = "b"
+kind = "pretrain"
+steps = 3
+batch_size = 4
+learning_rate = [[0, 1e-2]]
+
+[[stages]]
+name = "c"
+kind = "pretrain"
+from = "a"
+steps = 2
+batch_size = 4
+learning_rate = [[0, 1e-30]]
+"#,
+        dataset().display()
+    );
+    let m = write_manifest("branch.toml", &text);
+    let out = root().join("branch");
+    let o = train(&m, &out, false);
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{log}");
+    assert!(
+        log.contains("perceptual loss: fallback") && log.contains("no VGG16 weights"),
+        "the fallback is announced even with --quiet: {log}"
+    );
+    let s = scores(&out);
+    let row = |name: &str| {
+        s["checkpoints"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["name"] == name)
+            .map(|c| c["network"].clone())
+            .unwrap()
+    };
+    assert_eq!(row("c"), row("a"));
+    assert_ne!(row("b"), row("a"));
+    let bad = write_manifest("branch-bad.toml", &text.replace("from = \"a\"", "from = \"z\""));
+    let o = train(&bad, &root().join("branch-bad"), false);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && e.contains("stages[2].from") && e.contains("branch-bad.toml:"),
+        "{e}"
+    );
+}
+
+#[test]
+fn bench_prints_both_layers_and_refuses_impossible_configurations() {
+    let o = trainer()
+        .args([
+            "bench",
+            "--batch",
+            "1",
+            "--size",
+            "16",
+            "--runs",
+            "1",
+            "--train",
+            "cpu-small:16:2",
+        ])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for line in ["fused", "tensor reference", "faster", "less peak memory", "images/s"] {
+        assert!(text.contains(line), "{line:?} missing from {text}");
+    }
+    let o = trainer()
+        .args([
+            "bench",
+            "--batch",
+            "1",
+            "--size",
+            "16",
+            "--no-reference",
+            "--train",
+            "cpu-small:20:8",
+        ])
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && e.contains("cpu-small:20:8") && e.contains("power of two"),
+        "{e}"
+    );
+    assert!(!String::from_utf8_lossy(&o.stdout).contains("tensor reference"));
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let target = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &target);
+        } else {
+            std::fs::copy(e.path(), &target).unwrap();
+        }
+    }
+}
+
+#[test]
+fn a_truncated_shard_file_stops_the_run_naming_it_or_is_skipped_and_reported() {
+    let ds = root().join("corrupt-dataset");
+    let _ = std::fs::remove_dir_all(&ds);
+    copy_dir(dataset(), &ds);
+    // Truncate the image file of the first training sample.
+    let index = std::fs::read_to_string(ds.join("index.jsonl")).unwrap();
+    let first: Value = index
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+        .find(|v| v["split"] == "train")
+        .unwrap();
+    let rel = first["files"]["image"].as_str().unwrap().to_owned();
+    let bytes = std::fs::read(ds.join(&rel)).unwrap();
+    std::fs::write(ds.join(&rel), &bytes[..bytes.len() / 2]).unwrap();
+    let name = Path::new(&rel).file_name().unwrap().to_string_lossy().into_owned();
+
+    let text = training_manifest(&ds);
+    let stop = write_manifest("corrupt-stop.toml", &text);
+    let o = train(&stop, &root().join("corrupt-stop"), false);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && e.contains(&name),
+        "the run stops naming {name}: {e}"
+    );
+
+    let skip = write_manifest(
+        "corrupt-skip.toml",
+        &text.replace("workers = 1", "workers = 1\non_corrupt = \"skip\""),
+    );
+    let out = root().join("corrupt-skip");
+    let o = train(&skip, &out, false);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{e}");
+    assert!(
+        e.contains("skipped corrupt sample") && e.contains(&name),
+        "the skip is reported: {e}"
+    );
+    assert_eq!(metric_lines(&out).len(), 28, "every step still ran");
+}

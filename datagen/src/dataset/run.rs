@@ -64,9 +64,17 @@ impl std::str::FromStr for Worker {
     }
 }
 
-/// Encoded bytes (both EXR files) per image pixel: 371,428 bytes per 256² sample, the mean of
-/// `datagen bench manifests/bench.toml --res 256` (docs/PERFORMANCE.md). Estimates only.
-pub const BYTES_PER_PIXEL_ESTIMATE: f64 = 5.7;
+/// Encoded bytes of the sample EXR per image pixel: 371,428 bytes per 256² sample (both EXR
+/// files), the mean of `datagen bench manifests/bench.toml --res 256` (docs/PERFORMANCE.md),
+/// less the environment EXR below. Estimates only.
+pub const BYTES_PER_PIXEL_ESTIMATE: f64 = 5.3;
+
+/// Encoded bytes of the camera-space environment EXR per texel, plus the sample's share of
+/// `shard.json` and `index.jsonl` per sample: the quickstart's 2,400 64² samples take 140 MB,
+/// of which the environment files are the larger part. Estimates only.
+pub const ENV_BYTES_PER_TEXEL_ESTIMATE: f64 = 3.0;
+/// See [`ENV_BYTES_PER_TEXEL_ESTIMATE`].
+pub const RECORD_BYTES_ESTIMATE: f64 = 1_500.0;
 /// Samples per second on the reference machine (2 cores) at 256² with the `lut` quality, DSBRDF
 /// ground truth and no shadows, from the same measurement; scaled by pixel count for estimates.
 pub const SAMPLES_PER_SECOND_256: f64 = 1.66;
@@ -116,7 +124,9 @@ pub fn describe(l: &Loaded) -> String {
     }
     let n = p.samples();
     let pixels = (st.resolution * st.resolution) as f64;
-    let bytes = n as f64 * (pixels * BYTES_PER_PIXEL_ESTIMATE);
+    let texels = (2 * st.env_rows * st.env_rows) as f64;
+    let bytes =
+        n as f64 * (pixels * BYTES_PER_PIXEL_ESTIMATE + texels * ENV_BYTES_PER_TEXEL_ESTIMATE + RECORD_BYTES_ESTIMATE);
     let secs = n as f64 / (SAMPLES_PER_SECOND_256 * 65536.0 / pixels);
     let _ = writeln!(
         s,

@@ -7,6 +7,7 @@
 
 pub mod metrics;
 pub mod run;
+pub mod sheet;
 pub mod tables;
 
 pub use metrics::{l2_tonemapped, material_l2, material_l2_normalised, normal_cosine, ssim};

@@ -41,6 +41,9 @@ pub struct EvalOptions {
     pub max_samples: usize,
     /// Show a progress bar.
     pub progress: bool,
+    /// Write a contact sheet of this many samples (spread over the split) to this PNG: I, I',
+    /// O, O', n, n', L, L' of the last checkpoint.
+    pub sheet: Option<(PathBuf, usize)>,
 }
 
 /// One checkpoint's scores.
@@ -168,6 +171,14 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
             .progress_chars("=> "),
     );
+    let picks: Vec<usize> = match &opts.sheet {
+        Some((_, n)) if *n > 0 => {
+            let n = (*n).min(limit);
+            (0..n).map(|k| k * limit / n).collect()
+        }
+        _ => Vec::new(),
+    };
+    let mut shown: Vec<super::sheet::Shown> = Vec::new();
     let mut seen = 0usize;
     for batch in loader {
         if seen >= limit {
@@ -189,7 +200,8 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
         }
         let copy = score_batch(&hb, &[(O_PRIME, &hb.input, &hb.target)], None, None);
         report.copy_input.merge(&copy);
-        for ((net, _), row) in nets.iter().zip(report.checkpoints.iter_mut()) {
+        let last = nets.len() - 1;
+        for (c, ((net, _), row)) in nets.iter().zip(report.checkpoints.iter_mut()).enumerate() {
             let tb = hb.to_device(&device);
             let p = predict(net, &tb, true);
             let (n_p, m_p) = (host(&p.normals), host(&p.materials));
@@ -225,12 +237,32 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
                 .merge(&score_batch(&hb, &[(I_PRIME, &i_given_m_l, i)], Some(&n_p), None));
             row.mean_material
                 .merge(&score_batch(&hb, &[(O_PRIME, &o_mean, o)], None, None));
+            if c == last {
+                let (p, t) = (hb.size * hb.size, 2 * hb.env_height * hb.env_height);
+                for k in (0..hb.batch).filter(|k| picks.contains(&(seen + k))) {
+                    let px = |v: &[f32]| v[k * 3 * p..(k + 1) * 3 * p].to_vec();
+                    let ev = |v: &[f32]| v[k * 3 * t..(k + 1) * 3 * t].to_vec();
+                    shown.push(super::sheet::Shown {
+                        size: hb.size,
+                        env_height: hb.env_height,
+                        mask: hb.mask[k * p..(k + 1) * p].to_vec(),
+                        images: [px(i), px(&i_p), px(o), px(&o_p)],
+                        normals: [px(n), px(&n_p)],
+                        env: [ev(l), ev(&l_p)],
+                    });
+                }
+            }
         }
         seen += hb.batch;
         bar.set_position(seen as u64);
     }
     bar.finish_and_clear();
     report.samples = seen as u64;
+    if let Some((path, _)) = &opts.sheet
+        && !shown.is_empty()
+    {
+        super::sheet::write(path, &shown)?;
+    }
     if seen == 0 {
         bail!(
             "{}: split {} has no samples to evaluate",

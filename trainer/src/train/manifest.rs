@@ -44,6 +44,11 @@ pub struct RunSection {
     /// `cpu` (Burn's flex backend) or `cuda` (needs the `cuda` feature).
     #[serde(default = "default_device")]
     pub device: Spanned<String>,
+    /// Start from the weights of this checkpoint folder (another run's stage) instead of a fresh
+    /// initialisation: finetuning, e.g. the paper's multi-material model from the single-material
+    /// one. The optimiser starts fresh.
+    #[serde(default)]
+    pub init_from: Option<Spanned<String>>,
 }
 
 fn default_device() -> Spanned<String> {
@@ -195,6 +200,11 @@ pub struct StageSection {
     /// given the other two ground truths).
     #[serde(default)]
     pub render_with: RenderWith,
+    /// Start from the final weights of this earlier stage instead of the previous one (stages
+    /// then branch: e.g. the standalone and combined modules of Tables 1 and 2 from one
+    /// pretrained network).
+    #[serde(default)]
+    pub from: Option<String>,
     /// Dataset of this stage, when not `[data].dataset`.
     #[serde(default)]
     pub dataset: Option<String>,
@@ -281,6 +291,8 @@ pub struct TrainPlan {
     pub weights: LossWeights,
     /// VGG16 weights for the perceptual loss, if configured.
     pub vgg16: Option<PathBuf>,
+    /// Checkpoint to start from, if configured.
+    pub init_from: Option<PathBuf>,
     /// Skip corrupt samples instead of stopping.
     pub skip_corrupt: bool,
 }
@@ -454,6 +466,15 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
                 "with n, m and L all ground truth the rendering layer trains nothing".into(),
             ));
         }
+        if let Some(src) = &s.from
+            && !m.stages[..i].iter().any(|o| &o.get_ref().name == src)
+        {
+            return Err(bad(
+                st.span(),
+                &field("from"),
+                format!("{src:?} is not an earlier stage"),
+            ));
+        }
         if m.stages[..i].iter().any(|o| o.get_ref().name == s.name) {
             return Err(bad(
                 st.span(),
@@ -499,6 +520,22 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
             Some(p)
         }
     };
+    let init_from = match &m.run.init_from {
+        None => None,
+        Some(v) => {
+            let p = expand_vars(v.get_ref())
+                .map(PathBuf::from)
+                .map_err(|e| bad(v.span(), "run.init_from", e))?;
+            if !p.join("state.json").is_file() {
+                return Err(bad(
+                    v.span(),
+                    "run.init_from",
+                    format!("{}: not a checkpoint folder (no state.json)", p.display()),
+                ));
+            }
+            Some(p)
+        }
+    };
     let weights = LossWeights {
         normal: *l.normal.get_ref(),
         material: *l.material.get_ref(),
@@ -511,6 +548,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         dataset,
         weights,
         vgg16,
+        init_from,
         skip_corrupt,
         text,
     })
@@ -536,5 +574,37 @@ impl TrainPlan {
     /// blake3 of the manifest text.
     pub fn hash(&self) -> String {
         blake3::hash(self.text.as_bytes()).to_hex().to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_shipped_training_manifest_is_valid() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../manifests/train");
+        let mut n = 0;
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.extension().is_some_and(|x| x == "toml") {
+                let plan = load(&p).unwrap_or_else(|e| panic!("{e}"));
+                assert!(!plan.manifest.stages.is_empty());
+                n += 1;
+            }
+        }
+        assert!(n >= 3, "quickstart, paper and paper-tables");
+    }
+
+    #[test]
+    fn learning_rates_step_at_their_first_step() {
+        let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../manifests/train/paper.toml"))
+            .unwrap();
+        let plan = parse(Path::new("paper.toml"), text).unwrap();
+        let finetune = plan.manifest.stages[2].get_ref();
+        assert_eq!(
+            [0, 19999, 20000, 26999, 27000, 29999].map(|s| finetune.lr_at(s)),
+            [1e-4, 1e-4, 1e-6, 1e-6, 1e-8, 1e-8]
+        );
     }
 }

@@ -17,6 +17,7 @@ use super::step::{Losses, StepContext, StepKind, train_step};
 use crate::data::{Dataset, Epochs, Loader, LoaderConfig, OnCorrupt};
 use crate::render::RenderingLayer;
 use anyhow::{Context, Result, bail};
+use burn::module::Module;
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::tensor::Device;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -59,22 +60,34 @@ impl DatasetStream {
                 dataset.split_names().join(", ")
             )
         })?;
-        if let Some(r) = records.first() {
-            let s = dataset.load(r, false)?;
-            if s.size != plan.net.input_size || s.env_height != plan.net.env_height {
-                bail!(
-                    "{}: stage {}: the dataset {} has {}² images with {}×{} environments, but [model] asks for \
-                     input_size = {} and env_height = {} (set them to the dataset's, or render the dataset at that size)",
-                    plan.path.display(),
-                    st.name,
-                    dir.display(),
-                    s.size,
-                    s.env_height,
-                    2 * s.env_height,
-                    plan.net.input_size,
-                    plan.net.env_height
-                );
+        // The first readable sample gives the sizes; under `on_corrupt = "skip"` an unreadable
+        // one is passed over here too (the loader skips and reports it when it comes up).
+        let mut first = None;
+        for r in records {
+            match dataset.try_load(r, false) {
+                Ok(s) => {
+                    first = Some(s);
+                    break;
+                }
+                Err(_) if plan.skip_corrupt => continue,
+                Err(e) => return Err(e.into()),
             }
+        }
+        if let Some(s) = first
+            && (s.size != plan.net.input_size || s.env_height != plan.net.env_height)
+        {
+            bail!(
+                "{}: stage {}: the dataset {} has {}² images with {}×{} environments, but [model] asks for \
+                 input_size = {} and env_height = {} (set them to the dataset's, or render the dataset at that size)",
+                plan.path.display(),
+                st.name,
+                dir.display(),
+                s.size,
+                s.env_height,
+                2 * s.env_height,
+                plan.net.input_size,
+                plan.net.env_height
+            );
         }
         let d = &plan.manifest.data;
         let seed = blake3::hash(format!("{}/data/{stage}", plan.manifest.run.seed).as_bytes());
@@ -219,7 +232,28 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
                 std::fs::remove_file(&metrics_path)?;
             }
             device.seed(m.run.seed);
-            (plan.net.init(&device), None)
+            let net = match &plan.init_from {
+                None => plan.net.init(&device),
+                Some(dir) => {
+                    let (net, state) = checkpoint::load_net(dir, &device)?;
+                    // Dropout is not a shape: a finetuning run may change it.
+                    let mut shape = state.net.clone();
+                    shape.widths.dropout = plan.net.widths.dropout;
+                    if shape != plan.net {
+                        bail!(
+                            "{}: run.init_from {} holds a network of another shape ({:?}), the manifest's [model] is {:?}",
+                            plan.path.display(),
+                            dir.display(),
+                            state.net,
+                            plan.net
+                        );
+                    }
+                    // The record holds no dropout probability: rebuild with the manifest's.
+                    let fresh = plan.net.init(&device);
+                    fresh.load_record(net.into_record())
+                }
+            };
+            (net, None)
         }
     };
     matedit_datagen::io::write_atomically(&out.join("manifest.toml"), |p| Ok(std::fs::write(p, &plan.text)?))?;
@@ -228,9 +262,8 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
         Some(w) => Perceptual::vgg16(w, plan.manifest.loss.vgg16_layers.get_ref(), &device)?,
         None => Perceptual::Fallback,
     };
-    if !quiet {
-        eprintln!("{}", perceptual.description());
-    }
+    // Which perceptual loss trains the network is never silent, not even with --quiet.
+    eprintln!("{}", perceptual.description());
     let ctx = StepContext {
         layer: &layer,
         weights: &plan.weights,
@@ -269,7 +302,13 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
                 optim = checkpoint::load_optimizer(&dir, optim)?;
                 (s.step, s.data_position)
             }
-            _ => (0, 0),
+            _ => {
+                // A stage that branches from an earlier one starts from its final weights.
+                if let Some(src) = &st.from {
+                    net = checkpoint::load_net(&out.join("checkpoints").join(src), &device)?.0;
+                }
+                (0, 0)
+            }
         };
         let mut data = open(plan, si, position)?;
         let bar = if quiet {
