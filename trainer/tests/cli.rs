@@ -507,3 +507,79 @@ fn a_truncated_shard_file_stops_the_run_naming_it_or_is_skipped_and_reported() {
     );
     assert_eq!(metric_lines(&out).len(), 28, "every step still ran");
 }
+
+#[test]
+fn a_run_can_start_from_another_runs_checkpoint() {
+    // B starts from A's final weights with a learning rate too small to move an f32 weight, so
+    // it must score exactly like A's last stage; a network of another shape is refused.
+    let base = training_manifest(dataset());
+    let a_out = root().join("init-a");
+    let a = write_manifest("init-a.toml", &base);
+    let o = train(&a, &a_out, false);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let from = a_out.join("checkpoints/joint");
+    let finetune = |widths: &str| {
+        format!(
+            r#"
+[run]
+name = "init-b"
+seed = 8
+output = "unused"
+init_from = "{}"
+
+[model]
+input_size = 16
+env_height = 4
+widths = {widths}
+
+[data]
+dataset = "{}"
+workers = 1
+
+[[stages]]
+name = "finetune"
+kind = "joint"
+steps = 2
+batch_size = 4
+learning_rate = [[0, 1e-30]]
+"#,
+            from.display(),
+            dataset().display()
+        )
+    };
+    let b_out = root().join("init-b");
+    let b = write_manifest(
+        "init-b.toml",
+        &finetune("{ base_channels = 4, max_channels = 16, hidden = 32, normal_channels = 8, dropout = 0.0 }"),
+    );
+    let o = train(&b, &b_out, false);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let row = |s: &Value, name: &str| {
+        s["checkpoints"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["name"] == name)
+            .map(|c| c["network"].clone())
+            .unwrap()
+    };
+    assert_eq!(row(&scores(&b_out), "finetune"), row(&scores(&a_out), "joint"));
+
+    let other = write_manifest(
+        "init-other.toml",
+        &finetune("{ base_channels = 4, max_channels = 16, hidden = 48, normal_channels = 8 }"),
+    );
+    let o = train(&other, &root().join("init-other"), false);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("another shape"), "{e}");
+    let missing = write_manifest(
+        "init-missing.toml",
+        &finetune("\"cpu-small\"").replace(&from.display().to_string(), "/nonexistent/ckpt"),
+    );
+    let o = train(&missing, &root().join("init-missing"), false);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && e.contains("run.init_from") && e.contains("init-missing.toml:"),
+        "{e}"
+    );
+}
