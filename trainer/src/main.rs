@@ -65,6 +65,9 @@ enum Command {
         /// At most this many samples (0: all).
         #[arg(long, default_value_t = 0)]
         max_samples: usize,
+        /// Score only this shape category (repeat for several; default: all).
+        #[arg(long = "category")]
+        categories: Vec<String>,
         /// Samples in the contact sheet written next to --out as .png (0: none).
         #[arg(long, default_value_t = 8)]
         sheet: usize,
@@ -154,6 +157,7 @@ fn run(cli: Cli) -> Result<()> {
                 train_data: None,
                 batch: 8,
                 max_samples: e.max_samples,
+                categories: e.categories.clone(),
                 progress: !quiet,
                 sheet: Some((out.join("eval.png"), 8)),
             };
@@ -167,6 +171,7 @@ fn run(cli: Cli) -> Result<()> {
             out,
             batch,
             max_samples,
+            categories,
             sheet,
             quiet,
         } => {
@@ -176,6 +181,7 @@ fn run(cli: Cli) -> Result<()> {
                 train_data,
                 batch,
                 max_samples,
+                categories,
                 progress: !quiet,
                 sheet: Some((out.with_extension("png"), sheet)),
             };

@@ -583,3 +583,51 @@ learning_rate = [[0, 1e-30]]
         "{e}"
     );
 }
+
+#[test]
+fn eval_scores_only_the_asked_categories() {
+    let text = training_manifest(dataset()).replace("steps = 14", "steps = 2");
+    let m = write_manifest("categories.toml", &text);
+    let out = root().join("categories");
+    let o = train(&m, &out, false);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let eval = |split: &str, cats: &[&str], name: &str| {
+        let metrics = root().join(name);
+        let mut c = trainer();
+        c.arg("eval")
+            .arg("--checkpoint")
+            .arg(out.join("checkpoints/joint"))
+            .arg("--data")
+            .arg(dataset())
+            .args(["--split", split, "--quiet", "--sheet", "0"])
+            .arg("--out")
+            .arg(&metrics);
+        for cat in cats {
+            c.args(["--category", cat]);
+        }
+        let o = c.output().unwrap();
+        (o, metrics)
+    };
+    let index = std::fs::read_to_string(dataset().join("index.jsonl")).unwrap();
+    let count = |split: &str, cat: &str| {
+        index
+            .lines()
+            .map(|l| serde_json::from_str::<Value>(l).unwrap())
+            .filter(|v| v["split"] == split && v["category"] == cat)
+            .count()
+    };
+    let (o, metrics) = eval("train", &["monitor"], "monitors.json");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&metrics).unwrap()).unwrap();
+    assert_eq!(v["samples"], count("train", "monitor"));
+    assert!(count("train", "monitor") > 0 && count("train", "car") > 0);
+    assert_eq!(v["categories"], serde_json::json!(["monitor"]));
+    let md = std::fs::read_to_string(metrics.with_extension("md")).unwrap();
+    assert!(md.contains("categories monitor"), "{md}");
+    let (o, _) = eval("test", &["monitor"], "none.json");
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && e.contains("no samples of category monitor"),
+        "{e}"
+    );
+}

@@ -144,6 +144,18 @@ impl Dataset {
         self.splits.iter().find(|(n, _)| n == split).map(|(_, v)| v.as_slice())
     }
 
+    /// The same dataset with only the samples of the given categories in every split (all of
+    /// them when `categories` is empty): e.g. the paper's Table 2, scored on cars.
+    pub fn only_categories(&self, categories: &[String]) -> Dataset {
+        let mut d = self.clone();
+        if !categories.is_empty() {
+            for (_, records) in &mut d.splits {
+                records.retain(|r| categories.contains(&r.category));
+            }
+        }
+        d
+    }
+
     /// The normalised parameters of material `id` (`dataset.json` → `materials[id].normalised`).
     pub fn normalised_material(&self, id: &str) -> Option<&[f32; PARAMS]> {
         self.materials.get(id)

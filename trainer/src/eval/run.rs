@@ -39,6 +39,8 @@ pub struct EvalOptions {
     pub batch: usize,
     /// At most this many samples (0: all).
     pub max_samples: usize,
+    /// Score only samples of these shape categories (all when empty).
+    pub categories: Vec<String>,
     /// Show a progress bar.
     pub progress: bool,
     /// Write a contact sheet of this many samples (spread over the split) to this PNG: I, I',
@@ -70,6 +72,9 @@ pub struct EvalReport {
     pub dataset: String,
     /// Scored split.
     pub split: String,
+    /// Shape categories scored (empty: all).
+    #[serde(default)]
+    pub categories: Vec<String>,
     /// Samples scored.
     pub samples: u64,
     /// Material ids averaged into m̄.
@@ -115,11 +120,21 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
     if checkpoints.is_empty() {
         bail!("no checkpoint to evaluate");
     }
-    let ds = Arc::new(Dataset::open(&opts.data)?);
+    let full = Dataset::open(&opts.data)?;
     let train_ds = match &opts.train_data {
         Some(d) => Dataset::open(d)?,
-        None => (*ds).clone(),
+        None => full.clone(),
     };
+    let ds = Arc::new(full.only_categories(&opts.categories));
+    if !opts.categories.is_empty() && ds.records(&opts.split).is_empty() && !full.records(&opts.split).is_empty() {
+        bail!(
+            "{}: split {} has no samples of categor{} {}",
+            opts.data.display(),
+            opts.split,
+            if opts.categories.len() == 1 { "y" } else { "ies" },
+            opts.categories.join(", ")
+        );
+    }
     let (mean, mean_ids) = mean_training_material(&train_ds)?;
     let device = Device::flex();
     let mut nets = Vec::new();
@@ -132,6 +147,7 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
     let mut report = EvalReport {
         dataset: opts.data.display().to_string(),
         split: opts.split.clone(),
+        categories: opts.categories.clone(),
         mean_material_of: mean_ids,
         checkpoints: nets
             .iter()
@@ -367,8 +383,13 @@ impl EvalReport {
             });
         }
         t3.extend(rows(&|c| c.network.clone()));
+        let of = if self.categories.is_empty() {
+            String::new()
+        } else {
+            format!(", categories {}", self.categories.join(", "))
+        };
         let mut out = format!(
-            "Evaluation of {} on split {} ({} samples; L2 on tone-mapped [0, 255] images, SSIM 11×11 σ 1.5, \
+            "Evaluation of {} on split {}{of} ({} samples; L2 on tone-mapped [0, 255] images, SSIM 11×11 σ 1.5, \
              object pixels only).\n\n",
             self.dataset, self.split, self.samples
         );

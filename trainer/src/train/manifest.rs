@@ -259,6 +259,9 @@ pub struct EvalSection {
     /// At most this many samples (0: all).
     #[serde(default)]
     pub max_samples: usize,
+    /// Score only these shape categories (default: all; the paper's Table 2 is on cars).
+    #[serde(default)]
+    pub categories: Vec<String>,
 }
 
 fn default_test() -> String {
@@ -270,6 +273,7 @@ impl Default for EvalSection {
         Self {
             split: default_test(),
             max_samples: 0,
+            categories: Vec::new(),
         }
     }
 }
