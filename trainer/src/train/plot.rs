@@ -1,5 +1,5 @@
 //! `loss.png`: the loss curves of a run (total and each term of Eq. 5, log scale), one colour
-//! per term, stage boundaries marked.
+//! per term (each step faint, a running mean bold), stage boundaries marked.
 
 use super::run::MetricsLine;
 use super::step::LossWeights;
@@ -66,8 +66,30 @@ pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Resul
             if pts.is_empty() {
                 continue;
             }
+            // Single steps are noisy (one batch each): the raw curve faint, a running mean of
+            // 1 % of the run (at least 5 steps, never across a stage boundary) on top.
+            let window = (lines.len() / 100).max(5);
+            let mut stage_start = 0;
+            let smooth: Vec<(f64, f64)> = (0..lines.len())
+                .filter_map(|i| {
+                    if i > 0 && lines[i].stage != lines[i - 1].stage {
+                        stage_start = i;
+                    }
+                    let from = i.saturating_sub(window - 1).max(stage_start);
+                    let part: Vec<f64> = lines[from..=i].iter().map(&f).filter(|v| positive(*v)).collect();
+                    (positive(f(&lines[i])) && !part.is_empty()).then(|| {
+                        (
+                            lines[i].global_step as f64,
+                            part.iter().sum::<f64>() / part.len() as f64,
+                        )
+                    })
+                })
+                .collect();
             chart
-                .draw_series(LineSeries::new(pts, colour.stroke_width(2)))
+                .draw_series(LineSeries::new(pts, colour.mix(0.25).stroke_width(1)))
+                .map_err(|e| anyhow!("{e}"))?;
+            chart
+                .draw_series(LineSeries::new(smooth, colour.stroke_width(2)))
                 .map_err(|e| anyhow!("{e}"))?
                 .label(name)
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
@@ -86,6 +108,7 @@ pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Resul
         }
         chart
             .configure_series_labels()
+            .position(SeriesLabelPosition::LowerLeft)
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .draw()
@@ -94,4 +117,45 @@ pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Resul
     }
     std::fs::rename(&tmp, path)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::train::step::Losses;
+
+    #[test]
+    fn curves_are_drawn_for_every_term_and_stage() {
+        let lines: Vec<MetricsLine> = (1..=300)
+            .map(|i| {
+                let joint = i > 200;
+                let wobble = 1.0 + 0.3 * ((i * 7919) % 13) as f64 / 13.0;
+                let normal = 0.5 / (i as f64).sqrt() * wobble;
+                let material = 0.2 / (i as f64).powf(0.3);
+                let perceptual = if joint { 5000.0 * wobble } else { 0.0 };
+                MetricsLine {
+                    stage: if joint { "joint" } else { "pretrain" }.into(),
+                    step: if joint { i - 200 } else { i },
+                    global_step: i,
+                    lr: 1e-4,
+                    losses: Losses {
+                        total: 1e4 * normal + 1e3 * material + perceptual,
+                        normal,
+                        material,
+                        perceptual,
+                    },
+                }
+            })
+            .collect();
+        let path = std::env::temp_dir().join(format!("matedit-loss-{}.png", std::process::id()));
+        loss_curves(&lines, &path, &LossWeights::default()).unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (960, 540));
+        // Each term's colour is on the canvas (the legend alone would be a few pixels).
+        for colour in [[31u8, 119, 180], [255, 127, 14], [44, 160, 44]] {
+            let n = img.pixels().filter(|p| p.0 == colour).count();
+            assert!(n > 300, "colour {colour:?}: {n} pixels");
+        }
+        let _ = std::fs::remove_file(&path);
+    }
 }
