@@ -3,7 +3,7 @@
 
 use super::sample::SampleRecord;
 use crate::assets::envmaps::thumbnail;
-use crate::io::{load_env, read_exr_channels, write_contact_sheet};
+use crate::io::{load_env, normal_to_u8, read_exr_channels, write_contact_sheet};
 use anyhow::{Context, Result, bail};
 use matedit_physics::tonemap::tonemap_u8;
 use std::path::Path;
@@ -96,8 +96,7 @@ fn sample_tiles(dir: &Path, rec: &SampleRecord) -> Result<Vec<Vec<[u8; 4]>>> {
     ];
     out.push(tile(&|p| {
         if mask[p] > 0.0 {
-            let e = |v: f32| ((v * 0.5 + 0.5).clamp(0.0, 1.0) * 255.0).round() as u8;
-            [e(nx[p]), e(ny[p]), e(nz[p]), 255]
+            [normal_to_u8(nx[p]), normal_to_u8(ny[p]), normal_to_u8(nz[p]), 255]
         } else {
             [0; 4]
         }

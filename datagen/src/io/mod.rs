@@ -8,7 +8,7 @@ mod png;
 
 pub use envmap::{EnvSource, load_env};
 pub use exr_io::{encode_env_exr, encode_exr_channels, read_exr_channels, write_env_exr, write_exr_channels};
-pub use png::{write_contact_sheet, write_png_preview};
+pub use png::{normal_to_u8, write_contact_sheet, write_png_preview};
 
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};

@@ -19,6 +19,12 @@ pub fn write_png_preview(path: &Path, res: usize, rgb: &[[f32; 3]], mask: &[f32]
     })
 }
 
+/// One component of a unit normal, [−1, 1], as the usual 8-bit normal-map value (0 ↔ −1,
+/// 255 ↔ +1), for previews and contact sheets.
+pub fn normal_to_u8(v: f32) -> u8 {
+    ((v * 0.5 + 0.5).clamp(0.0, 1.0) * 255.0).round() as u8
+}
+
 /// Writes tiles of `tile × tile_h` RGBA pixels in a grid of `cols` columns, on a dark grey
 /// background, atomically.
 pub fn write_contact_sheet(
@@ -47,4 +53,16 @@ pub fn write_contact_sheet(
         img.save_with_format(tmp, image::ImageFormat::Png)
             .with_context(|| format!("cannot write {}", path.display()))
     })
+}
+
+#[cfg(test)]
+mod normal_encoding_tests {
+    use super::normal_to_u8;
+
+    #[test]
+    fn normal_components_map_to_the_full_byte_range_and_bad_values_stay_in_it() {
+        assert_eq!([-1.0, 0.0, 1.0].map(normal_to_u8), [0, 128, 255]);
+        assert_eq!([-7.0, 3.0, f32::INFINITY, f32::NEG_INFINITY].map(normal_to_u8), [0, 255, 255, 0]);
+        assert_eq!(normal_to_u8(f32::NAN), 0);
+    }
 }

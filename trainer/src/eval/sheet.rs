@@ -4,7 +4,7 @@
 
 use super::metrics::metric_exposure;
 use anyhow::Result;
-use matedit_datagen::io::write_contact_sheet;
+use matedit_datagen::io::{normal_to_u8, write_contact_sheet};
 use matedit_physics::tonemap::tonemap_u8;
 use std::path::Path;
 
@@ -64,8 +64,12 @@ fn normal<'a>(n: &'a [f32], mask: &'a [f32], hw: usize) -> impl Fn(usize) -> [u8
         if mask[p] <= 0.5 {
             return [0; 4];
         }
-        let e = |v: f32| ((v * 0.5 + 0.5).clamp(0.0, 1.0) * 255.0).round() as u8;
-        [e(n[p]), e(n[hw + p]), e(n[2 * hw + p]), 255]
+        [
+            normal_to_u8(n[p]),
+            normal_to_u8(n[hw + p]),
+            normal_to_u8(n[2 * hw + p]),
+            255,
+        ]
     }
 }
 
