@@ -179,6 +179,17 @@ fn scores(out: &Path) -> Value {
     v
 }
 
+/// The full-pipeline scores of one stage in an eval.json.
+fn network_scores(scores: &Value, stage: &str) -> Value {
+    scores["checkpoints"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["name"] == stage)
+        .map(|c| c["network"].clone())
+        .unwrap_or_else(|| panic!("no stage {stage} in the scores"))
+}
+
 #[test]
 fn a_killed_run_resumes_to_the_same_losses_and_metrics() {
     let m = write_manifest("resume.toml", &training_manifest(dataset()));
@@ -392,17 +403,8 @@ learning_rate = [[0, 1e-30]]
         "the fallback is announced even with --quiet: {log}"
     );
     let s = scores(&out);
-    let row = |name: &str| {
-        s["checkpoints"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|c| c["name"] == name)
-            .map(|c| c["network"].clone())
-            .unwrap()
-    };
-    assert_eq!(row("c"), row("a"));
-    assert_ne!(row("b"), row("a"));
+    assert_eq!(network_scores(&s, "c"), network_scores(&s, "a"));
+    assert_ne!(network_scores(&s, "b"), network_scores(&s, "a"));
     let bad = write_manifest("branch-bad.toml", &text.replace("from = \"a\"", "from = \"z\""));
     let o = train(&bad, &root().join("branch-bad"), false);
     let e = String::from_utf8_lossy(&o.stderr);
@@ -554,16 +556,10 @@ learning_rate = [[0, 1e-30]]
     );
     let o = train(&b, &b_out, false);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let row = |s: &Value, name: &str| {
-        s["checkpoints"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|c| c["name"] == name)
-            .map(|c| c["network"].clone())
-            .unwrap()
-    };
-    assert_eq!(row(&scores(&b_out), "finetune"), row(&scores(&a_out), "joint"));
+    assert_eq!(
+        network_scores(&scores(&b_out), "finetune"),
+        network_scores(&scores(&a_out), "joint")
+    );
 
     let other = write_manifest(
         "init-other.toml",

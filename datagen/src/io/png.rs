@@ -62,7 +62,10 @@ mod normal_encoding_tests {
     #[test]
     fn normal_components_map_to_the_full_byte_range_and_bad_values_stay_in_it() {
         assert_eq!([-1.0, 0.0, 1.0].map(normal_to_u8), [0, 128, 255]);
-        assert_eq!([-7.0, 3.0, f32::INFINITY, f32::NEG_INFINITY].map(normal_to_u8), [0, 255, 255, 0]);
+        assert_eq!(
+            [-7.0, 3.0, f32::INFINITY, f32::NEG_INFINITY].map(normal_to_u8),
+            [0, 255, 255, 0]
+        );
         assert_eq!(normal_to_u8(f32::NAN), 0);
     }
 }

@@ -76,13 +76,12 @@ pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Resul
                         stage_start = i;
                     }
                     let from = i.saturating_sub(window - 1).max(stage_start);
-                    let part: Vec<f64> = lines[from..=i].iter().map(&f).filter(|v| positive(*v)).collect();
-                    (positive(f(&lines[i])) && !part.is_empty()).then(|| {
-                        (
-                            lines[i].global_step as f64,
-                            part.iter().sum::<f64>() / part.len() as f64,
-                        )
-                    })
+                    let (sum, count) = lines[from..=i]
+                        .iter()
+                        .map(&f)
+                        .filter(|v| positive(*v))
+                        .fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+                    positive(f(&lines[i])).then(|| (lines[i].global_step as f64, sum / count as f64))
                 })
                 .collect();
             chart
