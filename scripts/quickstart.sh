@@ -1,16 +1,19 @@
 #!/usr/bin/env bash
 # The main job on the embedded default data: the whole small pipeline of the paper.
 #   1. `datagen plan`    counts per split, disk and time estimate (manifests/quickstart.toml:
-#                        procedural cars and chairs, library materials, procedural skies);
+#                        procedural cars, chairs, sofas and monitors, library materials,
+#                        procedural skies, studios and rooms);
 #   2. `datagen run`     renders the train and test splits into out/quickstart/ (resumable:
 #                        rerunning continues where an interrupted run stopped);
 #   3. `datagen verify`  checksums, schema and split integrity;
 #   4. `datagen inspect` a contact sheet out/quickstart/inspect.png;
 #   5. `trainer run`     manifests/train/quickstart.toml: pretrains the normal and material
-#                        modules (L2), trains all three jointly through the rendering layer
-#                        (Eq. 5), then evaluates every stage on the held-out test split and
-#                        prints the tables (out/train/quickstart/eval.md, eval.json, eval.png,
-#                        loss.png). After a kill, `trainer run ... --resume` continues.
+#                        modules (L2), trains the illumination module through the rendering
+#                        layer, then all three jointly (Eq. 5); evaluates every stage on the
+#                        held-out test split and prints the tables (out/train/quickstart/eval.md,
+#                        eval.json, eval.png, loss.png).
+# Rerunning the script continues both steps where a killed run stopped (`--resume` starts a
+# fresh training run when there is none, and re-evaluates a finished one).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --workspace --quiet
@@ -23,5 +26,5 @@ out=out/quickstart
 "$dg" verify "$out"
 "$dg" inspect "$out" --samples 8
 echo "quickstart: $(wc -l < "$out/index.jsonl") samples in $out/ (index.jsonl, dataset.json, shards/, inspect.png)"
-"$tr" run manifests/train/quickstart.toml --out out/train/quickstart
+"$tr" run manifests/train/quickstart.toml --out out/train/quickstart --resume
 echo "quickstart: model, metrics and tables in out/train/quickstart/ (eval.md, eval.json, eval.png, loss.png)"
