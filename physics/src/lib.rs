@@ -28,6 +28,7 @@ pub mod camera;
 pub mod envmap;
 pub mod fastmath;
 pub mod frame;
+mod memo;
 pub mod shading;
 pub mod tonemap;
 

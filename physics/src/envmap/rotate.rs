@@ -8,6 +8,7 @@
 //! which removes the small bias of the sampling.
 
 use super::EnvMap;
+use crate::memo::Memo;
 use glam::{DMat3, DVec3};
 use std::f64::consts::PI;
 
@@ -27,33 +28,60 @@ impl EnvMap {
         let width = 2 * height;
         let src = self.resampled(2 * height, 0.0);
         let (sw, sh) = (src.width, src.height);
-        let s = SUBSAMPLES;
-        let mut texels = vec![[0.0_f32; 3]; width * height];
+        let ss = SUBSAMPLES * SUBSAMPLES;
         let mut acc = vec![[0.0_f64; 3]; width * height];
-        for r in 0..height {
-            let (ct, cb) = (
-                (PI * r as f64 / height as f64).cos(),
-                (PI * (r + 1) as f64 / height as f64).cos(),
-            );
-            for c in 0..width {
-                let mut sum = [0.0_f64; 3];
-                for a in 0..s {
-                    // Equal-area strata: uniform in cos θ within the band, uniform in φ.
-                    let cos_t = ct + (cb - ct) * (a as f64 + 0.5) / s as f64;
-                    let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-                    for b in 0..s {
-                        let phi = 2.0 * PI * (c as f64 + (b as f64 + 0.5) / s as f64) / width as f64;
-                        let d = DVec3::new(sin_t * phi.sin(), cos_t, -sin_t * phi.cos());
-                        let (i, j) = super::direction_to_texel(m * d, sw, sh);
-                        let v = src.texels[j * sw + i];
-                        for k in 0..3 {
-                            sum[k] += v[k] as f64;
-                        }
-                    }
-                }
-                acc[r * width + c] = sum.map(|v| v / (s * s) as f64);
+        for (k, d) in subdirections(height).enumerate() {
+            let (i, j) = super::direction_to_texel(m * d, sw, sh);
+            let v = src.texels[j * sw + i];
+            for c in 0..3 {
+                acc[k / ss][c] += v[c] as f64;
             }
         }
+        for a in &mut acc {
+            *a = a.map(|v| v / ss as f64);
+        }
+        self.renormalised(acc, width, height)
+    }
+
+    /// Resamples to `height × 2·height` texels with L_out(d) = L(R_y(yaw)·R_x(pitch)·d): what a
+    /// camera pitched by −`pitch` and turned by −`yaw` sees. The same as
+    /// [`rotated`](EnvMap::rotated) with that matrix (up to sub-samples that fall on a texel
+    /// border), but the sub-directions' trigonometry depends only on the pitch, so it is
+    /// computed once per (resolution, pitch) and every yaw is a shift of source columns.
+    pub fn tilted(&self, height: usize, yaw_deg: f64, pitch_deg: f64) -> EnvMap {
+        let height = height.max(1);
+        if pitch_deg == 0.0 {
+            // L(R_y(β)·d) = L_rot(d) with L_rot(d) = L(R_y(−A)d) ⇒ A = −β.
+            return self.resampled(height, -yaw_deg);
+        }
+        let width = 2 * height;
+        let src = self.resampled(2 * height, 0.0);
+        let (sw, sh) = (src.width, src.height);
+        let table = TILTS.get((sh, height, pitch_deg.to_bits()), || {
+            TiltTable::new(sh, height, pitch_deg)
+        });
+        // R_y(β) turns φ into φ − β, so the source column position moves by −β.
+        let shift = yaw_deg.to_radians() / (2.0 * PI) * sw as f64;
+        let ss = SUBSAMPLES * SUBSAMPLES;
+        let mut acc = vec![[0.0_f64; 3]; width * height];
+        for (t, a) in acc.iter_mut().enumerate() {
+            let mut sum = [0.0_f64; 3];
+            for k in t * ss..(t + 1) * ss {
+                let col = ((table.cols[k] - shift).floor() as i64).rem_euclid(sw as i64) as usize;
+                let v = src.texels[table.rows[k] as usize * sw + col];
+                for c in 0..3 {
+                    sum[c] += v[c] as f64;
+                }
+            }
+            *a = sum.map(|v| v / ss as f64);
+        }
+        self.renormalised(acc, width, height)
+    }
+
+    /// Scales texels (f64) per channel so that the map keeps this map's power (rotation
+    /// preserves it; sampling adds a small bias).
+    fn renormalised(&self, acc: Vec<[f64; 3]>, width: usize, height: usize) -> EnvMap {
+        let mut texels = vec![[0.0_f32; 3]; width * height];
         let out_power = power_of(&acc, width, height);
         let src_power = self.power();
         let scale: [f64; 3] = std::array::from_fn(|k| {
@@ -69,6 +97,54 @@ impl EnvMap {
         EnvMap { width, height, texels }
     }
 }
+
+/// The sub-directions of every output texel, in order (texel-major, then the
+/// [`SUBSAMPLES`]² equal-area strata): equal-area in cos θ within the band, uniform in φ.
+fn subdirections(height: usize) -> impl Iterator<Item = DVec3> {
+    let width = 2 * height;
+    let s = SUBSAMPLES;
+    (0..height).flat_map(move |r| {
+        let (ct, cb) = (
+            (PI * r as f64 / height as f64).cos(),
+            (PI * (r + 1) as f64 / height as f64).cos(),
+        );
+        (0..width).flat_map(move |c| {
+            (0..s).flat_map(move |a| {
+                let cos_t = ct + (cb - ct) * (a as f64 + 0.5) / s as f64;
+                let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+                (0..s).map(move |b| {
+                    let phi = 2.0 * PI * (c as f64 + (b as f64 + 0.5) / s as f64) / width as f64;
+                    DVec3::new(sin_t * phi.sin(), cos_t, -sin_t * phi.cos())
+                })
+            })
+        })
+    })
+}
+
+/// Where each sub-direction of a `height`-row output lands in a `source_height`-row map after a
+/// pitch: its source row and its column position (in source texels, before any yaw).
+struct TiltTable {
+    rows: Vec<u32>,
+    cols: Vec<f64>,
+}
+
+impl TiltTable {
+    fn new(source_height: usize, height: usize, pitch_deg: f64) -> Self {
+        let m = DMat3::from_rotation_x(pitch_deg.to_radians());
+        let (sw, sh) = (2 * source_height, source_height);
+        let (mut rows, mut cols) = (Vec::new(), Vec::new());
+        for d in subdirections(height) {
+            let d = m * d;
+            let theta = d.y.clamp(-1.0, 1.0).acos();
+            let phi = d.x.atan2(-d.z).rem_euclid(2.0 * PI);
+            rows.push((((theta / PI) * sh as f64).floor() as usize).min(sh - 1) as u32);
+            cols.push(phi / (2.0 * PI) * sw as f64);
+        }
+        Self { rows, cols }
+    }
+}
+
+static TILTS: Memo<(usize, usize, u64), TiltTable> = Memo::new();
 
 fn power_of(texels: &[[f64; 3]], width: usize, height: usize) -> [f64; 3] {
     let mut p = [0.0; 3];
@@ -126,6 +202,39 @@ mod tests {
         assert!(out.lookup(-seen)[0] < 10.0);
         for t in out.texels() {
             assert!(t.iter().all(|v| v.is_finite() && *v >= 0.0));
+        }
+    }
+
+    #[test]
+    fn tilted_maps_equal_the_general_rotation() {
+        let src = sun_map(DVec3::new(0.3, 0.6, -0.5).normalize());
+        for (yaw, pitch) in [(0.0, -20.0), (137.5, -20.0), (-61.0, 35.0), (359.9, -89.0), (45.0, 0.0)] {
+            let m = DMat3::from_rotation_y(f64::to_radians(yaw)) * DMat3::from_rotation_x(f64::to_radians(pitch));
+            let general = src.rotated(32, m);
+            let tilted = src.tilted(32, yaw, pitch);
+            // Only sub-directions within rounding of a texel border may read another texel.
+            let same = general
+                .texels()
+                .iter()
+                .zip(tilted.texels())
+                .filter(|(a, b)| a == b)
+                .count();
+            assert!(
+                same * 100 >= 99 * general.texels().len(),
+                "yaw {yaw} pitch {pitch}: {same} equal"
+            );
+            let (mut err, mut norm) = (0.0_f64, 0.0_f64);
+            for (a, b) in tilted.texels().iter().zip(general.texels()) {
+                for k in 0..3 {
+                    err += (a[k] - b[k]) as f64 * (a[k] - b[k]) as f64;
+                    norm += b[k] as f64 * b[k] as f64;
+                }
+            }
+            assert!(
+                (err / norm).sqrt() < 1e-3,
+                "yaw {yaw} pitch {pitch}: {}",
+                (err / norm).sqrt()
+            );
         }
     }
 

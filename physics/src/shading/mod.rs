@@ -20,6 +20,7 @@ pub mod exact;
 pub mod fast;
 pub mod lut;
 pub mod multires;
+pub mod zonal;
 
 use crate::{BrdfModel, EnvMap};
 use glam::DVec3;
@@ -65,6 +66,10 @@ pub enum Quality {
     /// Normal-space table over the fast path ([`lut`]); falls back to `Fast` where a table would
     /// not save work or where shadows make radiance depend on more than the normal.
     Lut,
+    /// Convolution about the view axis ([`zonal`]): per-material kernel spectra, per-sample FFTs;
+    /// falls back to `Fast` where shadows make radiance depend on more than the normal, and to
+    /// `Exact` for measured BRDFs.
+    Zonal,
 }
 
 impl std::str::FromStr for Quality {
@@ -74,7 +79,8 @@ impl std::str::FromStr for Quality {
             "exact" => Ok(Quality::Exact),
             "fast" => Ok(Quality::Fast),
             "lut" => Ok(Quality::Lut),
-            _ => Err(format!("quality {s:?}: expected exact, fast or lut")),
+            "zonal" => Ok(Quality::Zonal),
+            _ => Err(format!("quality {s:?}: expected exact, fast, lut or zonal")),
         }
     }
 }
@@ -93,7 +99,7 @@ pub trait Shader: Send + Sync {
 /// the fast shader). Measured (tabulated) BRDFs always use the exact path.
 pub fn make_shader(brdf: &BrdfModel, env: &EnvMap, quality: Quality) -> Box<dyn Shader> {
     let fast = match quality {
-        Quality::Fast | Quality::Lut => fast::FastShader::new(brdf, env),
+        Quality::Fast | Quality::Lut | Quality::Zonal => fast::FastShader::new(brdf, env),
         Quality::Exact => None,
     };
     match fast {
@@ -169,6 +175,12 @@ pub fn shade_with(
     mask: &[f32],
     visibility: Option<&VisibilityFn<'_>>,
 ) -> (Vec<[f32; 3]>, usize) {
+    if quality == Quality::Zonal
+        && visibility.is_none()
+        && let Some(out) = zonal::shade_image_once(brdf, env, normals, mask)
+    {
+        return out;
+    }
     if quality == Quality::Lut && visibility.is_none() {
         if let BrdfModel::Dsbrdf(m) = brdf {
             let (rgb, bad, _) = multires::shade_image_dsbrdf(m, env, normals, mask);

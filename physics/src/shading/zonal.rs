@@ -1,0 +1,949 @@
+//! Eq. 2 as a convolution about the view axis: the `zonal` quality.
+//!
+//! With the orthographic camera (ω_o = +z for every pixel) and no shadows, the summand of Eq. 2,
+//! k(n, ω) = f(ω, ω_o; n) · max(0, n·ω), is unchanged when n and ω turn together about +z: an
+//! isotropic BRDF sees only the angles between n, ω and ω_o. In polar coordinates about +z (θ
+//! from the view, φ around it) the radiance of a normal at (θ_n, φ_n) is therefore
+//!
+//! ```text
+//! R(θ_n, φ_n) = Σ_rows Σ_φ k(θ_n, θ_ω, φ_n − φ) · W(θ_ω, φ),     W = L · dω
+//! ```
+//!
+//! a circular convolution in φ for each pair of a normal row and an environment row. So:
+//!
+//! 1. **per material** ([`ZonalKernel`], cached by the caller): k is tabulated for every
+//!    (normal row, environment row, φ offset) of a [`ZonalGrid`] and Fourier-transformed along
+//!    φ once. Each spectrum is cut where its tail no longer matters ([`TAIL`]): broad lobes need a
+//!    few harmonics, sharp lobes many but only for the few rows their peak reaches;
+//! 2. **per environment** ([`ZonalEnv`]): the map's texels (camera space, the same texels the
+//!    exact path sums) are spread onto the grid's rows and columns with Catmull–Rom weights and
+//!    each row is Fourier-transformed;
+//! 3. **per image** ([`shade_image_zonal`]): for each normal row, Σ_rows K̂·Ŵ and one inverse
+//!    transform give the radiance of every grid normal; each pixel interpolates its normal
+//!    bicubically (Catmull–Rom) on that grid.
+//!
+//! No transcendental function is evaluated per sample: the per-sample work is a few thousand
+//! short FFTs, multiply–adds, and 16 taps per pixel. The approximations are the spreading of
+//! texels onto the grid (the kernel is, in effect, interpolated between grid directions), the
+//! normal grid's interpolation and the cut spectra; all three shrink with the grid spacing, which
+//! follows the material's sharpest lobe that carries energy ([`ZonalGrid::for_brdf`]). Their
+//! measured error against the exact path is in `docs/PERFORMANCE.md`.
+//!
+//! FFTs use rustfft's scalar planner and every sum has a fixed order, so the output bits depend
+//! neither on the thread count nor on the CPU's SIMD features.
+
+use super::{sanitize, shading_normal};
+use crate::brdf::{Brdf, BrdfModel, Dsbrdf};
+use crate::envmap::{EnvMap, texel_direction, texel_solid_angle};
+use crate::fastmath;
+use crate::frame::Frame;
+use crate::memo::Memo;
+use glam::DVec3;
+use rayon::prelude::*;
+use rustfft::num_complex::Complex32;
+use rustfft::{Fft, FftPlannerScalar};
+use std::f64::consts::PI;
+use std::sync::Arc;
+
+/// Grid spacing as a fraction of the angular width 1/√γ of the material's sharpest lobe that
+/// carries energy.
+pub const SPACING_PER_WIDTH: f64 = 0.5;
+/// Fewest normal rows (the clamped cosine's kink at the terminator needs some resolution even
+/// for a matte material).
+pub const MIN_ROWS: usize = 32;
+/// Most normal rows (the spectra of a 128-row grid take tens of MB per material).
+pub const MAX_ROWS: usize = 128;
+/// A spectrum is cut after the harmonic beyond which the sum of |coefficients| falls below this
+/// fraction of its mean (the zeroth coefficient).
+pub const TAIL: f64 = 1e-3;
+/// The accuracy knobs of the zonal method (defaults: the module constants). The speed/error
+/// trade-off they span is measured in `docs/PERFORMANCE.md`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ZonalParams {
+    /// See [`SPACING_PER_WIDTH`].
+    pub spacing_per_width: f64,
+    /// See [`MIN_ROWS`].
+    pub min_rows: usize,
+    /// See [`MAX_ROWS`].
+    pub max_rows: usize,
+    /// See [`TAIL`].
+    pub tail: f64,
+}
+
+impl Default for ZonalParams {
+    fn default() -> Self {
+        Self {
+            spacing_per_width: SPACING_PER_WIDTH,
+            min_rows: MIN_ROWS,
+            max_rows: MAX_ROWS,
+            tail: TAIL,
+        }
+    }
+}
+
+/// A DSBRDF lobe member sets the grid spacing when its energy, expm1(κ)·2π/(γ+1), is at least
+/// this fraction of its channel's at that θ_d. Weaker members (the fits' narrow "sparkle" lobes
+/// with κ ~ 1e-3) are still summed, at the grid's resolution.
+pub const SIGNIFICANT_ENERGY: f64 = 2e-3;
+
+/// The largest angle of a shading normal from the view (see [`shading_normal`]).
+fn theta_max() -> f64 {
+    super::MIN_FACING.acos()
+}
+
+/// The polar grid about the view axis on which a material is tabulated.
+///
+/// * normal rows a = 0..=`rows`, θ_a = a·θ_max/`rows` (θ_max ≈ 90°, the most grazing shading
+///   normal), row 0 being the normal that faces the camera;
+/// * environment rows r = 0..`env_rows`, θ_r = (r + ½)·π/`env_rows` (from the view direction to
+///   straight behind the object): a lobe is about twice as wide in ω as in n;
+/// * `phi` columns at φ_j = 2πj/`phi`, shared by normals and environment.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct ZonalGrid {
+    /// Normal rows beyond the pole row.
+    pub rows: usize,
+    /// Environment rows.
+    pub env_rows: usize,
+    /// Columns (FFT length).
+    pub phi: usize,
+}
+
+impl ZonalGrid {
+    /// A grid of the given normal row count (rounded up to a multiple of 4), with as many
+    /// environment rows and 4× as many columns, so that rows and columns have the same spacing
+    /// at the silhouette.
+    pub fn with_rows(rows: usize) -> Self {
+        let rows = rows.max(4).div_ceil(4) * 4;
+        Self {
+            rows,
+            env_rows: rows,
+            phi: 4 * rows,
+        }
+    }
+
+    /// The grid a material needs: spacing [`SPACING_PER_WIDTH`] of its sharpest lobe's width,
+    /// between [`MIN_ROWS`] and [`MAX_ROWS`] rows. `None` for measured BRDFs (unknown
+    /// sharpness).
+    pub fn for_brdf(brdf: &BrdfModel) -> Option<Self> {
+        Self::for_brdf_with(brdf, &ZonalParams::default())
+    }
+
+    /// [`for_brdf`](ZonalGrid::for_brdf) with explicit knobs.
+    pub fn for_brdf_with(brdf: &BrdfModel, params: &ZonalParams) -> Option<Self> {
+        let width = match brdf {
+            BrdfModel::Dsbrdf(m) => dsbrdf_width(m),
+            BrdfModel::Measured(_) => return None,
+            other => 1.0 / super::lut::sharpness(other)?.max(1.0).sqrt(),
+        };
+        let rows = (theta_max() / (params.spacing_per_width * width)).ceil() as usize;
+        Some(Self::with_rows(
+            rows.clamp(params.min_rows, params.max_rows.max(params.min_rows)),
+        ))
+    }
+
+    fn normal_theta(&self, a: usize) -> f64 {
+        a as f64 * theta_max() / self.rows as f64
+    }
+
+    fn env_theta(&self, r: usize) -> f64 {
+        (r as f64 + 0.5) * PI / self.env_rows as f64
+    }
+
+    /// Harmonics kept per spectrum (0..=phi/2).
+    fn harmonics(&self) -> usize {
+        self.phi / 2 + 1
+    }
+}
+
+/// Width 1/√γ' of a DSBRDF's sharpest member that carries energy (γ' the curvature-equivalent
+/// sharpness, [`super::multires::effective_gamma`]), over θ_d in whole degrees.
+fn dsbrdf_width(m: &Dsbrdf) -> f64 {
+    let mut sharpest = 1.0_f64;
+    for deg in 0..=90 {
+        for ch in &m.lobes_at((deg as f64).to_radians()) {
+            let energy = |&(kappa, gamma): &(f64, f64)| kappa.exp_m1() * 2.0 * PI / (gamma + 1.0);
+            let total: f64 = ch.iter().map(energy).sum();
+            for lobe in ch {
+                if energy(lobe) >= SIGNIFICANT_ENERGY * total {
+                    sharpest = sharpest.max(super::multires::effective_gamma(lobe.0, lobe.1));
+                }
+            }
+        }
+    }
+    1.0 / sharpest.sqrt()
+}
+
+/// One cut spectrum: environment row, channel, and where its coefficients are.
+#[derive(Clone, Copy, Debug)]
+struct Entry {
+    env_row: u32,
+    channel: u32,
+    start: u32,
+    len: u32,
+}
+
+/// A material's kernel spectra on a grid (step 1 of the module docs). Build once per material
+/// and grid; share between threads.
+pub struct ZonalKernel {
+    grid: ZonalGrid,
+    /// Per normal row, its cut spectra.
+    entries: Vec<Vec<Entry>>,
+    /// Per normal row, the real cosine coefficients of its spectra.
+    coeffs: Vec<Vec<f32>>,
+}
+
+impl ZonalKernel {
+    /// Tabulates and transforms `brdf`'s kernel on `grid` (single-threaded; 0.01–0.5 s for the
+    /// library's materials). `None` for measured BRDFs, which are shaded by the exact path.
+    pub fn new(brdf: &BrdfModel, grid: ZonalGrid) -> Option<Self> {
+        Self::with_tail(brdf, grid, TAIL)
+    }
+
+    /// [`new`](ZonalKernel::new) with spectra cut at `tail` (see [`TAIL`]).
+    pub fn with_tail(brdf: &BrdfModel, grid: ZonalGrid, tail: f64) -> Option<Self> {
+        if matches!(brdf, BrdfModel::Measured(_)) {
+            return None;
+        }
+        let n = grid.phi;
+        let fft = forward_plan(n);
+        let geometry = Geometry::new(&grid);
+        let dsbrdf_rows: Option<Vec<RowLobes>> = match brdf {
+            BrdfModel::Dsbrdf(m) => Some(
+                (0..grid.env_rows)
+                    .map(|r| RowLobes::new(m, grid.env_theta(r) / 2.0))
+                    .collect(),
+            ),
+            _ => None,
+        };
+        // Sequential on purpose: callers build kernels lazily inside `OnceLock`s on rayon
+        // threads, where a nested parallel loop could steal a job that waits on the same cell.
+        // Build several kernels in parallel instead (one per material).
+        let per_row: Vec<(Vec<Entry>, Vec<f32>)> = (0..=grid.rows)
+            .map(|a| {
+                let mut seqs: Vec<(u32, u32, Vec<f32>)> = Vec::new();
+                for r in 0..grid.env_rows {
+                    let k = match &dsbrdf_rows {
+                        Some(rows) => geometry.dsbrdf_kernel(a, r, &rows[r]),
+                        None => geometry.generic_kernel(a, r, brdf),
+                    };
+                    let Some(k) = k else { continue };
+                    for (c, seq) in k.into_iter().enumerate() {
+                        if seq.iter().any(|&v| v > 0.0) {
+                            seqs.push((r as u32, c as u32, seq));
+                        }
+                    }
+                }
+                cut_spectra(&*fft, n, seqs, tail)
+            })
+            .collect();
+        let (entries, coeffs) = per_row.into_iter().unzip();
+        Some(Self { grid, entries, coeffs })
+    }
+
+    /// The kernel of `brdf` on the grid [`ZonalGrid::for_brdf`] chooses.
+    pub fn for_brdf(brdf: &BrdfModel) -> Option<Self> {
+        Self::for_brdf_with(brdf, &ZonalParams::default())
+    }
+
+    /// [`for_brdf`](ZonalKernel::for_brdf) with explicit knobs.
+    pub fn for_brdf_with(brdf: &BrdfModel, params: &ZonalParams) -> Option<Self> {
+        Self::with_tail(brdf, ZonalGrid::for_brdf_with(brdf, params)?, params.tail)
+    }
+
+    /// The grid.
+    pub fn grid(&self) -> ZonalGrid {
+        self.grid
+    }
+
+    /// Stored coefficients (memory: 4 bytes each).
+    pub fn coefficients(&self) -> usize {
+        self.coeffs.iter().map(Vec::len).sum()
+    }
+}
+
+/// κ and γ of every (channel, lobe) at one environment row's θ_d, as f32.
+struct RowLobes {
+    kappa: [[f32; 3]; 3],
+    gamma: [[f32; 3]; 3],
+}
+
+impl RowLobes {
+    fn new(m: &Dsbrdf, theta_d: f64) -> Self {
+        let l = m.lobes_at(theta_d);
+        Self {
+            kappa: l.map(|ch| ch.map(|(k, _)| k as f32)),
+            gamma: l.map(|ch| ch.map(|(_, g)| g as f32)),
+        }
+    }
+}
+
+/// Trigonometry of a grid, shared by all kernels on it.
+struct Geometry {
+    grid: ZonalGrid,
+    /// cos φ_j and sin²(φ_j/2) for j = 0..=phi/2.
+    cos_phi: Vec<f32>,
+    half_sin2: Vec<f32>,
+}
+
+impl Geometry {
+    fn new(grid: &ZonalGrid) -> Self {
+        let m = grid.phi / 2 + 1;
+        let phi = |j: usize| 2.0 * PI * j as f64 / grid.phi as f64;
+        Self {
+            grid: *grid,
+            cos_phi: (0..m).map(|j| phi(j).cos() as f32).collect(),
+            half_sin2: (0..m).map(|j| (phi(j) / 2.0).sin().powi(2) as f32).collect(),
+        }
+    }
+
+    /// The three channels' kernel k(θ_a, θ_r, φ_j) for j = 0..phi, or `None` when every
+    /// direction of the environment row is behind the normal.
+    fn dsbrdf_kernel(&self, a: usize, r: usize, lobes: &RowLobes) -> Option<[Vec<f32>; 3]> {
+        let (ta, tw) = (self.grid.normal_theta(a), self.grid.env_theta(r));
+        // The row's directions closest to the normal are at φ = 0, at angle |θ_a − θ_ω|.
+        if (ta - tw).cos() <= 0.0 {
+            return None;
+        }
+        let th = tw / 2.0;
+        let (sa, ca) = ta.sin_cos();
+        let (sw, cw) = tw.sin_cos();
+        let (p, q) = ((sa * sw) as f32, (ca * cw) as f32);
+        // 1 − n·h = 2 sin²((θ_a − θ_h)/2) + 2 sin θ_a sin θ_h sin²(φ/2): no cancellation, so f32
+        // keeps the sharpest lobes' peaks.
+        let base = (2.0 * ((ta - th) / 2.0).sin().powi(2)) as f32;
+        let coef = (2.0 * sa * th.sin()) as f32;
+        let half: Vec<[f32; 3]> = self
+            .cos_phi
+            .iter()
+            .zip(&self.half_sin2)
+            .map(|(&cos_phi, &half_sin2)| {
+                let cos_i = p * cos_phi + q;
+                let w = if cos_i > 0.0 { cos_i } else { 0.0 };
+                let t = base + coef * half_sin2;
+                let front = t < 1.0;
+                let lc = fastmath::ln_1m(t);
+                std::array::from_fn(|c| {
+                    let mut rho = 0.0_f32;
+                    for k in 0..3 {
+                        let pw = fastmath::exp(lobes.gamma[c][k] * lc);
+                        let pw = if front { pw } else { 0.0 };
+                        rho += fastmath::expm1(lobes.kappa[c][k] * pw);
+                    }
+                    w * rho
+                })
+            })
+            .collect();
+        Some(std::array::from_fn(|c| {
+            let channel: Vec<f32> = half.iter().map(|v| v[c]).collect();
+            mirror(&channel, self.grid.phi)
+        }))
+    }
+
+    /// The kernel of any isotropic BRDF through [`Brdf::eval`] in a local frame (f64).
+    fn generic_kernel(&self, a: usize, r: usize, brdf: &BrdfModel) -> Option<[Vec<f32>; 3]> {
+        let (ta, tw) = (self.grid.normal_theta(a), self.grid.env_theta(r));
+        if (ta - tw).cos() <= 0.0 {
+            return None;
+        }
+        let n = DVec3::new(ta.sin(), 0.0, ta.cos());
+        let frame = Frame::from_normal(n);
+        let wo = frame.to_local(DVec3::Z);
+        let half: Vec<[f32; 3]> = (0..self.cos_phi.len())
+            .map(|j| {
+                let phi = 2.0 * PI * j as f64 / self.grid.phi as f64;
+                let w = DVec3::new(tw.sin() * phi.cos(), tw.sin() * phi.sin(), tw.cos());
+                let wi = frame.to_local(w);
+                if wi.z <= 0.0 {
+                    return [0.0; 3];
+                }
+                let f = brdf.eval(wi, wo);
+                std::array::from_fn(|c| (f[c] * wi.z) as f32)
+            })
+            .collect();
+        Some(std::array::from_fn(|c| {
+            let channel: Vec<f32> = half.iter().map(|v| v[c]).collect();
+            mirror(&channel, self.grid.phi)
+        }))
+    }
+}
+
+/// The even sequence of length n whose first n/2 + 1 values are `half`.
+fn mirror(half: &[f32], n: usize) -> Vec<f32> {
+    (0..n).map(|j| half[j.min(n - j)]).collect()
+}
+
+/// Transforms real even sequences two at a time (one as the real, one as the imaginary part:
+/// both spectra are real, so they come back as the real and imaginary parts) and cuts each after
+/// its last significant harmonic.
+fn cut_spectra(
+    fft: &dyn Fft<f32>,
+    n: usize,
+    seqs: Vec<(u32, u32, Vec<f32>)>,
+    tail_fraction: f64,
+) -> (Vec<Entry>, Vec<f32>) {
+    let m = n / 2 + 1;
+    let mut entries = Vec::new();
+    let mut coeffs = Vec::new();
+    let mut buf = vec![Complex32::default(); n];
+    let mut scratch = vec![Complex32::default(); fft.get_inplace_scratch_len()];
+    for pair in seqs.chunks(2) {
+        for (j, b) in buf.iter_mut().enumerate() {
+            *b = Complex32::new(pair[0].2[j], pair.get(1).map_or(0.0, |s| s.2[j]));
+        }
+        fft.process_with_scratch(&mut buf, &mut scratch);
+        for (i, (r, c, _)) in pair.iter().enumerate() {
+            let spec: Vec<f32> = buf[..m].iter().map(|z| if i == 0 { z.re } else { z.im }).collect();
+            let dc = spec[0].max(0.0) as f64;
+            if dc <= 0.0 {
+                continue;
+            }
+            // Keep harmonics 0..len where the tail beyond is ≤ tail_fraction · dc.
+            let mut tail = 0.0_f64;
+            let mut len = m;
+            while len > 1 {
+                let next = tail + spec[len - 1].abs() as f64;
+                if next > tail_fraction * dc {
+                    break;
+                }
+                tail = next;
+                len -= 1;
+            }
+            entries.push(Entry {
+                env_row: *r,
+                channel: *c,
+                start: coeffs.len() as u32,
+                len: len as u32,
+            });
+            coeffs.extend_from_slice(&spec[..len]);
+        }
+    }
+    (entries, coeffs)
+}
+
+/// Catmull–Rom weights of nodes i−1, i, i+1, i+2 at fraction t.
+fn catmull_rom(t: f64) -> [f64; 4] {
+    let (t2, t3) = (t * t, t * t * t);
+    [
+        0.5 * (-t3 + 2.0 * t2 - t),
+        0.5 * (3.0 * t3 - 5.0 * t2 + 2.0),
+        0.5 * (-3.0 * t3 + 4.0 * t2 + t),
+        0.5 * (t3 - t2),
+    ]
+}
+
+type Plan = Arc<dyn Fft<f32>>;
+static FORWARD: Memo<usize, Plan> = Memo::new();
+static INVERSE: Memo<usize, Plan> = Memo::new();
+static SPLATS: Memo<(usize, ZonalGrid), Splat> = Memo::new();
+
+fn forward_plan(n: usize) -> Plan {
+    FORWARD
+        .get(n, || FftPlannerScalar::new().plan_fft_forward(n))
+        .as_ref()
+        .clone()
+}
+
+fn inverse_plan(n: usize) -> Plan {
+    INVERSE
+        .get(n, || FftPlannerScalar::new().plan_fft_inverse(n))
+        .as_ref()
+        .clone()
+}
+
+/// Where each texel of an equirectangular map of a given height lands on a grid's environment
+/// rows: 4×4 Catmull–Rom weights in (θ, φ) about the view axis, the texel's solid angle folded
+/// in. Rows beyond a pole continue on the other side of it, half a turn round.
+struct Splat {
+    /// Per texel (row-major), 16 (grid node, weight) pairs.
+    nodes: Vec<[(u32, f32); 16]>,
+}
+
+impl Splat {
+    fn new(height: usize, grid: ZonalGrid) -> Self {
+        let w = 2 * height;
+        let (rows, n) = (grid.env_rows as i64, grid.phi as i64);
+        let dth = PI / grid.env_rows as f64;
+        let dphi = 2.0 * PI / grid.phi as f64;
+        let mut nodes = Vec::with_capacity(w * height);
+        for j in 0..height {
+            let sa = texel_solid_angle(j, w, height);
+            for i in 0..w {
+                let d = texel_direction(i, j, w, height);
+                let theta = d.z.clamp(-1.0, 1.0).acos();
+                let phi = d.y.atan2(d.x).rem_euclid(2.0 * PI);
+                let u = theta / dth - 0.5;
+                let s = phi / dphi;
+                let (r0, c0) = (u.floor(), s.floor());
+                let (wr, wc) = (catmull_rom(u - r0), catmull_rom(s - c0));
+                let mut out = [(0_u32, 0.0_f32); 16];
+                for (dr, wr) in wr.iter().enumerate() {
+                    let mut row = r0 as i64 - 1 + dr as i64;
+                    let mut shift = 0;
+                    if row < 0 {
+                        row = -row - 1;
+                        shift = n / 2;
+                    } else if row >= rows {
+                        row = 2 * rows - row - 1;
+                        shift = n / 2;
+                    }
+                    for (dc, wc) in wc.iter().enumerate() {
+                        let col = (c0 as i64 - 1 + dc as i64 + shift).rem_euclid(n);
+                        out[dr * 4 + dc] = ((row * n + col) as u32, (wr * wc * sa) as f32);
+                    }
+                }
+                nodes.push(out);
+            }
+        }
+        Self { nodes }
+    }
+}
+
+/// An environment's row spectra on a grid (step 2 of the module docs).
+pub struct ZonalEnv {
+    grid: ZonalGrid,
+    /// Real and imaginary parts, `[(row · 3 + channel) · harmonics + f]`.
+    re: Vec<f32>,
+    im: Vec<f32>,
+}
+
+impl ZonalEnv {
+    /// Spreads `env`'s texels (L·dω at each texel centre, camera space) onto `grid` and
+    /// transforms each row.
+    pub fn new(env: &EnvMap, grid: ZonalGrid) -> Self {
+        let splat = SPLATS.get((env.height(), grid), || Splat::new(env.height(), grid));
+        let (rows, n) = (grid.env_rows, grid.phi);
+        // Per channel, the spread power of every grid node.
+        let mut power = vec![vec![0.0_f32; rows * n]; 3];
+        for (l, nodes) in env.texels().iter().zip(&splat.nodes) {
+            if *l == [0.0; 3] {
+                continue;
+            }
+            for &(node, w) in nodes {
+                for c in 0..3 {
+                    power[c][node as usize] += w * l[c];
+                }
+            }
+        }
+        let m = grid.harmonics();
+        let fft = forward_plan(n);
+        let mut re = vec![0.0_f32; rows * 3 * m];
+        let mut im = vec![0.0_f32; rows * 3 * m];
+        let mut buf = vec![Complex32::default(); n];
+        let mut scratch = vec![Complex32::default(); fft.get_inplace_scratch_len()];
+        // Sequences s = row · 3 + channel, transformed two at a time (x + iy).
+        let count = rows * 3;
+        let seq = |s: usize| &power[s % 3][(s / 3) * n..(s / 3 + 1) * n];
+        let mut s = 0;
+        while s < count {
+            let second = s + 1 < count;
+            let x = seq(s);
+            for (j, b) in buf.iter_mut().enumerate() {
+                *b = Complex32::new(x[j], if second { seq(s + 1)[j] } else { 0.0 });
+            }
+            fft.process_with_scratch(&mut buf, &mut scratch);
+            for f in 0..m {
+                let z = buf[f];
+                let zc = buf[(n - f) % n].conj();
+                // X = (Z + conj Z[−f]) / 2, Y = (Z − conj Z[−f]) / 2i.
+                let x = (z + zc) * 0.5;
+                let y = (z - zc) * Complex32::new(0.0, -0.5);
+                re[s * m + f] = x.re;
+                im[s * m + f] = x.im;
+                if second {
+                    re[(s + 1) * m + f] = y.re;
+                    im[(s + 1) * m + f] = y.im;
+                }
+            }
+            s += 2;
+        }
+        Self { grid, re, im }
+    }
+
+    /// The grid.
+    pub fn grid(&self) -> ZonalGrid {
+        self.grid
+    }
+}
+
+/// Pixel normals in polar coordinates about the view axis, after the [normal
+/// policy](shading_normal): computed once per image and shared by every material shaded on it.
+pub struct PolarNormals {
+    /// θ from the view (NaN: no usable normal, the pixel shades to black).
+    theta: Vec<f32>,
+    /// φ about the view, in [0, 2π).
+    phi: Vec<f32>,
+}
+
+impl PolarNormals {
+    /// Converts the pixels with `mask > 0`.
+    pub fn new(normals: &[[f32; 3]], mask: &[f32]) -> Self {
+        let (theta, phi) = normals
+            .par_iter()
+            .zip(mask.par_iter())
+            .map(|(n, &m)| match (m > 0.0).then(|| shading_normal(*n)).flatten() {
+                Some(d) => (
+                    d.z.clamp(-1.0, 1.0).acos() as f32,
+                    d.y.atan2(d.x).rem_euclid(2.0 * PI) as f32,
+                ),
+                None => (f32::NAN, 0.0),
+            })
+            .unzip();
+        Self { theta, phi }
+    }
+
+    /// Which normal rows of `grid` the pixels with `mask > 0` interpolate from.
+    fn rows_needed(&self, grid: &ZonalGrid, mask: &[f32]) -> Vec<bool> {
+        let mut need = vec![false; grid.rows + 1];
+        for (t, &m) in self.theta.iter().zip(mask) {
+            if m > 0.0 && !t.is_nan() {
+                let i = row_of(*t as f64, grid);
+                // Rows i−1..=i+2; row −1 is row 1 across the pole, rows beyond the last are
+                // extrapolated from the last two.
+                let (lo, hi) = (i.saturating_sub(1), (i + 2).min(grid.rows));
+                need[lo..=hi].fill(true);
+                need[1.min(grid.rows)] |= i == 0;
+                need[grid.rows - 1] |= i + 2 > grid.rows;
+            }
+        }
+        need
+    }
+}
+
+/// The interval index and fraction of angle θ among a grid's normal rows.
+fn row_of(theta: f64, grid: &ZonalGrid) -> usize {
+    let u = (theta / theta_max() * grid.rows as f64).clamp(0.0, grid.rows as f64);
+    (u.floor() as usize).min(grid.rows - 1)
+}
+
+/// Radiance at the normals of the grid, `[row][column]`, for the rows `need` marks (the others
+/// stay 0) (step 3 of the module docs).
+fn normal_table(kernel: &ZonalKernel, env: &ZonalEnv, need: &[bool]) -> Vec<Vec<[f32; 3]>> {
+    let grid = kernel.grid;
+    let (n, m) = (grid.phi, grid.harmonics());
+    let ifft = inverse_plan(n);
+    let scale = 1.0 / n as f32;
+    // Σ_r K̂ Ŵ for one row: per channel, (re, im) of harmonics 0..m.
+    let accumulate = |a: usize| -> [(Vec<f32>, Vec<f32>); 3] {
+        let mut acc: [(Vec<f32>, Vec<f32>); 3] = Default::default();
+        for slot in acc.iter_mut() {
+            *slot = (vec![0.0; m], vec![0.0; m]);
+        }
+        let coeffs = &kernel.coeffs[a];
+        for e in &kernel.entries[a] {
+            let (c, len) = (e.channel as usize, e.len as usize);
+            let k = &coeffs[e.start as usize..e.start as usize + len];
+            let off = (e.env_row as usize * 3 + c) * m;
+            let (wr, wi) = (&env.re[off..off + len], &env.im[off..off + len]);
+            let (ar, ai) = &mut acc[c];
+            for (((ar, ai), kk), (xr, xi)) in ar[..len]
+                .iter_mut()
+                .zip(ai[..len].iter_mut())
+                .zip(k)
+                .zip(wr.iter().zip(wi))
+            {
+                *ar += kk * xr;
+                *ai += kk * xi;
+            }
+        }
+        acc
+    };
+    // Rows in pairs, so the six real results take three inverse transforms (x + iy).
+    let pairs: Vec<[Vec<[f32; 3]>; 2]> = (0..=grid.rows / 2)
+        .into_par_iter()
+        .map_init(
+            || {
+                (
+                    vec![Complex32::default(); n],
+                    vec![Complex32::default(); ifft.get_inplace_scratch_len()],
+                )
+            },
+            |(buf, scratch), p| {
+                let rows = [2 * p, 2 * p + 1];
+                let live = rows.map(|a| a <= grid.rows && need[a]);
+                let mut out = [vec![[0.0_f32; 3]; n], vec![[0.0_f32; 3]; n]];
+                if !live[0] && !live[1] {
+                    return out;
+                }
+                let acc = rows.map(|a| {
+                    if a <= grid.rows && need[a] {
+                        Some(accumulate(a))
+                    } else {
+                        None
+                    }
+                });
+                for (x, y) in [((0, 0), Some((0, 1))), ((0, 2), Some((1, 2))), ((1, 0), Some((1, 1)))] {
+                    let spectrum = |(row, c): (usize, usize)| acc[row].as_ref().map(|a| &a[c]);
+                    let (sx, sy) = (spectrum(x), y.and_then(spectrum));
+                    if sx.is_none() && sy.is_none() {
+                        continue;
+                    }
+                    for f in 0..m {
+                        let real_only = f == 0 || 2 * f == n;
+                        let get = |s: Option<&(Vec<f32>, Vec<f32>)>| {
+                            s.map_or(Complex32::default(), |(re, im)| {
+                                Complex32::new(re[f], if real_only { 0.0 } else { im[f] })
+                            })
+                        };
+                        let (zx, zy) = (get(sx), get(sy));
+                        buf[f] = zx + Complex32::new(-zy.im, zy.re);
+                        if f > 0 && f < n - f {
+                            buf[n - f] = zx.conj() + Complex32::new(zy.im, zy.re);
+                        }
+                    }
+                    ifft.process_with_scratch(buf, scratch);
+                    for (j, z) in buf.iter().enumerate() {
+                        out[x.0][j][x.1] = z.re * scale;
+                        if let Some((row, c)) = y {
+                            out[row][j][c] = z.im * scale;
+                        }
+                    }
+                }
+                out
+            },
+        )
+        .collect();
+    let mut rows: Vec<Vec<[f32; 3]>> = pairs.into_iter().flatten().collect();
+    rows.truncate(grid.rows + 1);
+    rows
+}
+
+/// The normal table with a border, so that every pixel's 4×4 neighbourhood is a plain
+/// rectangle: row −1 (row 1 half a turn round, across the pole), row `rows + 1` (extrapolated
+/// linearly from the last two), and columns −1, `phi`, `phi + 1` (wrapped).
+struct Padded {
+    width: usize,
+    values: Vec<[f32; 3]>,
+}
+
+impl Padded {
+    fn new(rows: &[Vec<[f32; 3]>], grid: &ZonalGrid) -> Self {
+        let n = grid.phi;
+        let width = n + 3;
+        let last = grid.rows;
+        let mut values = Vec::with_capacity((last + 3) * width);
+        for a in -1..=(last as i64 + 1) {
+            for col in -1..=(n as i64 + 1) {
+                let v = if a < 0 {
+                    rows[1.min(last)][(col + n as i64 / 2).rem_euclid(n as i64) as usize]
+                } else if a as usize > last {
+                    let c = col.rem_euclid(n as i64) as usize;
+                    let (x, y) = (rows[last][c], rows[last - 1][c]);
+                    [0, 1, 2].map(|k| 2.0 * x[k] - y[k])
+                } else {
+                    rows[a as usize][col.rem_euclid(n as i64) as usize]
+                };
+                values.push(v);
+            }
+        }
+        Self { width, values }
+    }
+
+    /// Bicubic (Catmull–Rom) value at polar angles (θ, φ), negative values clamped to 0 (the
+    /// interpolant may undershoot next to a sharp peak).
+    fn at(&self, grid: &ZonalGrid, theta: f32, phi: f32) -> [f32; 3] {
+        let u = (theta as f64 / theta_max() * grid.rows as f64).clamp(0.0, grid.rows as f64);
+        let i = (u.floor() as usize).min(grid.rows - 1);
+        let s = (phi as f64 / (2.0 * PI) * grid.phi as f64).clamp(0.0, grid.phi as f64);
+        let j = (s.floor() as usize).min(grid.phi - 1);
+        let (wr, wc) = (catmull_rom(u - i as f64), catmull_rom(s - j as f64));
+        let wc = wc.map(|w| w as f32);
+        // Padded row i − 1 + 1 = i, column j − 1 + 1 = j.
+        let mut acc = [0.0_f32; 3];
+        for (dr, &wr) in wr.iter().enumerate() {
+            let base = (i + dr) * self.width + j;
+            let mut row = [0.0_f32; 3];
+            for (dc, &wc) in wc.iter().enumerate() {
+                let v = self.values[base + dc];
+                for c in 0..3 {
+                    row[c] += wc * v[c];
+                }
+            }
+            for c in 0..3 {
+                acc[c] += wr as f32 * row[c];
+            }
+        }
+        // Not `max`, which would turn NaN (an overflow, absurd input) into a silent 0:
+        // `sanitize` replaces and counts it.
+        acc.map(|v| if v < 0.0 { 0.0 } else { v })
+    }
+}
+
+/// Shades every pixel with `mask > 0` from a material's kernel and an environment on the same
+/// grid. Returns radiance (0 outside the mask) and the number of non-finite values replaced
+/// (see [`sanitize`](super::sanitize)).
+pub fn shade_image_zonal(
+    kernel: &ZonalKernel,
+    env: &ZonalEnv,
+    pixels: &PolarNormals,
+    mask: &[f32],
+) -> (Vec<[f32; 3]>, usize) {
+    assert_eq!(kernel.grid, env.grid, "kernel and environment on different grids");
+    let grid = kernel.grid;
+    let need = pixels.rows_needed(&grid, mask);
+    let table = Padded::new(&normal_table(kernel, env, &need), &grid);
+    let out: Vec<([f32; 3], usize)> = pixels
+        .theta
+        .par_iter()
+        .zip(pixels.phi.par_iter())
+        .zip(mask.par_iter())
+        .map(|((&t, &p), &m)| {
+            if m <= 0.0 || t.is_nan() {
+                return ([0.0; 3], 0);
+            }
+            let mut rgb = table.at(&grid, t, p);
+            let bad = sanitize(&mut rgb);
+            (rgb, bad)
+        })
+        .collect();
+    let bad = out.iter().map(|o| o.1).sum();
+    (out.into_iter().map(|o| o.0).collect(), bad)
+}
+
+/// Shades an image with the zonal method, building the kernel and the environment's spectra on
+/// the spot (callers that shade many images keep a [`ZonalKernel`] per material instead).
+/// `None` for measured BRDFs.
+pub fn shade_image_once(
+    brdf: &BrdfModel,
+    env: &EnvMap,
+    normals: &[[f32; 3]],
+    mask: &[f32],
+) -> Option<(Vec<[f32; 3]>, usize)> {
+    let kernel = ZonalKernel::for_brdf(brdf)?;
+    let spectra = ZonalEnv::new(env, kernel.grid);
+    let pixels = PolarNormals::new(normals, mask);
+    Some(shade_image_zonal(&kernel, &spectra, &pixels, mask))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::brdf::Lambert;
+
+    /// A map with structure at every scale: a sun, a gradient and per-texel noise.
+    fn busy_env(rows: usize) -> EnvMap {
+        let sun = DVec3::new(0.4, 0.6, 0.5).normalize();
+        EnvMap::from_fn(rows, |d| {
+            let noise = ((d.x * 91.0).sin() * (d.y * 37.0 + d.z * 53.0).cos()).abs() as f32;
+            let base = [0.3 + 0.2 * noise, 0.5 + d.y as f32 * 0.3, 0.8];
+            if d.dot(sun) > 0.999 { [2e4, 1.8e4, 1.5e4] } else { base }
+        })
+    }
+
+    #[test]
+    fn row_spectra_equal_a_direct_fourier_sum_of_the_spread_texels() {
+        let grid = ZonalGrid::with_rows(8);
+        let env = busy_env(16);
+        let spectra = ZonalEnv::new(&env, grid);
+        // The spread power, directly (f64).
+        let n = grid.phi;
+        let power = spread_power(&env, grid);
+        let m = grid.harmonics();
+        for (r, row) in power.chunks(n).enumerate() {
+            for c in 0..3 {
+                let channel: Vec<f64> = row.iter().map(|p| p[c]).collect();
+                let scale = channel.iter().map(|v| v.abs()).sum::<f64>().max(1e-30);
+                for f in 0..m {
+                    let (mut re, mut im) = (0.0, 0.0);
+                    for (j, v) in channel.iter().enumerate() {
+                        let a = -2.0 * PI * (f * j) as f64 / n as f64;
+                        re += v * a.cos();
+                        im += v * a.sin();
+                    }
+                    let i = (r * 3 + c) * m + f;
+                    assert!(
+                        (spectra.re[i] as f64 - re).abs() < 1e-5 * scale,
+                        "row {r} ch {c} f {f}: re"
+                    );
+                    assert!(
+                        (spectra.im[i] as f64 - im).abs() < 1e-5 * scale,
+                        "row {r} ch {c} f {f}: im"
+                    );
+                }
+            }
+        }
+    }
+
+    /// The environment's power L·dω spread onto `grid`'s nodes, directly in f64.
+    fn spread_power(env: &EnvMap, grid: ZonalGrid) -> Vec<[f64; 3]> {
+        let splat = Splat::new(env.height(), grid);
+        let mut power = vec![[0.0_f64; 3]; grid.env_rows * grid.phi];
+        for (l, nodes) in env.texels().iter().zip(&splat.nodes) {
+            for &(node, w) in nodes {
+                for (p, &lc) in power[node as usize].iter_mut().zip(l.iter()) {
+                    *p += w as f64 * lc as f64;
+                }
+            }
+        }
+        power
+    }
+
+    #[test]
+    fn spreading_keeps_each_texels_power() {
+        // Catmull–Rom weights sum to 1 in each direction, so a texel's L·dω is kept exactly.
+        let grid = ZonalGrid::with_rows(12);
+        let splat = Splat::new(16, grid);
+        for (t, nodes) in splat.nodes.iter().enumerate() {
+            let sum: f64 = nodes.iter().map(|&(_, w)| w as f64).sum();
+            let sa = texel_solid_angle(t / 32, 32, 16);
+            assert!((sum - sa).abs() < 1e-6 * sa, "texel {t}: {sum} vs {sa}");
+            assert!(nodes.iter().all(|&(i, _)| (i as usize) < grid.env_rows * grid.phi));
+        }
+    }
+
+    #[test]
+    fn the_table_is_the_circular_convolution_of_kernel_and_spread_map() {
+        // Direct Σ_r Σ_j k(a, r, m − j) W(r, j) at every grid normal against the FFT route;
+        // the only difference allowed is the cut spectra (TAIL) and f32 rounding.
+        let grid = ZonalGrid::with_rows(8);
+        let m = Dsbrdf::isotropic_in_theta_d([[(0.2, 0.01), (1.0, 20.0), (0.5, 200.0)]; 3]);
+        let brdf = BrdfModel::Dsbrdf(Box::new(m.clone()));
+        let kernel = ZonalKernel::new(&brdf, grid).unwrap();
+        let env = busy_env(16);
+        let spectra = ZonalEnv::new(&env, grid);
+        let table = normal_table(&kernel, &spectra, &vec![true; grid.rows + 1]);
+        let n = grid.phi;
+        let power = spread_power(&env, grid);
+        let geometry = Geometry::new(&grid);
+        for (a, row) in table.iter().enumerate().take(grid.rows + 1) {
+            let mut direct = vec![[0.0_f64; 3]; n];
+            for r in 0..grid.env_rows {
+                let Some(k) = geometry.dsbrdf_kernel(a, r, &RowLobes::new(&m, grid.env_theta(r) / 2.0)) else {
+                    continue;
+                };
+                for (mm, d) in direct.iter_mut().enumerate() {
+                    for j in 0..n {
+                        for c in 0..3 {
+                            d[c] += k[c][(mm + n - j) % n] as f64 * power[r * n + j][c];
+                        }
+                    }
+                }
+            }
+            let scale = direct.iter().flatten().fold(0.0_f64, |a, b| a.max(b.abs()));
+            for (mm, d) in direct.iter().enumerate() {
+                for c in 0..3 {
+                    let got = row[mm][c] as f64;
+                    assert!(
+                        (got - d[c]).abs() <= 2e-3 * scale,
+                        "row {a} col {mm} ch {c}: {got} vs {}",
+                        d[c]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn grids_follow_the_sharpest_energetic_lobe() {
+        let matte = BrdfModel::Lambert(Lambert { albedo: [0.5; 3] });
+        assert_eq!(ZonalGrid::for_brdf(&matte).unwrap().rows, MIN_ROWS);
+        let glossy = BrdfModel::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
+            [[(0.1, 0.01), (0.5, 400.0), (1e-5, 1e4)]; 3],
+        )));
+        // γ' = 400·0.5/(1 − e^−0.5) ≈ 508: width 0.044, rows = θ_max/(0.5 · 0.044) ≈ 71 → 72.
+        let g = ZonalGrid::for_brdf(&glossy).unwrap();
+        assert_eq!((g.rows, g.env_rows, g.phi), (72, 72, 288));
+        // A lobe with no energy (κ = 1e-5) does not refine the grid; a mirror hits the cap.
+        let mirror = BrdfModel::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d([[(5.0, 1e4); 3]; 3])));
+        assert_eq!(ZonalGrid::for_brdf(&mirror).unwrap().rows, MAX_ROWS);
+    }
+}
