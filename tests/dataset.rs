@@ -302,20 +302,27 @@ fn manifests_that_try_to_leak_or_ask_too_much_are_refused_with_field_and_line() 
 #[test]
 fn datasets_are_byte_identical_across_thread_counts() {
     let d = scratch("threads");
-    let m = write(&d, "m.toml", &manifest(TEST_SPLIT, "quality = \"lut\""));
-    let mut outs = Vec::new();
-    for threads in [1, 2] {
-        let out = d.join(format!("out{threads}"));
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-        pool.install(|| run_to(&m, &out));
-        outs.push(out);
-    }
-    for f in ["index.jsonl", "dataset.json"] {
-        assert_eq!(
-            std::fs::read(outs[0].join(f)).unwrap(),
-            std::fs::read(outs[1].join(f)).unwrap(),
-            "{f}"
+    for quality in ["zonal", "lut"] {
+        let m = write(
+            &d,
+            &format!("{quality}.toml"),
+            &manifest(TEST_SPLIT, &format!("quality = \"{quality}\"")),
         );
+        let mut outs = Vec::new();
+        for threads in [1, 2] {
+            let out = d.join(format!("{quality}-{threads}"));
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| run_to(&m, &out));
+            outs.push(out);
+        }
+        // The index holds every file's checksum, so equal indexes mean equal files.
+        for f in ["index.jsonl", "dataset.json"] {
+            assert_eq!(
+                std::fs::read(outs[0].join(f)).unwrap(),
+                std::fs::read(outs[1].join(f)).unwrap(),
+                "{quality}: {f}"
+            );
+        }
     }
 }
 

@@ -94,11 +94,14 @@ enum Command {
         #[arg(long, default_value = "exact")]
         reference: Quality,
         /// Options to time, comma-separated.
-        #[arg(long, default_value = "lut,fast", value_delimiter = ',')]
+        #[arg(long, default_value = "zonal,lut,fast", value_delimiter = ',')]
         options: Vec<Quality>,
         /// Override the image side.
         #[arg(long)]
         res: Option<usize>,
+        /// Also print every sample's error per option.
+        #[arg(long)]
+        per_sample: bool,
     },
 }
 
@@ -487,6 +490,7 @@ mod dataset {
         reference: Quality,
         options: &[Quality],
         res: Option<usize>,
+        per_sample: bool,
     ) -> Result<()> {
         let mut l = r::load(manifest)?;
         if let Some(res) = res {
@@ -510,17 +514,35 @@ mod dataset {
             l.plan.settings.resolution,
             rayon::current_num_threads()
         );
-        println!("| quality | samples/s | median rel. RMSE | max rel. RMSE | bytes/sample |");
-        println!("|---|---|---|---|---|");
-        for row in rows {
+        println!(
+            "| quality | samples/s | median rel. RMSE | max rel. RMSE | bytes/sample | set-up once per material |"
+        );
+        println!("|---|---|---|---|---|---|");
+        for row in &rows {
+            let setup = if row.setup_materials > 0 {
+                format!("{:.2} s for {} materials", row.setup_s, row.setup_materials)
+            } else {
+                "none".to_string()
+            };
             println!(
-                "| {:?} | {:.2} | {:.3} % | {:.3} % | {:.0} |",
+                "| {:?} | {:.2} | {:.3} % | {:.3} % | {:.0} | {setup} |",
                 row.quality,
                 row.samples_per_s,
                 100.0 * row.median_rel_rmse,
                 100.0 * row.max_rel_rmse,
                 row.bytes_per_sample
             );
+        }
+        if per_sample {
+            println!();
+            println!("| quality | split | sample | rel. RMSE |");
+            println!("|---|---|---|---|");
+            for row in &rows {
+                for ((s, i), e) in picks.iter().zip(&row.per_sample_rel_rmse) {
+                    let split = &l.plan.splits[*s].name;
+                    println!("| {:?} | {split} | {i} | {:.3} % |", row.quality, 100.0 * e);
+                }
+            }
         }
         Ok(())
     }
@@ -548,7 +570,8 @@ fn main() -> ExitCode {
             reference,
             options,
             res,
-        } => dataset::bench(&manifest, samples, reference, &options, res),
+            per_sample,
+        } => dataset::bench(&manifest, samples, reference, &options, res, per_sample),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

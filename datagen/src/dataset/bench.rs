@@ -1,7 +1,8 @@
 //! `datagen bench MANIFEST`: speed against error of the shading options on a manifest's own
 //! samples. Each option renders the same samples (everything but writing files: G-buffer,
 //! environment, shading of I and O, EXR encoding); errors are relative RMSE of I and O against
-//! the reference option over the object's pixels.
+//! the reference option over the object's pixels. Work done once per material and run (the
+//! `zonal` kernels) is timed apart from the samples, as `datagen run` amortises it.
 
 use super::materials::MaterialEntry;
 use super::plan::Plan;
@@ -16,18 +17,34 @@ use std::time::Instant;
 pub struct BenchRow {
     /// The shading option.
     pub quality: Quality,
-    /// Samples per second (all threads).
+    /// Samples per second (all threads), per-material set-up excluded.
     pub samples_per_s: f64,
+    /// Seconds of per-material set-up before the first sample (all threads; `zonal` kernels).
+    pub setup_s: f64,
+    /// Materials that set-up prepared.
+    pub setup_materials: usize,
     /// Median over samples of the relative RMSE of I and O against the reference.
     pub median_rel_rmse: f64,
     /// Largest such error.
     pub max_rel_rmse: f64,
     /// Mean encoded bytes per sample (both files).
     pub bytes_per_sample: f64,
+    /// Each sample's relative RMSE, in the order of the picks.
+    pub per_sample_rel_rmse: Vec<f64>,
 }
 
 /// I and O of one sample, channel-major.
 type Images = (Vec<f32>, Vec<f32>);
+
+/// Every pick rendered with one option.
+struct Rendered {
+    images: Vec<Images>,
+    /// Seconds for all samples, set-up excluded.
+    secs: f64,
+    bytes_per_sample: f64,
+    setup_s: f64,
+    setup_materials: usize,
+}
 
 /// Picks `n` samples spread over the plan, as (split, index).
 pub fn spread(plan: &Plan, n: usize) -> Vec<(usize, usize)> {
@@ -49,10 +66,20 @@ pub fn bench(
     reference: Quality,
     options: &[Quality],
 ) -> Result<Vec<BenchRow>> {
-    let render_all = |q: Quality| -> Result<(Vec<Images>, f64, f64)> {
+    // Every material of the splits the picks come from.
+    let mut used: Vec<usize> = picks
+        .iter()
+        .flat_map(|&(s, _)| plan.splits[s].materials.iter().copied())
+        .collect();
+    used.sort_unstable();
+    used.dedup();
+    let render_all = |q: Quality| -> Result<Rendered> {
         let mut p = plan.clone();
         p.settings.quality = q;
         let r = Renderer::new(&p, materials);
+        let t = Instant::now();
+        let setup_materials = r.prepare_zonal(&used, &|| {})?;
+        let setup_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let out: Vec<(Images, usize)> = picks
             .par_iter()
@@ -76,14 +103,21 @@ pub fn bench(
             })
             .collect::<Result<_>>()?;
         let secs = t.elapsed().as_secs_f64();
-        let bytes = out.iter().map(|o| o.1 as f64).sum::<f64>() / out.len().max(1) as f64;
-        Ok((out.into_iter().map(|o| o.0).collect(), secs, bytes))
+        let bytes_per_sample = out.iter().map(|o| o.1 as f64).sum::<f64>() / out.len().max(1) as f64;
+        Ok(Rendered {
+            images: out.into_iter().map(|o| o.0).collect(),
+            secs,
+            bytes_per_sample,
+            setup_s,
+            setup_materials,
+        })
     };
-    let (reference_imgs, _, _) = render_all(reference)?;
+    let reference_imgs = render_all(reference)?.images;
     let mut rows = Vec::new();
     for &q in options {
-        let (imgs, secs, bytes) = render_all(q)?;
-        let mut errs: Vec<f64> = imgs
+        let run = render_all(q)?;
+        let per_sample: Vec<f64> = run
+            .images
             .iter()
             .zip(&reference_imgs)
             .map(|((i, o), (ri, ro))| {
@@ -95,18 +129,17 @@ pub fn bench(
                 if s > 0.0 { (e / s).sqrt() } else { 0.0 }
             })
             .collect();
-        if std::env::var_os("MATEDIT_BENCH_PER_SAMPLE").is_some() {
-            for ((s, i), e) in picks.iter().zip(&errs) {
-                eprintln!("{q:?} split {s} sample {i}: rel RMSE {:.3} %", 100.0 * e);
-            }
-        }
+        let mut errs = per_sample.clone();
         errs.sort_by(|a, b| a.total_cmp(b));
         rows.push(BenchRow {
             quality: q,
-            samples_per_s: picks.len() as f64 / secs,
+            samples_per_s: picks.len() as f64 / run.secs,
+            setup_s: run.setup_s,
+            setup_materials: run.setup_materials,
             median_rel_rmse: errs[errs.len() / 2],
             max_rel_rmse: *errs.last().unwrap_or(&0.0),
-            bytes_per_sample: bytes,
+            bytes_per_sample: run.bytes_per_sample,
+            per_sample_rel_rmse: per_sample,
         });
     }
     Ok(rows)

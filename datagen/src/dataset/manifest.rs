@@ -130,7 +130,7 @@ fn default_env_resolution() -> Spanned<String> {
     Spanned::new(0..0, "64x128".into())
 }
 fn default_quality() -> Spanned<String> {
-    Spanned::new(0..0, "lut".into())
+    Spanned::new(0..0, "zonal".into())
 }
 fn default_shadows() -> Spanned<String> {
     Spanned::new(0..0, "off".into())

@@ -93,6 +93,7 @@ fn ser_quality<S: serde::Serializer>(q: &Quality, s: S) -> Result<S::Ok, S::Erro
         Quality::Exact => "exact",
         Quality::Fast => "fast",
         Quality::Lut => "lut",
+        Quality::Zonal => "zonal",
     })
 }
 
@@ -227,10 +228,11 @@ fn settings(mf: &ManifestFile) -> Result<Settings, ManifestError> {
             ));
         }
     };
-    let quality = match choice(mf, &r.quality, "render.quality", &["exact", "fast", "lut"])? {
+    let quality = match choice(mf, &r.quality, "render.quality", &["exact", "fast", "lut", "zonal"])? {
         "exact" => Quality::Exact,
         "fast" => Quality::Fast,
-        _ => Quality::Lut,
+        "lut" => Quality::Lut,
+        _ => Quality::Zonal,
     };
     let shadows = match choice(mf, &r.shadows, "render.shadows", &["off", "on", "auto"])? {
         "off" => ShadowPolicy::Off,

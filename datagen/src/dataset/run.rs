@@ -8,6 +8,7 @@ use super::sample::Renderer;
 use super::store::{PlanRecord, join, read_plan, shard_done, shards_dir, write_plan, write_shard};
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
+use matedit_physics::shading::Quality;
 use std::fs::{File, TryLockError};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -75,9 +76,26 @@ pub const BYTES_PER_PIXEL_ESTIMATE: f64 = 5.3;
 pub const ENV_BYTES_PER_TEXEL_ESTIMATE: f64 = 3.0;
 /// See [`ENV_BYTES_PER_TEXEL_ESTIMATE`].
 pub const RECORD_BYTES_ESTIMATE: f64 = 1_500.0;
-/// Samples per second on the reference machine (2 cores) at 256² with the `lut` quality, DSBRDF
-/// ground truth and no shadows, from the same measurement; scaled by pixel count for estimates.
-pub const SAMPLES_PER_SECOND_256: f64 = 1.66;
+/// Estimated seconds per sample on the reference machine (2 cores, both busy), DSBRDF ground
+/// truth, no shadows: a fixed part plus a part per image pixel, from the measurements in
+/// `docs/PERFORMANCE.md` (`zonal`: `datagen run` of `manifests/bench-256.toml` and of the 64²
+/// quickstart; the others: `datagen bench` at 256², all of whose cost grows with the pixels).
+/// Estimates only: shapes, materials and maps change it.
+pub fn seconds_per_sample(quality: Quality, pixels: f64) -> f64 {
+    let at_256 = 65536.0;
+    match quality {
+        // 18.5 ms at 256², ZONAL_FIXED_S at 64².
+        Quality::Zonal => ZONAL_FIXED_S + (1.0 / 54.0 - ZONAL_FIXED_S) * pixels / at_256,
+        Quality::Lut => pixels / at_256 / 1.66,
+        Quality::Fast => pixels / at_256 / 0.30,
+        Quality::Exact => pixels / at_256 / 0.021,
+    }
+}
+
+/// The part of a `zonal` sample's time that does not grow with the image (environment spectra,
+/// per-material tables, environment file): the 64² quickstart's rate, see
+/// [`seconds_per_sample`].
+const ZONAL_FIXED_S: f64 = 1.0 / 400.0;
 
 /// Prints what a manifest would produce.
 pub fn describe(l: &Loaded) -> String {
@@ -127,7 +145,7 @@ pub fn describe(l: &Loaded) -> String {
     let texels = (2 * st.env_rows * st.env_rows) as f64;
     let bytes =
         n as f64 * (pixels * BYTES_PER_PIXEL_ESTIMATE + texels * ENV_BYTES_PER_TEXEL_ESTIMATE + RECORD_BYTES_ESTIMATE);
-    let secs = n as f64 / (SAMPLES_PER_SECOND_256 * 65536.0 / pixels);
+    let secs = n as f64 * seconds_per_sample(st.quality, pixels);
     let _ = writeln!(
         s,
         "total: {n} samples in {} shards of up to {}; {}×{} images, {}×{} environment, quality {:?}, shadows {:?}, ground truth {:?}",
@@ -143,7 +161,7 @@ pub fn describe(l: &Loaded) -> String {
     );
     let _ = writeln!(
         s,
-        "estimate: {} on disk, {} on 2 cores at the reference rate without shadows (docs/PERFORMANCE.md); scale by cores",
+        "estimate: {} on disk, {} on 2 cores at the measured rate of this quality without shadows (docs/PERFORMANCE.md); scale by cores; shadows cost far more",
         human_bytes(bytes),
         human_duration(secs)
     );
@@ -306,6 +324,21 @@ pub fn run(l: &Loaded, opts: &RunOptions) -> Result<RunSummary> {
     let samples: usize = todo.iter().map(|s| s.len).sum();
     let sbar = bar(opts.progress, samples as u64, "samples");
     let renderer = Renderer::new(plan, &materials);
+    // Per-material set-up of the `zonal` quality, for every material the remaining shards' splits
+    // deal (built in parallel now rather than one at a time on first use).
+    let mut used: Vec<usize> = todo
+        .iter()
+        .flat_map(|s| plan.splits[s.split].materials.iter().copied())
+        .collect();
+    used.sort_unstable();
+    used.dedup();
+    let kbar = bar(
+        opts.progress && plan.settings.quality == Quality::Zonal,
+        used.len() as u64,
+        "kernels",
+    );
+    renderer.prepare_zonal(&used, &|| kbar.inc(1))?;
+    kbar.finish_and_clear();
     let t0 = Instant::now();
     for shard in &todo {
         write_shard(&dir, plan, &renderer, shard, &|| sbar.inc(1))

@@ -21,12 +21,14 @@ use crate::io::{encode_env_exr, encode_exr_channels, load_env};
 use crate::render::Shadows;
 use crate::shapes::{Mesh, Shape};
 use anyhow::{Context, Result};
-use glam::{DMat3, Mat3};
+use glam::Mat3;
 use matedit_physics::EnvMap;
-use matedit_physics::shading::{VisibilityFn, shade_with};
+use matedit_physics::shading::zonal::{PolarNormals, ZonalEnv, ZonalKernel, shade_image_zonal};
+use matedit_physics::shading::{Quality, VisibilityFn, shade_with};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashMap};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 
 /// One line of `index.jsonl` (and of a shard's `shard.json`).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -145,6 +147,8 @@ pub struct Renderer<'a> {
     materials: &'a [Option<MaterialEntry>],
     shapes: Cache<LoadedShape>,
     envs: Cache<EnvMap>,
+    /// Per catalogue material, its zonal kernel (`zonal` quality), built once.
+    zonal: Vec<OnceLock<Option<ZonalKernel>>>,
 }
 
 /// Shapes kept loaded at once; samples are ordered by shape, so a small cache suffices.
@@ -169,7 +173,44 @@ impl<'a> Renderer<'a> {
             shapes: Cache::new(SHAPE_CACHE),
             // Environments are small (a few hundred KB at 2 × 64 rows): keep them all.
             envs: Cache::new(usize::MAX),
+            zonal: (0..materials.len()).map(|_| OnceLock::new()).collect(),
         }
+    }
+
+    /// Builds the zonal kernels of `materials` (catalogue indices) in parallel, one material per
+    /// thread, ahead of rendering (otherwise each is built on first use, on one thread while the
+    /// others wait for it). A no-op unless the quality is `zonal`. `on_done` is called after each
+    /// kernel. Returns how many were built.
+    pub fn prepare_zonal(&self, materials: &[usize], on_done: &(dyn Fn() + Sync)) -> Result<usize> {
+        if self.plan.settings.quality != Quality::Zonal {
+            return Ok(0);
+        }
+        let todo: Vec<usize> = materials
+            .iter()
+            .copied()
+            .filter(|&k| self.zonal.get(k).is_some_and(|c| c.get().is_none()))
+            .collect();
+        let built: Vec<(usize, Option<ZonalKernel>)> = todo
+            .par_iter()
+            .map(|&k| {
+                let kernel = ZonalKernel::for_brdf(&self.material(k)?.render);
+                on_done();
+                Ok((k, kernel))
+            })
+            .collect::<Result<_>>()?;
+        let n = built.len();
+        for (k, kernel) in built {
+            // Another thread may have built it lazily meanwhile: the same value.
+            let _ = self.zonal[k].set(kernel);
+        }
+        Ok(n)
+    }
+
+    /// The zonal kernel of material `k`, built on first use.
+    fn zonal_kernel(&self, k: usize) -> Result<Option<&ZonalKernel>> {
+        let render = &self.material(k)?.render;
+        let cell = self.zonal.get(k).context("material index out of range")?;
+        Ok(cell.get_or_init(|| ZonalKernel::for_brdf(render)).as_ref())
     }
 
     fn shape(&self, k: usize) -> Result<Arc<LoadedShape>> {
@@ -264,9 +305,7 @@ impl<'a> Renderer<'a> {
         };
 
         // L_cam(d) = L_src(R_y(azimuth − rotation) · R_x(−elevation) · d).
-        let m = DMat3::from_rotation_y((azimuth - rotation).to_radians())
-            * DMat3::from_rotation_x((-elevation).to_radians());
-        let env = self.env(combo.env)?.rotated(st.env_rows, m);
+        let env = self.env(combo.env)?.tilted(st.env_rows, azimuth - rotation, -elevation);
 
         let shadows = st.shadows.for_shape(loaded.convex) == Shadows::On && loaded.scene.is_some();
         let to_object = rot.transpose();
@@ -277,6 +316,11 @@ impl<'a> Renderer<'a> {
         };
         let vis: Option<&VisibilityFn<'_>> = if shadows { Some(&visibility) } else { None };
 
+        // The zonal quality shares the pixels' polar normals between I and O and every region,
+        // and the environment's spectra between materials on the same grid.
+        let zonal = st.quality == Quality::Zonal && vis.is_none();
+        let polar = zonal.then(|| PolarNormals::new(&g.normal, &g.mask));
+        let mut spectra: Vec<ZonalEnv> = Vec::new();
         let mut image_i = vec![[0.0_f32; 3]; res * res];
         let mut image_o = vec![[0.0_f32; 3]; res * res];
         for (r, (&mi, &mt)) in materials.iter().zip(&targets).enumerate() {
@@ -290,7 +334,20 @@ impl<'a> Renderer<'a> {
                 continue;
             }
             for (mat, out) in [(mi, &mut image_i), (mt, &mut image_o)] {
-                let (rgb, _) = shade_with(&self.material(mat)?.render, &env, st.quality, &g.normal, &mask_r, vis);
+                let kernel = if zonal { self.zonal_kernel(mat)? } else { None };
+                let (rgb, _) = match (&polar, kernel) {
+                    (Some(polar), Some(kernel)) => {
+                        let at = match spectra.iter().position(|e| e.grid() == kernel.grid()) {
+                            Some(i) => i,
+                            None => {
+                                spectra.push(ZonalEnv::new(&env, kernel.grid()));
+                                spectra.len() - 1
+                            }
+                        };
+                        shade_image_zonal(kernel, &spectra[at], polar, &mask_r)
+                    }
+                    _ => shade_with(&self.material(mat)?.render, &env, st.quality, &g.normal, &mask_r, vis),
+                };
                 for ((o, v), &m) in out.iter_mut().zip(rgb).zip(&mask_r) {
                     if m > 0.0 {
                         *o = v;

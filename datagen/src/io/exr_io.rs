@@ -41,7 +41,13 @@ pub fn encode_exr_channels(width: usize, height: usize, channels: Vec<(&str, Vec
     );
     let image = Image::from_layer(layer);
     let mut buf = std::io::Cursor::new(Vec::new());
-    image.write().to_buffered(&mut buf).context("EXR encoding failed")?;
+    // Callers encode many files in parallel already; the crate's parallel writer would spawn a
+    // thread pool per file.
+    image
+        .write()
+        .non_parallel()
+        .to_buffered(&mut buf)
+        .context("EXR encoding failed")?;
     Ok(buf.into_inner())
 }
 
