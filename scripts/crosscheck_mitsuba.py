@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Cross-check `datagen render` against Mitsuba 3, an independent physically based renderer.
 
-For each case, datagen renders the scene and writes the environment exactly as it used it
+For each case, datagen renders the scene (with the `fast` quality, and without shadows also with
+`zonal`, the dataset factory's default) and writes the environment exactly as it used it
 (rotated, resampled: `--env-out`). Mitsuba renders the same scene from that file with its own
 path tracer (direct lighting only: max_depth = 2, so shadows but no inter-reflections), its own
 sphere or OBJ loader, its own GGX (`roughconductor`, separable Smith, F = 1) or Lambert
@@ -111,15 +112,20 @@ def rel_rmse(a, b, px):
 
 
 def run_case(args, case, outdir):
+    """One scene: Mitsuba once, datagen once per quality (`fast`, and `zonal` where there are no
+    shadows). Returns one result per quality."""
     shape, spec, env, env_res, shadows, res, spp = case
     tag = f"{os.path.basename(shape)}_{spec.replace(':', '-').replace(',', '_')}_{os.path.basename(env)}_{env_res}"
-    ours, env_used = os.path.join(outdir, tag + ".exr"), os.path.join(outdir, tag + "_env.exr")
-    t0 = time.time()
+    qualities = ["fast", "zonal"] if shadows == "off" else ["fast"]
     ss = args.supersample
-    subprocess.run([args.datagen, "render", "--shape", shape, "--brdf", spec, "--env", env, "--env-res", env_res,
-                    "--res", str(res * ss), "--shadows", shadows, "--out", ours, "--env-out", env_used],
-                   check=True, capture_output=True)
-    t_ours = time.time() - t0
+    renders = {}
+    for q in qualities:
+        ours, env_used = os.path.join(outdir, f"{tag}_{q}.exr"), os.path.join(outdir, tag + "_env.exr")
+        t0 = time.time()
+        subprocess.run([args.datagen, "render", "--shape", shape, "--brdf", spec, "--env", env, "--env-res", env_res,
+                        "--res", str(res * ss), "--shadows", shadows, "--quality", q, "--out", ours,
+                        "--env-out", env_used], check=True, capture_output=True)
+        renders[q] = (ours, time.time() - t0)
     e = exr_channels(env_used)
     rgb = np.stack([e["R"], e["G"], e["B"]], -1).astype(np.float32)
     k = 16 if rgb.shape[0] <= 64 else 2
@@ -130,18 +136,22 @@ def run_case(args, case, outdir):
     b = render_mitsuba(shape, spec, env_mi, res, spp // 2, 2)
     t_mi = time.time() - t0
     mit = (a + b) / 2
-    o = exr_channels(ours)
-    box = lambda x: x.reshape(res, ss, res, ss, *x.shape[2:]).mean(axis=(1, 3))
-    img = box(np.stack([o["R"], o["G"], o["B"]], -1))
-    px = interior(box(o["mask"]) > 0.999)
-    err = rel_rmse(img, mit, px)
-    noise = rel_rmse(a, b, px) / 2  # std of the mean of two halves, relative
-    tol = 0.02 if env_res != "full" else 0.01
-    bias = float(np.sqrt(max(0.0, err * err - noise * noise)))
-    return {"shape": shape, "brdf": spec, "env": os.path.basename(env), "env_res": env_res, "shadows": shadows,
-            "res": res, "pixels": int(px.sum()), "rel_rmse": err, "mitsuba_noise": noise, "bias": bias,
-            "tolerance": tol, "pass": bias <= tol and noise <= tol / 2, "datagen_s": t_ours, "mitsuba_s": t_mi,
-            "spp": spp}
+    results = []
+    for q, (ours, t_ours) in renders.items():
+        o = exr_channels(ours)
+        box = lambda x: x.reshape(res, ss, res, ss, *x.shape[2:]).mean(axis=(1, 3))
+        img = box(np.stack([o["R"], o["G"], o["B"]], -1))
+        px = interior(box(o["mask"]) > 0.999)
+        err = rel_rmse(img, mit, px)
+        noise = rel_rmse(a, b, px) / 2  # std of the mean of two halves, relative
+        tol = 0.02 if env_res != "full" else 0.01
+        bias = float(np.sqrt(max(0.0, err * err - noise * noise)))
+        results.append({"shape": shape, "brdf": spec, "env": os.path.basename(env), "env_res": env_res,
+                        "shadows": shadows, "quality": q, "res": res, "pixels": int(px.sum()), "rel_rmse": err,
+                        "mitsuba_noise": noise, "bias": bias, "tolerance": tol,
+                        "pass": bias <= tol and noise <= tol / 2, "datagen_s": t_ours, "mitsuba_s": t_mi,
+                        "spp": spp})
+    return results
 
 
 def main():
@@ -182,15 +192,15 @@ def main():
             cases.append((mesh, "ggx:0.3:1,1,1", envs[0], "full", "on", 24, 8 * args.spp))
     cases = [c for c in cases if args.only in c[0]]
     results = []
-    print("| shape | BRDF | environment | env res | shadows | px | spp | rel. RMSE | Mitsuba noise | bias estimate | tolerance | datagen s | Mitsuba s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| shape | BRDF | environment | env res | shadows | quality | px | spp | rel. RMSE | Mitsuba noise | bias estimate | tolerance | datagen s | Mitsuba s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for case in cases:
-        r = run_case(args, case, args.out)
-        results.append(r)
-        print(f"| {os.path.basename(r['shape'])} | {r['brdf']} | {r['env']} | {r['env_res']} | {r['shadows']} | "
-              f"{r['res']}² | {r['spp']} | {100 * r['rel_rmse']:.2f}% | {100 * r['mitsuba_noise']:.2f}% | "
-              f"{100 * r['bias']:.2f}% | {100 * r['tolerance']:.0f}% | "
-              f"{r['datagen_s']:.1f} | {r['mitsuba_s']:.1f} |{'' if r['pass'] else ' FAIL'}", flush=True)
+        for r in run_case(args, case, args.out):
+            results.append(r)
+            print(f"| {os.path.basename(r['shape'])} | {r['brdf']} | {r['env']} | {r['env_res']} | {r['shadows']} | "
+                  f"{r['quality']} | {r['res']}² | {r['spp']} | {100 * r['rel_rmse']:.2f}% | "
+                  f"{100 * r['mitsuba_noise']:.2f}% | {100 * r['bias']:.2f}% | {100 * r['tolerance']:.0f}% | "
+                  f"{r['datagen_s']:.1f} | {r['mitsuba_s']:.1f} |{'' if r['pass'] else ' FAIL'}", flush=True)
     with open(os.path.join(args.out, "crosscheck.json"), "w") as f:
         json.dump(results, f, indent=1)
     bad = [r for r in results if not r["pass"]]
