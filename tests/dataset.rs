@@ -326,6 +326,42 @@ fn datasets_are_byte_identical_across_thread_counts() {
     }
 }
 
+#[test]
+fn bench_puts_the_reference_first_and_measures_every_option_against_it() {
+    use matedit_datagen::dataset::{bench, materials};
+    use matedit_physics::shading::Quality;
+    let d = scratch("bench");
+    let m = write(&d, "m.toml", &manifest(TEST_SPLIT, ""));
+    let l = load(&m).unwrap();
+    let mats = materials::prepare_all(
+        &d.join("materials"),
+        &l.plan.catalogue.materials,
+        &materials::needed(&l.plan),
+        l.plan.settings.ground_truth,
+        &|| {},
+    )
+    .unwrap();
+    let picks = bench::spread(&l.plan, 3);
+    assert_eq!(picks.len(), 3);
+    // The reference listed among the options is not rendered twice.
+    let rows = bench::bench(&l.plan, &mats, &picks, Quality::Fast, &[Quality::Zonal, Quality::Fast]).unwrap();
+    assert_eq!(
+        rows.iter().map(|r| r.quality).collect::<Vec<_>>(),
+        [Quality::Fast, Quality::Zonal]
+    );
+    assert_eq!(rows[0].max_rel_rmse, 0.0);
+    assert_eq!(rows[0].setup_materials, 0);
+    let zonal = &rows[1];
+    assert_eq!(zonal.per_sample_rel_rmse.len(), picks.len());
+    assert!(zonal.setup_materials > 0, "zonal kernels are set up per material");
+    // Zonal differs from fast only by its grid: small but not nothing.
+    assert!(zonal.max_rel_rmse > 0.0 && zonal.max_rel_rmse < 0.01, "{zonal:?}");
+    for r in &rows {
+        assert!(r.samples_per_s.is_finite() && r.samples_per_s > 0.0, "{r:?}");
+        assert!(r.bytes_per_sample > 1000.0, "{r:?}");
+    }
+}
+
 fn datagen() -> PathBuf {
     let exe = std::env::current_exe().unwrap();
     let bin = exe.parent().unwrap().parent().unwrap().join("datagen");

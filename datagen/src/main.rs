@@ -294,7 +294,9 @@ struct RenderArgs {
     /// Shadow rays towards every texel (meshes only; the sphere is convex).
     #[arg(long, default_value = "off")]
     shadows: Shadows,
-    /// Eq. 2 implementation: fast (f32, vectorised) or exact (f64 reference, slow).
+    /// Eq. 2 implementation: fast (f32, vectorised), exact (f64 reference, slow), or without
+    /// shadows zonal (convolution about the view axis) or lut (lobe-adaptive); see
+    /// docs/PERFORMANCE.md for their speed and error.
     #[arg(long, default_value = "fast")]
     quality: Quality,
     /// Output EXR: R, G, B radiance, normal.X/Y/Z (camera space), mask and region id.
@@ -524,10 +526,16 @@ mod dataset {
             } else {
                 "none".to_string()
             };
+            // Three significant figures: the exact path runs at hundredths of a sample a second.
+            let rate = row.samples_per_s;
+            let decimals = if rate > 0.0 {
+                (2.0 - rate.log10().floor()).clamp(0.0, 6.0) as usize
+            } else {
+                2
+            };
             println!(
-                "| {:?} | {:.2} | {:.3} % | {:.3} % | {:.0} | {setup} |",
+                "| {:?} | {rate:.decimals$} | {:.3} % | {:.3} % | {:.0} | {setup} |",
                 row.quality,
-                row.samples_per_s,
                 100.0 * row.median_rel_rmse,
                 100.0 * row.max_rel_rmse,
                 row.bytes_per_sample

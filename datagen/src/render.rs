@@ -6,7 +6,7 @@ use crate::io::{EnvSource, load_env, write_env_exr, write_exr_channels, write_pn
 use crate::shapes::{Shape, UpAxis};
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use matedit_physics::shading::{Quality, VisibilityFn, make_shader, shade_image};
+use matedit_physics::shading::{Quality, VisibilityFn, make_shader, shade_image, shade_with};
 use matedit_physics::{BrdfSpec, EnvMap};
 use std::path::Path;
 use std::time::Instant;
@@ -176,6 +176,20 @@ pub fn render(opts: &RenderOptions) -> Result<Rendered> {
         }
     };
 
+    // The table-based qualities shade the whole image at once (without shadows only: with
+    // them, every quality goes through the per-pixel shader below).
+    if !trace && matches!(opts.quality, Quality::Zonal | Quality::Lut) {
+        let (rgb, bad) = shade_with(&brdf, &env, opts.quality, &g.normal, &g.mask, None);
+        stats.sanitized_pixels = bad;
+        stats.shading_s = t2.elapsed().as_secs_f64();
+        return Ok(Rendered {
+            gbuffer: g,
+            radiance: rgb,
+            env,
+            env_source,
+            stats,
+        });
+    }
     let res = opts.res;
     let band = 4;
     let bar = if opts.progress {

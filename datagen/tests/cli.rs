@@ -288,3 +288,61 @@ fn fit_writes_a_renderable_material_and_a_report() {
     let m = matedit_physics::brdf::Dsbrdf::load(&d.join("m.json")).unwrap();
     assert!(m.params().iter().all(|v| v.is_finite()));
 }
+
+#[test]
+fn every_quality_renders_and_the_table_qualities_stay_close_to_fast() {
+    let d = scratch("qualities");
+    let render = |quality: &str| {
+        let exr = d.join(format!("{quality}.exr"));
+        let out = datagen()
+            .args([
+                "render",
+                "--shape",
+                "procedural:car:3",
+                "--brdf",
+                "plastic:0.2:0.6,0.3,0.2",
+            ])
+            .args([
+                "--env",
+                "builtin:softbox:2",
+                "--res",
+                "48",
+                "--quality",
+                quality,
+                "--out",
+            ])
+            .arg(&exr)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{quality}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let (_, _, ch) = matedit_datagen::io::read_exr_channels(&exr).unwrap();
+        ["R", "G", "B"]
+            .iter()
+            .flat_map(|c| ch[*c].clone())
+            .collect::<Vec<f32>>()
+    };
+    let fast = render("fast");
+    let norm = fast.iter().map(|v| f64::from(*v).powi(2)).sum::<f64>().sqrt();
+    assert!(norm > 0.0);
+    for quality in ["zonal", "lut", "exact"] {
+        let img = render(quality);
+        assert!(img.iter().all(|v| v.is_finite()), "{quality}");
+        let err = img
+            .iter()
+            .zip(&fast)
+            .map(|(a, b)| f64::from(a - b).powi(2))
+            .sum::<f64>()
+            .sqrt()
+            / norm;
+        assert!(err < 0.01, "{quality}: relative RMSE {err} against fast");
+        // zonal is its own code path, not the fast shader under another name (lut may shade a
+        // small image per pixel with the fast shader when that is cheaper than a table).
+        if quality == "zonal" {
+            assert!(err > 0.0, "{quality} gave fast's exact bits");
+        }
+    }
+}

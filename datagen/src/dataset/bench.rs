@@ -58,7 +58,8 @@ pub fn spread(plan: &Plan, n: usize) -> Vec<(usize, usize)> {
     (0..n).map(|k| all[k * all.len() / n]).collect()
 }
 
-/// Renders `picks` with every option in `options` and compares each with `reference`.
+/// Renders `picks` with the reference and every other option in `options` and compares each
+/// with the reference; the first row is the reference itself.
 pub fn bench(
     plan: &Plan,
     materials: &[Option<MaterialEntry>],
@@ -112,9 +113,20 @@ pub fn bench(
             setup_materials,
         })
     };
-    let reference_imgs = render_all(reference)?.images;
-    let mut rows = Vec::new();
-    for &q in options {
+    let reference_run = render_all(reference)?;
+    // The reference's own row: its speed, and zero error by definition.
+    let mut rows = vec![BenchRow {
+        quality: reference,
+        samples_per_s: picks.len() as f64 / reference_run.secs,
+        setup_s: reference_run.setup_s,
+        setup_materials: reference_run.setup_materials,
+        median_rel_rmse: 0.0,
+        max_rel_rmse: 0.0,
+        bytes_per_sample: reference_run.bytes_per_sample,
+        per_sample_rel_rmse: vec![0.0; picks.len()],
+    }];
+    let reference_imgs = reference_run.images;
+    for &q in options.iter().filter(|&&q| q != reference) {
         let run = render_all(q)?;
         let per_sample: Vec<f64> = run
             .images

@@ -65,17 +65,16 @@ impl std::str::FromStr for Worker {
     }
 }
 
-/// Encoded bytes of the sample EXR per image pixel: 371,428 bytes per 256² sample (both EXR
-/// files), the mean of `datagen bench manifests/bench.toml --res 256` (docs/PERFORMANCE.md),
-/// less the environment EXR below. Estimates only.
-pub const BYTES_PER_PIXEL_ESTIMATE: f64 = 5.3;
+/// Encoded bytes of the sample EXR per image pixel: `datagen run manifests/bench-256.toml`
+/// writes 379,608 bytes per 256² sample in all (docs/PERFORMANCE.md), 5.2 per pixel once the
+/// environment EXR and the records below are taken off. Estimates only.
+pub const BYTES_PER_PIXEL_ESTIMATE: f64 = 5.2;
 
-/// Encoded bytes of the camera-space environment EXR per texel, plus the sample's share of
-/// `shard.json` and `index.jsonl` per sample: the quickstart's 2,400 64² samples take 140 MB,
-/// of which the environment files are the larger part. Estimates only.
-pub const ENV_BYTES_PER_TEXEL_ESTIMATE: f64 = 3.0;
-/// See [`ENV_BYTES_PER_TEXEL_ESTIMATE`].
-pub const RECORD_BYTES_ESTIMATE: f64 = 1_500.0;
+/// Encoded bytes of the camera-space environment EXR per 64×128 texel (31 to 34 KB per file in
+/// the quickstart and bench-256 datasets). Estimates only.
+pub const ENV_BYTES_PER_TEXEL_ESTIMATE: f64 = 4.0;
+/// The sample's share of `shard.json` and `index.jsonl` (1.7 KB in the quickstart).
+pub const RECORD_BYTES_ESTIMATE: f64 = 1_700.0;
 /// Estimated seconds per sample on the reference machine (2 cores, both busy), DSBRDF ground
 /// truth, no shadows: a fixed part plus a part per image pixel, from the measurements in
 /// `docs/PERFORMANCE.md` (`zonal`: `datagen run` of `manifests/bench-256.toml` and of the 64²
@@ -84,18 +83,18 @@ pub const RECORD_BYTES_ESTIMATE: f64 = 1_500.0;
 pub fn seconds_per_sample(quality: Quality, pixels: f64) -> f64 {
     let at_256 = 65536.0;
     match quality {
-        // 18.5 ms at 256², ZONAL_FIXED_S at 64².
-        Quality::Zonal => ZONAL_FIXED_S + (1.0 / 54.0 - ZONAL_FIXED_S) * pixels / at_256,
+        // Part of a zonal sample's time does not grow with the image (environment spectra,
+        // per-material tables, the environment file): interpolate between the two measured
+        // rates, 250 samples/s at 64² and 52 at 256².
+        Quality::Zonal => {
+            let (t64, t256) = (1.0 / 250.0, 1.0 / 52.0);
+            t64 + (t256 - t64) * (pixels - 4096.0) / (at_256 - 4096.0)
+        }
         Quality::Lut => pixels / at_256 / 1.66,
         Quality::Fast => pixels / at_256 / 0.30,
         Quality::Exact => pixels / at_256 / 0.021,
     }
 }
-
-/// The part of a `zonal` sample's time that does not grow with the image (environment spectra,
-/// per-material tables, environment file): the 64² quickstart's rate, see
-/// [`seconds_per_sample`].
-const ZONAL_FIXED_S: f64 = 1.0 / 400.0;
 
 /// Prints what a manifest would produce.
 pub fn describe(l: &Loaded) -> String {
