@@ -3,12 +3,12 @@
 //! * With VGG16 weights (a torchvision checkpoint or its safetensors export, named in the
 //!   training manifest): Johnson et al.'s feature reconstruction loss, the mean squared difference
 //!   of VGG16 activations, summed over the chosen layers. Both images are masked to the object and
-//!   mapped to display values first (the tone map of [`super::loss::display`], divided by 255), so
-//!   the network sees what a viewer would.
+//!   mapped to display values first (the tone map of [`super::loss::display`] at the ground
+//!   truth's exposure, divided by 255), so the network sees what a viewer would.
 //! * Without: the documented fallback of [`super::loss::perceptual_fallback`] (tone-mapped
 //!   multi-scale L2). The run's log says which one is in use; the fallback is never silent.
 
-use super::loss::{display, perceptual_fallback};
+use super::loss::{display, exposure, perceptual_fallback};
 use crate::model::vgg16::{Layer, Vgg16};
 use anyhow::Result;
 use burn::tensor::{Device, Tensor};
@@ -53,9 +53,11 @@ impl Perceptual {
     /// One line for the run's log.
     pub fn description(&self) -> String {
         match self {
-            Self::Fallback => "perceptual loss: fallback (tone-mapped multi-scale L2 in [0, 255], see \
-                 trainer/src/train/loss.rs): no VGG16 weights are configured ([loss].vgg16)"
-                .into(),
+            Self::Fallback => {
+                "perceptual loss: fallback (multi-scale L2 in [0, 255] after the metric's tone map, made \
+                 smooth; see trainer/src/train/loss.rs): no VGG16 weights are configured ([loss].vgg16)"
+                    .into()
+            }
             Self::Vgg16 { layers, source, .. } => {
                 format!("perceptual loss: VGG16 features {layers:?} from {}", source.display())
             }
@@ -68,7 +70,8 @@ impl Perceptual {
         match self {
             Self::Fallback => perceptual_fallback(pred, truth, mask),
             Self::Vgg16 { net, layers, .. } => {
-                let show = |x: Tensor<4>| (display(x) * mask.clone()).div_scalar(255.0);
+                let e = exposure(&truth, &mask);
+                let show = |x: Tensor<4>| (display(x, e.clone()) * mask.clone()).div_scalar(255.0);
                 let fp = net.features(show(pred), layers);
                 let ft = net.features(show(truth).detach(), layers);
                 fp.into_iter()

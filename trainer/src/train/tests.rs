@@ -127,3 +127,98 @@ fn module_outputs_have_the_papers_shapes_and_ranges() {
         assert!(v.is_finite());
     }
 }
+
+fn tensor4(v: Vec<f32>, shape: [usize; 4], device: &Device) -> burn::tensor::Tensor<4> {
+    burn::tensor::Tensor::from_data(burn::tensor::TensorData::new(v, shape), device)
+}
+
+/// The fallback's tone map follows the evaluation's (eval::metrics) where that one is not
+/// clipped, is smooth above white, and stays finite on hard inputs.
+#[test]
+fn the_fallback_tone_map_follows_the_metrics_and_stays_finite() {
+    use super::loss::display;
+    use matedit_physics::tonemap::tonemap_u8;
+    let device = Device::flex();
+    let xs: Vec<f32> = vec![
+        0.0,
+        1e-6,
+        0.01,
+        0.1,
+        0.25,
+        0.5,
+        0.7,
+        1.0,
+        2.0,
+        1e3,
+        1e30,
+        f32::MAX,
+        -5.0,
+    ];
+    let n = xs.len();
+    let exposure = 0.8f32;
+    let out = display(
+        tensor4(xs.clone(), [1, 1, 1, n], &device),
+        tensor4(vec![exposure], [1, 1, 1, 1], &device),
+    )
+    .into_data()
+    .try_to_vec::<f32>()
+    .unwrap();
+    for (x, d) in xs.iter().zip(&out) {
+        assert!(d.is_finite() && (0.0..=255.0).contains(d), "display({x}) = {d}");
+        if (0.0..=0.5).contains(&(x * exposure)) {
+            // The metric rounds to integers; the soft clamp is within 2 % of y up to y = 0.5.
+            let metric = f32::from(tonemap_u8(*x, exposure));
+            assert!((d - metric).abs() <= 3.0, "display({x}) = {d}, metric {metric}");
+        }
+    }
+    assert!(out.windows(2).take(n - 2).all(|w| w[0] <= w[1]), "monotone: {out:?}");
+    assert!(out[n - 2] > 254.9, "saturates at white: {out:?}");
+}
+
+/// Multiplying prediction and truth by the same factor does not change the fallback loss (the
+/// exposure belongs to the truth), and an over-bright prediction still gets a gradient.
+#[test]
+fn the_fallback_loss_ignores_the_light_probes_scale_and_pulls_down_overshoot() {
+    use super::loss::perceptual_fallback;
+    let device = Device::flex().autodiff();
+    let (h, w) = (8, 8);
+    let truth: Vec<f32> = (0..3 * h * w)
+        .map(|i| 0.05 + 0.9 * ((i * 37 % 64) as f32 / 64.0))
+        .collect();
+    let pred: Vec<f32> = truth
+        .iter()
+        .enumerate()
+        .map(|(i, v)| v * (0.7 + 0.01 * (i % 50) as f32))
+        .collect();
+    let mask = vec![1.0f32; h * w];
+    let loss = |scale: f32| {
+        let s = |v: &[f32]| v.iter().map(|x| x * scale).collect::<Vec<_>>();
+        let l = perceptual_fallback(
+            tensor4(s(&pred), [1, 3, h, w], &device),
+            tensor4(s(&truth), [1, 3, h, w], &device),
+            tensor4(mask.clone(), [1, 1, h, w], &device),
+        );
+        l.into_data().try_to_vec::<f32>().unwrap()[0]
+    };
+    let (a, b) = (loss(1.0), loss(1000.0));
+    assert!(a > 0.0 && ((a - b) / a).abs() < 1e-3, "{a} vs {b}");
+    // Ten times too bright everywhere: far above white, yet the gradient points down.
+    let p = tensor4(truth.iter().map(|v| v * 10.0).collect(), [1, 3, h, w], &device).require_grad();
+    let l = perceptual_fallback(
+        p.clone(),
+        tensor4(truth.clone(), [1, 3, h, w], &device),
+        tensor4(mask, [1, 1, h, w], &device),
+    );
+    let grads = l.backward();
+    let g = p
+        .grad(&grads)
+        .expect("gradient")
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+    assert!(g.iter().all(|v| v.is_finite()), "finite gradient");
+    assert!(
+        g.iter().all(|v| *v >= 0.0) && g.iter().any(|v| *v > 0.0),
+        "pulls every pixel down"
+    );
+}
