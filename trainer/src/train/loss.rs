@@ -86,6 +86,18 @@ pub fn exposure(truth: &Tensor<4>, mask: &Tensor<4>) -> Tensor<4> {
     Tensor::from_data(TensorData::new(e, [b, 1, 1, 1]), &device)
 }
 
+/// The direct loss on the predicted illumination (an option, not in the paper): the mean over
+/// texels and channels of the squared difference of the two maps (`[B, 3, He, 2He]`) after
+/// [`display`] at the true map's own exposure (its 99th-percentile value becomes white), so on
+/// the [0, 255] scale of the image losses. In the display domain the optimum for an ambiguous
+/// input is a tone-mapped mean of the candidates, not the darker geometric mean a log-L2 gives.
+pub fn illumination_loss(pred: Tensor<4>, truth: Tensor<4>) -> Tensor<1> {
+    let [b, _, h, w] = truth.dims();
+    let all = Tensor::ones([b, 1, h, w], &truth.device());
+    let e = exposure(&truth, &all);
+    (display(pred, e.clone()) - display(truth, e)).powi_scalar(2).mean()
+}
+
 /// The fallback perceptual loss between a rendered image and the ground truth (`[B, 3, H, W]`,
 /// linear), on object pixels (`mask` `[B, 1, H, W]`).
 pub fn perceptual_fallback(pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -> Tensor<1> {

@@ -92,6 +92,9 @@ pub struct LossSection {
     /// w_p (the paper: 1).
     #[serde(default = "default_wp")]
     pub perceptual: Spanned<f64>,
+    /// w_L of a direct loss on L' (not in the paper; default 0: none).
+    #[serde(default = "default_wl")]
+    pub illumination: Spanned<f64>,
     /// Pretrained VGG16 weights (torchvision `.pth`/`.pt`, or safetensors) for the perceptual
     /// loss; without, the documented fallback is used and the log says so.
     #[serde(default)]
@@ -110,6 +113,9 @@ fn default_wm() -> Spanned<f64> {
 fn default_wp() -> Spanned<f64> {
     Spanned::new(0..0, LossWeights::default().perceptual)
 }
+fn default_wl() -> Spanned<f64> {
+    Spanned::new(0..0, 0.0)
+}
 fn default_layers() -> Spanned<Vec<Layer>> {
     Spanned::new(0..0, super::perceptual::DEFAULT_LAYERS.to_vec())
 }
@@ -120,6 +126,7 @@ impl Default for LossSection {
             normal: default_wn(),
             material: default_wm(),
             perceptual: default_wp(),
+            illumination: default_wl(),
             vgg16: None,
             vgg16_layers: default_layers(),
         }
@@ -496,6 +503,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         ("loss.normal", &l.normal),
         ("loss.material", &l.material),
         ("loss.perceptual", &l.perceptual),
+        ("loss.illumination", &l.illumination),
     ] {
         if !(v.get_ref().is_finite() && *v.get_ref() >= 0.0) {
             return Err(bad(
@@ -544,6 +552,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         normal: *l.normal.get_ref(),
         material: *l.material.get_ref(),
         perceptual: *l.perceptual.get_ref(),
+        illumination: *l.illumination.get_ref(),
     };
     Ok(TrainPlan {
         path: path.to_path_buf(),

@@ -17,7 +17,7 @@ pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Resul
         let root = BitMapBackend::new(&tmp, (960, 540)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
         type Series<'a> = (&'static str, RGBColor, Box<dyn Fn(&MetricsLine) -> f64 + 'a>);
-        let series: [Series; 4] = [
+        let series: [Series; 5] = [
             ("total (Eq. 5)", BLACK, Box::new(|l| l.losses.total)),
             (
                 "w_n · normal",
@@ -33,6 +33,11 @@ pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Resul
                 "w_p · perceptual",
                 RGBColor(44, 160, 44),
                 Box::new(|l| w.perceptual * l.losses.perceptual),
+            ),
+            (
+                "w_L · illumination",
+                RGBColor(148, 103, 189),
+                Box::new(|l| w.illumination * l.losses.illumination),
             ),
         ];
         let positive = |v: f64| v.is_finite() && v > 0.0;
@@ -132,26 +137,32 @@ mod tests {
                 let normal = 0.5 / (i as f64).sqrt() * wobble;
                 let material = 0.2 / (i as f64).powf(0.3);
                 let perceptual = if joint { 5000.0 * wobble } else { 0.0 };
+                let illumination = 300.0 / (i as f64).powf(0.2);
                 MetricsLine {
                     stage: if joint { "joint" } else { "pretrain" }.into(),
                     step: if joint { i - 200 } else { i },
                     global_step: i,
                     lr: 1e-4,
                     losses: Losses {
-                        total: 1e4 * normal + 1e3 * material + perceptual,
+                        total: 1e4 * normal + 1e3 * material + perceptual + illumination,
                         normal,
                         material,
                         perceptual,
+                        illumination,
                     },
                 }
             })
             .collect();
         let path = std::env::temp_dir().join(format!("matedit-loss-{}.png", std::process::id()));
-        loss_curves(&lines, &path, &LossWeights::default()).unwrap();
+        let weights = LossWeights {
+            illumination: 1.0,
+            ..LossWeights::default()
+        };
+        loss_curves(&lines, &path, &weights).unwrap();
         let img = image::open(&path).unwrap().to_rgb8();
         assert_eq!(img.dimensions(), (960, 540));
         // Each term's colour is on the canvas (the legend alone would be a few pixels).
-        for colour in [[31u8, 119, 180], [255, 127, 14], [44, 160, 44]] {
+        for colour in [[31u8, 119, 180], [255, 127, 14], [44, 160, 44], [148, 103, 189]] {
             let n = img.pixels().filter(|p| p.0 == colour).count();
             assert!(n > 300, "colour {colour:?}: {n} pixels");
         }

@@ -3,7 +3,7 @@
 //! l = w_n·l_normal + w_m·l_material + w_p·l_perceptual (Eq. 5).
 
 use super::batch::{HostBatch, TensorBatch};
-use super::loss::{material_loss, normal_loss};
+use super::loss::{illumination_loss, material_loss, normal_loss};
 use super::network::Net;
 use super::perceptual::Perceptual;
 use crate::render::RenderingLayer;
@@ -65,6 +65,10 @@ pub struct LossWeights {
     /// w_p (the paper: 1).
     #[serde(default = "default_wp")]
     pub perceptual: f64,
+    /// w_L, a direct loss on L' (not in the paper, which trains L' only through the rendering
+    /// layer; 0, the default, leaves it out). See [`super::loss::illumination_loss`].
+    #[serde(default)]
+    pub illumination: f64,
 }
 
 fn default_wn() -> f64 {
@@ -83,6 +87,7 @@ impl Default for LossWeights {
             normal: default_wn(),
             material: default_wm(),
             perceptual: default_wp(),
+            illumination: 0.0,
         }
     }
 }
@@ -98,6 +103,9 @@ pub struct Losses {
     pub material: f64,
     /// Perceptual loss on I' plus on O' (0 in pretraining).
     pub perceptual: f64,
+    /// The direct loss on L' (0 unless its weight is set).
+    #[serde(default)]
+    pub illumination: f64,
 }
 
 /// What every step of a run shares.
@@ -182,7 +190,8 @@ pub fn train_step(
     let (w, device) = (ctx.weights, ctx.device);
     let b = host_batch.to_device(device);
     let rw = step.render_with;
-    let light = step.joint() && rw.illumination == Source::Predicted;
+    let direct_light = w.illumination > 0.0;
+    let light = (step.joint() && rw.illumination == Source::Predicted) || direct_light;
     let p = predict(&net, &b, light);
     let ln = normal_loss(p.normals.clone(), b.normals.clone(), b.mask.clone());
     let lm = material_loss(p.materials.clone(), b.materials.clone());
@@ -192,6 +201,11 @@ pub fn train_step(
         ..Losses::default()
     };
     let mut total = ln.mul_scalar(w.normal) + lm.mul_scalar(w.material);
+    if let (true, Some(env)) = (direct_light, &p.env) {
+        let ll = illumination_loss(env.clone(), b.env.clone());
+        losses.illumination = scalar(&ll);
+        total = total + ll.mul_scalar(w.illumination);
+    }
     if step.joint() {
         let pick = |s: Source| s == Source::Predicted;
         let normals = if pick(rw.normals) {
@@ -248,7 +262,10 @@ pub fn train_step(
             total = so.map_or(total.clone(), |s| total.clone() + s);
         }
     }
-    losses.total = w.normal * losses.normal + w.material * losses.material + w.perceptual * losses.perceptual;
+    losses.total = w.normal * losses.normal
+        + w.material * losses.material
+        + w.perceptual * losses.perceptual
+        + w.illumination * losses.illumination;
     if !losses.total.is_finite() {
         anyhow::bail!("the loss is not finite ({losses:?}) on batch {:?}", host_batch.ids);
     }

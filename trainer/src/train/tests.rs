@@ -222,3 +222,81 @@ fn the_fallback_loss_ignores_the_light_probes_scale_and_pulls_down_overshoot() {
         "pulls every pixel down"
     );
 }
+
+/// The optional direct loss on L': zero at the truth, blind to the probe's absolute scale,
+/// finite with a finite gradient on hard maps (huge, zero and tiny texels).
+#[test]
+fn the_direct_illumination_loss_is_scale_free_and_finite() {
+    use super::loss::illumination_loss;
+    let device = Device::flex().autodiff();
+    let (h, w) = (4, 8);
+    let truth: Vec<f32> = (0..3 * h * w).map(|i| 0.01 + (i % 7) as f32).collect();
+    let pred: Vec<f32> = truth.iter().rev().copied().collect();
+    let loss = |p: &[f32], t: &[f32]| {
+        illumination_loss(
+            tensor4(p.to_vec(), [1, 3, h, w], &device),
+            tensor4(t.to_vec(), [1, 3, h, w], &device),
+        )
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap()[0]
+    };
+    assert_eq!(loss(&truth, &truth), 0.0);
+    let (a, b) = (
+        loss(&pred, &truth),
+        loss(
+            &pred.iter().map(|v| v * 1e4).collect::<Vec<_>>(),
+            &truth.iter().map(|v| v * 1e4).collect::<Vec<_>>(),
+        ),
+    );
+    assert!(a > 0.0 && ((a - b) / a).abs() < 1e-3, "{a} vs {b}");
+    let hard: Vec<f32> = (0..3 * h * w).map(|i| [0.0, 1e-30, 3e38, 1.0][i % 4]).collect();
+    let p = tensor4(hard, [1, 3, h, w], &device).require_grad();
+    let l = illumination_loss(p.clone(), tensor4(truth, [1, 3, h, w], &device));
+    let grads = l.backward();
+    let g = p
+        .grad(&grads)
+        .expect("gradient")
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+    assert!(g.iter().all(|v| v.is_finite()), "finite gradient");
+}
+
+/// With a weight on the direct illumination loss, pretraining also trains L' and reports it;
+/// without (the paper), the term is 0.
+#[test]
+fn pretraining_with_the_direct_illumination_loss_lowers_it() {
+    let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
+    let device = Device::flex().autodiff();
+    device.seed(5);
+    let layer = RenderingLayer::new(8);
+    let cfg = NetConfig::new(16, Widths::new(4, 16, 32, 8)).with_env_height(8);
+    let batch = sphere_batch(2, 16, 8, 3, &layer);
+    for w_l in [0.0, 1.0] {
+        let mut net = cfg.init(&device);
+        let mut optim = AdamConfig::new().init();
+        let w = LossWeights {
+            illumination: w_l,
+            ..LossWeights::default()
+        };
+        let ctx = StepContext {
+            layer: &layer,
+            weights: &w,
+            perceptual: &Perceptual::Fallback,
+            device: &device,
+        };
+        let mut seen = Vec::new();
+        for _ in 0..8 {
+            let (n, l) = train_step(net, &mut optim, 1e-3, &batch, StepKind::PRETRAIN, &ctx).unwrap();
+            net = n;
+            assert!(l.illumination.is_finite());
+            seen.push(l.illumination);
+        }
+        if w_l == 0.0 {
+            assert!(seen.iter().all(|v| *v == 0.0), "{seen:?}");
+        } else {
+            assert!(seen[0] > 0.0 && seen[7] < seen[0], "{seen:?}");
+        }
+    }
+}
