@@ -68,12 +68,7 @@ pub fn bench(
     options: &[Quality],
 ) -> Result<Vec<BenchRow>> {
     // Every material of the splits the picks come from.
-    let mut used: Vec<usize> = picks
-        .iter()
-        .flat_map(|&(s, _)| plan.splits[s].materials.iter().copied())
-        .collect();
-    used.sort_unstable();
-    used.dedup();
+    let used = plan.materials_of(picks.iter().map(|&(s, _)| s));
     let render_all = |q: Quality| -> Result<Rendered> {
         let mut p = plan.clone();
         p.settings.quality = q;

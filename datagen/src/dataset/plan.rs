@@ -437,6 +437,18 @@ impl Plan {
     pub fn samples(&self) -> usize {
         self.splits.iter().map(|s| s.samples).sum()
     }
+
+    /// The catalogue indices of the materials that `splits` (indices into [`Plan::splits`])
+    /// deal, sorted, each once.
+    pub fn materials_of(&self, splits: impl IntoIterator<Item = usize>) -> Vec<usize> {
+        let mut used: Vec<usize> = splits
+            .into_iter()
+            .flat_map(|s| self.splits[s].materials.iter().copied())
+            .collect();
+        used.sort_unstable();
+        used.dedup();
+        used
+    }
 }
 
 fn combinations_of(

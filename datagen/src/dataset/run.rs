@@ -325,12 +325,7 @@ pub fn run(l: &Loaded, opts: &RunOptions) -> Result<RunSummary> {
     let renderer = Renderer::new(plan, &materials);
     // Per-material set-up of the `zonal` quality, for every material the remaining shards' splits
     // deal (built in parallel now rather than one at a time on first use).
-    let mut used: Vec<usize> = todo
-        .iter()
-        .flat_map(|s| plan.splits[s.split].materials.iter().copied())
-        .collect();
-    used.sort_unstable();
-    used.dedup();
+    let used = plan.materials_of(todo.iter().map(|s| s.split));
     let kbar = bar(
         opts.progress && plan.settings.quality == Quality::Zonal,
         used.len() as u64,

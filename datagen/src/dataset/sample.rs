@@ -190,20 +190,14 @@ impl<'a> Renderer<'a> {
             .copied()
             .filter(|&k| self.zonal.get(k).is_some_and(|c| c.get().is_none()))
             .collect();
-        let built: Vec<(usize, Option<ZonalKernel>)> = todo
-            .par_iter()
-            .map(|&k| {
-                let kernel = ZonalKernel::for_brdf(&self.material(k)?.render);
-                on_done();
-                Ok((k, kernel))
-            })
-            .collect::<Result<_>>()?;
-        let n = built.len();
-        for (k, kernel) in built {
-            // Another thread may have built it lazily meanwhile: the same value.
-            let _ = self.zonal[k].set(kernel);
-        }
-        Ok(n)
+        // A kernel is built without rayon, so a thread waiting on another's cell cannot hold up
+        // the one building it.
+        todo.par_iter().try_for_each(|&k| {
+            self.zonal_kernel(k)?;
+            on_done();
+            Ok::<_, anyhow::Error>(())
+        })?;
+        Ok(todo.len())
     }
 
     /// The zonal kernel of material `k`, built on first use.

@@ -25,6 +25,7 @@ pub mod zonal;
 use crate::{BrdfModel, EnvMap};
 use glam::DVec3;
 use rayon::prelude::*;
+use std::ops::{Add, Mul, Neg, Sub};
 
 /// Normals whose z component (n·ω_o) is below this are bent towards the viewer until
 /// n·ω_o equals it (see [`shading_normal`]).
@@ -106,6 +107,23 @@ pub fn make_shader(brdf: &BrdfModel, env: &EnvMap, quality: Quality) -> Box<dyn 
         Some(fast) => Box::new(fast),
         None => Box::new(exact::ExactShader::new(brdf.clone(), env)),
     }
+}
+
+/// Catmull–Rom weights of nodes i−1, i, i+1, i+2 at fraction t, in the precision of `T` (the
+/// normal tables interpolate in f32, the zonal method's grids in f64; every constant is exact
+/// in both, so each precision gives the bits of its own hand-written formula).
+pub(crate) fn catmull_rom<T>(t: T) -> [T; 4]
+where
+    T: Copy + From<f32> + Add<Output = T> + Sub<Output = T> + Mul<Output = T> + Neg<Output = T>,
+{
+    let c = |v: f32| T::from(v);
+    let (t2, t3) = (t * t, t * t * t);
+    [
+        c(0.5) * (-t3 + c(2.0) * t2 - t),
+        c(0.5) * (c(3.0) * t3 - c(5.0) * t2 + c(2.0)),
+        c(0.5) * (c(-3.0) * t3 + c(4.0) * t2 + t),
+        c(0.5) * (t3 - t2),
+    ]
 }
 
 /// The policy for a non-finite result (possible only for absurd inputs such as radiance near

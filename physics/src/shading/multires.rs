@@ -23,7 +23,7 @@
 //! against the exact path.
 
 use super::lut::{MAX_NODES_PER_PIXEL, needed_nodes, node_coords, pixel_coords, table_normal, table_position};
-use super::shading_normal;
+use super::{catmull_rom, shading_normal};
 use crate::brdf::Dsbrdf;
 use crate::brdf::dsbrdf::LOBES;
 use crate::envmap::{EnvMap, texel_direction, texel_solid_angle};
@@ -435,17 +435,6 @@ pub fn shade_with_params(
 /// Node `i − 1 + d` clamped to the table.
 fn clamp_node(i: usize, d: usize, r: usize) -> usize {
     (i + d).saturating_sub(1).min(r - 1)
-}
-
-/// Catmull–Rom weights of nodes i−1, i, i+1, i+2 at fraction t.
-fn catmull_rom(t: f32) -> [f32; 4] {
-    let (t2, t3) = (t * t, t * t * t);
-    [
-        0.5 * (-t3 + 2.0 * t2 - t),
-        0.5 * (3.0 * t3 - 5.0 * t2 + 2.0),
-        0.5 * (-3.0 * t3 + 4.0 * t2 + t),
-        0.5 * (t3 - t2),
-    ]
 }
 
 /// Bicubic (Catmull–Rom) interpolation; its small overshoot next to sharp peaks is clamped at 0.

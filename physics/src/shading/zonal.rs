@@ -32,7 +32,7 @@
 //! FFTs use rustfft's scalar planner and every sum has a fixed order, so the output bits depend
 //! neither on the thread count nor on the CPU's SIMD features.
 
-use super::{sanitize, shading_normal};
+use super::{catmull_rom, sanitize, shading_normal};
 use crate::brdf::{Brdf, BrdfModel, Dsbrdf};
 use crate::envmap::{EnvMap, texel_direction, texel_solid_angle};
 use crate::fastmath;
@@ -418,17 +418,6 @@ fn cut_spectra(
         }
     }
     (entries, coeffs)
-}
-
-/// Catmull–Rom weights of nodes i−1, i, i+1, i+2 at fraction t.
-fn catmull_rom(t: f64) -> [f64; 4] {
-    let (t2, t3) = (t * t, t * t * t);
-    [
-        0.5 * (-t3 + 2.0 * t2 - t),
-        0.5 * (3.0 * t3 - 5.0 * t2 + 2.0),
-        0.5 * (-3.0 * t3 + 4.0 * t2 + t),
-        0.5 * (t3 - t2),
-    ]
 }
 
 type Plan = Arc<dyn Fft<f32>>;

@@ -13,6 +13,15 @@ use burn::tensor::Device;
 static SEEDED: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 fn run(kind: StepKind, steps: usize, seed: u64) -> Vec<f64> {
+    run_with(kind, steps, seed, &LossWeights::default())
+        .iter()
+        .map(|l| l.total)
+        .collect()
+}
+
+/// `steps` steps on one fixed batch of spheres from a network seeded with `seed`: each step's
+/// losses, all checked finite.
+fn run_with(kind: StepKind, steps: usize, seed: u64, w: &LossWeights) -> Vec<super::step::Losses> {
     let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
     let device = Device::flex().autodiff();
     device.seed(seed);
@@ -21,10 +30,9 @@ fn run(kind: StepKind, steps: usize, seed: u64) -> Vec<f64> {
     let mut net = cfg.init(&device);
     let mut optim = AdamConfig::new().init();
     let batch = sphere_batch(2, 16, 8, 3, &layer);
-    let w = LossWeights::default();
     let ctx = StepContext {
         layer: &layer,
-        weights: &w,
+        weights: w,
         perceptual: &Perceptual::Fallback,
         device: &device,
     };
@@ -32,11 +40,12 @@ fn run(kind: StepKind, steps: usize, seed: u64) -> Vec<f64> {
     for _ in 0..steps {
         let (n, l) = train_step(net, &mut optim, 1e-3, &batch, kind, &ctx).unwrap();
         net = n;
-        out.push(l.total);
         assert!(l.normal.is_finite() && l.material.is_finite() && l.perceptual.is_finite());
+        assert!(l.illumination.is_finite());
         if kind == StepKind::JOINT {
             assert!(l.perceptual > 0.0);
         }
+        out.push(l);
     }
     out
 }
@@ -132,6 +141,16 @@ fn tensor4(v: Vec<f32>, shape: [usize; 4], device: &Device) -> burn::tensor::Ten
     burn::tensor::Tensor::from_data(burn::tensor::TensorData::new(v, shape), device)
 }
 
+/// ∂`loss`/∂`x` as plain values (`x` made with `require_grad`).
+fn gradient(x: &burn::tensor::Tensor<4>, loss: burn::tensor::Tensor<1>) -> Vec<f32> {
+    let grads = loss.backward();
+    x.grad(&grads)
+        .expect("gradient")
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap()
+}
+
 /// The fallback's tone map follows the evaluation's (eval::metrics) where that one is not
 /// clipped, is smooth above white, and stays finite on hard inputs.
 #[test]
@@ -209,13 +228,7 @@ fn the_fallback_loss_ignores_the_light_probes_scale_and_pulls_down_overshoot() {
         tensor4(truth.clone(), [1, 3, h, w], &device),
         tensor4(mask, [1, 1, h, w], &device),
     );
-    let grads = l.backward();
-    let g = p
-        .grad(&grads)
-        .expect("gradient")
-        .into_data()
-        .try_to_vec::<f32>()
-        .unwrap();
+    let g = gradient(&p, l);
     assert!(g.iter().all(|v| v.is_finite()), "finite gradient");
     assert!(
         g.iter().all(|v| *v >= 0.0) && g.iter().any(|v| *v > 0.0),
@@ -253,13 +266,7 @@ fn the_direct_illumination_loss_is_scale_free_and_finite() {
     let hard: Vec<f32> = (0..3 * h * w).map(|i| [0.0, 1e-30, 3e38, 1.0][i % 4]).collect();
     let p = tensor4(hard, [1, 3, h, w], &device).require_grad();
     let l = illumination_loss(p.clone(), tensor4(truth, [1, 3, h, w], &device));
-    let grads = l.backward();
-    let g = p
-        .grad(&grads)
-        .expect("gradient")
-        .into_data()
-        .try_to_vec::<f32>()
-        .unwrap();
+    let g = gradient(&p, l);
     assert!(g.iter().all(|v| v.is_finite()), "finite gradient");
 }
 
@@ -267,32 +274,15 @@ fn the_direct_illumination_loss_is_scale_free_and_finite() {
 /// without (the paper), the term is 0.
 #[test]
 fn pretraining_with_the_direct_illumination_loss_lowers_it() {
-    let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
-    let device = Device::flex().autodiff();
-    device.seed(5);
-    let layer = RenderingLayer::new(8);
-    let cfg = NetConfig::new(16, Widths::new(4, 16, 32, 8)).with_env_height(8);
-    let batch = sphere_batch(2, 16, 8, 3, &layer);
     for w_l in [0.0, 1.0] {
-        let mut net = cfg.init(&device);
-        let mut optim = AdamConfig::new().init();
         let w = LossWeights {
             illumination: w_l,
             ..LossWeights::default()
         };
-        let ctx = StepContext {
-            layer: &layer,
-            weights: &w,
-            perceptual: &Perceptual::Fallback,
-            device: &device,
-        };
-        let mut seen = Vec::new();
-        for _ in 0..8 {
-            let (n, l) = train_step(net, &mut optim, 1e-3, &batch, StepKind::PRETRAIN, &ctx).unwrap();
-            net = n;
-            assert!(l.illumination.is_finite());
-            seen.push(l.illumination);
-        }
+        let seen: Vec<f64> = run_with(StepKind::PRETRAIN, 8, 5, &w)
+            .iter()
+            .map(|l| l.illumination)
+            .collect();
         if w_l == 0.0 {
             assert!(seen.iter().all(|v| *v == 0.0), "{seen:?}");
         } else {
