@@ -317,6 +317,11 @@ fn bad_manifests_name_file_line_and_field() {
             "render_with",
         ),
         (
+            "kind = \"joint\"",
+            "kind = \"joint\"\nrender_with = { normals = \"detached\", material = \"truth\", illumination = \"truth\" }",
+            "render_with",
+        ),
+        (
             "learning_rate = [[0, 1e-4]]",
             "learning_rate = [[5, 1e-4]]",
             "learning_rate",

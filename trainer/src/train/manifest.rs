@@ -3,7 +3,7 @@
 //! the line and the field, before any work starts.
 
 use super::network::NetConfig;
-use super::step::{LossWeights, RenderWith, Source, StageKind};
+use super::step::{LossWeights, RenderWith, StageKind};
 use crate::model::vgg16::Layer;
 use crate::model::{Init, Widths};
 use matedit_datagen::dataset::manifest::{ManifestError, expand_vars};
@@ -470,11 +470,14 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
                 "a pretrain stage does not render; render_with applies to joint stages".into(),
             ));
         }
-        if [rw.normals, rw.material, rw.illumination] == [Source::Truth; 3] {
+        if ![rw.normals, rw.material, rw.illumination]
+            .iter()
+            .any(|s| s.learns_through_layer())
+        {
             return Err(bad(
                 st.span(),
                 &field("render_with"),
-                "with n, m and L all ground truth the rendering layer trains nothing".into(),
+                "with none of n, m and L \"predicted\" (all \"truth\" or \"detached\") the rendering layer trains nothing".into(),
             ));
         }
         if let Some(src) = &s.from

@@ -35,6 +35,23 @@ pub enum Source {
     /// material module is trained given ground-truth normals and illumination, or the normal
     /// module given ground-truth material and illumination.
     Truth,
+    /// The network's prediction, but the rendering layer's gradient stops there: that module
+    /// learns from its own L2 loss only, while the other modules learn to re-render I and O
+    /// from the prediction it really makes (a stop-gradient). For normals this keeps the
+    /// perceptual loss from pushing lighting into n' (docs/PERFORMANCE.md, "Trainer").
+    Detached,
+}
+
+impl Source {
+    /// Whether the rendering layer reads the prediction (rather than the ground truth).
+    pub fn reads_prediction(self) -> bool {
+        self != Source::Truth
+    }
+
+    /// Whether the rendering layer's gradient reaches the module.
+    pub fn learns_through_layer(self) -> bool {
+        self == Source::Predicted
+    }
 }
 
 /// The rendering layer's inputs in a joint stage (all predicted by default: Fig. 2).
@@ -191,7 +208,7 @@ pub fn train_step(
     let b = host_batch.to_device(device);
     let rw = step.render_with;
     let direct_light = w.illumination > 0.0;
-    let light = (step.joint() && rw.illumination == Source::Predicted) || direct_light;
+    let light = (step.joint() && rw.illumination.reads_prediction()) || direct_light;
     let p = predict(&net, &b, light);
     let ln = normal_loss(p.normals.clone(), b.normals.clone(), b.mask.clone());
     let lm = material_loss(p.materials.clone(), b.materials.clone());
@@ -207,24 +224,25 @@ pub fn train_step(
         total = total + ll.mul_scalar(w.illumination);
     }
     if step.joint() {
-        let pick = |s: Source| s == Source::Predicted;
-        let normals = if pick(rw.normals) {
-            p.normals.clone()
-        } else {
-            b.normals.clone()
+        let pick = Source::learns_through_layer;
+        let normals = match rw.normals {
+            Source::Predicted => p.normals.clone(),
+            Source::Detached => p.normals.clone().detach(),
+            Source::Truth => b.normals.clone(),
         };
-        let materials = if pick(rw.material) {
-            p.materials.clone()
-        } else {
-            b.materials.clone()
+        let materials = match rw.material {
+            Source::Predicted => p.materials.clone(),
+            Source::Detached => p.materials.clone().detach(),
+            Source::Truth => b.materials.clone(),
         };
         let env = match (&p.env, rw.illumination) {
             (Some(e), Source::Predicted) => e.clone(),
+            (Some(e), Source::Detached) => e.clone().detach(),
             _ => b.env.clone(),
         };
         let regions = &host_batch.region_map;
         let i_r = Rendered::new(ctx.layer, &normals, &materials, &env, regions).context("rendering I'")?;
-        // O' = R(n, m_t, L) depends on the network only through predicted n or L.
+        // O' = R(n, m_t, L) trains the network only through n or L, when they learn through the layer.
         let o_r = if pick(rw.normals) || pick(rw.illumination) {
             Some(Rendered::new(ctx.layer, &normals, &b.target_materials, &env, regions).context("rendering O'")?)
         } else {

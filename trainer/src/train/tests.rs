@@ -2,10 +2,11 @@
 
 use super::network::NetConfig;
 use super::perceptual::Perceptual;
-use super::step::{LossWeights, StepContext, StepKind, train_step};
+use super::step::{LossWeights, RenderWith, Source, StageKind, StepContext, StepKind, train_step};
 use super::synthetic::sphere_batch;
 use crate::model::Widths;
 use crate::render::RenderingLayer;
+use crate::render::op::host;
 use burn::optim::AdamConfig;
 use burn::tensor::Device;
 
@@ -288,5 +289,58 @@ fn pretraining_with_the_direct_illumination_loss_lowers_it() {
         } else {
             assert!(seen[0] > 0.0 && seen[7] < seen[0], "{seen:?}");
         }
+    }
+}
+
+/// `render_with = { normals = "detached" }`: the rendering layer reads n' but its gradient stops
+/// there. With w_n = w_m = 0 (only the perceptual loss), one joint step leaves the normal
+/// module's output where it was, while with n' predicted (Fig. 2) it moves; L' learns in both.
+#[test]
+fn detached_normals_get_no_gradient_from_the_rendering_layer() {
+    for (normals, normals_move) in [(Source::Predicted, true), (Source::Detached, false)] {
+        let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
+        let device = Device::flex().autodiff();
+        device.seed(7);
+        let layer = RenderingLayer::new(8);
+        let widths = Widths::new(4, 16, 32, 8).with_dropout(0.0);
+        let net = NetConfig::new(16, widths).with_env_height(8).init(&device);
+        let batch = sphere_batch(2, 16, 8, 3, &layer);
+        let b = batch.to_device(&device);
+        let outputs = |net: &super::network::Net| {
+            (
+                host(&net.normal.forward(b.input.clone(), b.mask.clone())),
+                host(&net.illumination.forward(b.input.clone(), b.mask.clone())),
+            )
+        };
+        let (n0, l0) = outputs(&net);
+        let w = LossWeights {
+            normal: 0.0,
+            material: 0.0,
+            ..LossWeights::default()
+        };
+        let ctx = StepContext {
+            layer: &layer,
+            weights: &w,
+            perceptual: &Perceptual::Fallback,
+            device: &device,
+        };
+        let kind = StepKind {
+            kind: StageKind::Joint,
+            render_with: RenderWith {
+                normals,
+                ..RenderWith::default()
+            },
+        };
+        let (net, l) = train_step(net, &mut AdamConfig::new().init(), 1e-3, &batch, kind, &ctx).unwrap();
+        assert!(l.perceptual > 0.0 && l.total.is_finite(), "{l:?}");
+        let (n1, l1) = outputs(&net);
+        let moved = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        assert_eq!(
+            moved(&n0, &n1) > 1e-6,
+            normals_move,
+            "{normals:?}: n' moved {}",
+            moved(&n0, &n1)
+        );
+        assert!(moved(&l0, &l1) > 1e-6, "{normals:?}: L' did not learn");
     }
 }
