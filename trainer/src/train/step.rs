@@ -52,6 +52,16 @@ impl Source {
     pub fn learns_through_layer(self) -> bool {
         self == Source::Predicted
     }
+
+    /// The rendering layer's input: the prediction (when there is one) or the truth. A
+    /// detached prediction needs nothing more here: the layer's pullback only reaches the
+    /// inputs it is handed as tracked (see `train_step`).
+    fn input<const D: usize>(self, predicted: Option<&Tensor<D>>, truth: &Tensor<D>) -> Tensor<D> {
+        match predicted {
+            Some(p) if self.reads_prediction() => p.clone(),
+            _ => truth.clone(),
+        }
+    }
 }
 
 /// The rendering layer's inputs in a joint stage (all predicted by default: Fig. 2).
@@ -225,21 +235,9 @@ pub fn train_step(
     }
     if step.joint() {
         let pick = Source::learns_through_layer;
-        let normals = match rw.normals {
-            Source::Predicted => p.normals.clone(),
-            Source::Detached => p.normals.clone().detach(),
-            Source::Truth => b.normals.clone(),
-        };
-        let materials = match rw.material {
-            Source::Predicted => p.materials.clone(),
-            Source::Detached => p.materials.clone().detach(),
-            Source::Truth => b.materials.clone(),
-        };
-        let env = match (&p.env, rw.illumination) {
-            (Some(e), Source::Predicted) => e.clone(),
-            (Some(e), Source::Detached) => e.clone().detach(),
-            _ => b.env.clone(),
-        };
+        let normals = rw.normals.input(Some(&p.normals), &b.normals);
+        let materials = rw.material.input(Some(&p.materials), &b.materials);
+        let env = rw.illumination.input(p.env.as_ref(), &b.env);
         let regions = &host_batch.region_map;
         let i_r = Rendered::new(ctx.layer, &normals, &materials, &env, regions).context("rendering I'")?;
         // O' = R(n, m_t, L) trains the network only through n or L, when they learn through the layer.

@@ -1,6 +1,7 @@
 //! Training steps on synthetic batches: finite, decreasing on a fixed batch, reproducible.
 
-use super::network::NetConfig;
+use super::batch::HostBatch;
+use super::network::{Net, NetConfig};
 use super::perceptual::Perceptual;
 use super::step::{LossWeights, RenderWith, Source, StageKind, StepContext, StepKind, train_step};
 use super::synthetic::sphere_batch;
@@ -20,17 +21,23 @@ fn run(kind: StepKind, steps: usize, seed: u64) -> Vec<f64> {
         .collect()
 }
 
+/// A small network seeded with `seed` (callers hold `SEEDED`), its rendering layer and one fixed
+/// batch of 16² spheres under 8×16 maps.
+fn fixture(seed: u64, widths: Widths) -> (Device, RenderingLayer, Net, HostBatch) {
+    let device = Device::flex().autodiff();
+    device.seed(seed);
+    let layer = RenderingLayer::new(8);
+    let net = NetConfig::new(16, widths).with_env_height(8).init(&device);
+    let batch = sphere_batch(2, 16, 8, 3, &layer);
+    (device, layer, net, batch)
+}
+
 /// `steps` steps on one fixed batch of spheres from a network seeded with `seed`: each step's
 /// losses, all checked finite.
 fn run_with(kind: StepKind, steps: usize, seed: u64, w: &LossWeights) -> Vec<super::step::Losses> {
     let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
-    let device = Device::flex().autodiff();
-    device.seed(seed);
-    let layer = RenderingLayer::new(8);
-    let cfg = NetConfig::new(16, Widths::new(4, 16, 32, 8)).with_env_height(8);
-    let mut net = cfg.init(&device);
+    let (device, layer, mut net, batch) = fixture(seed, Widths::new(4, 16, 32, 8));
     let mut optim = AdamConfig::new().init();
-    let batch = sphere_batch(2, 16, 8, 3, &layer);
     let ctx = StepContext {
         layer: &layer,
         weights: w,
@@ -70,7 +77,6 @@ fn joint_steps_through_the_rendering_layer_are_finite_and_lower_the_loss() {
 /// 108-vector per region; and extreme inputs (huge radiance, an empty mask) stay finite.
 #[test]
 fn module_outputs_have_the_papers_shapes_and_ranges() {
-    use super::batch::HostBatch;
     use super::step::predict;
     use burn::tensor::TensorData;
     let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
@@ -299,14 +305,9 @@ fn pretraining_with_the_direct_illumination_loss_lowers_it() {
 fn detached_normals_get_no_gradient_from_the_rendering_layer() {
     for (normals, normals_move) in [(Source::Predicted, true), (Source::Detached, false)] {
         let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
-        let device = Device::flex().autodiff();
-        device.seed(7);
-        let layer = RenderingLayer::new(8);
-        let widths = Widths::new(4, 16, 32, 8).with_dropout(0.0);
-        let net = NetConfig::new(16, widths).with_env_height(8).init(&device);
-        let batch = sphere_batch(2, 16, 8, 3, &layer);
+        let (device, layer, net, batch) = fixture(7, Widths::new(4, 16, 32, 8).with_dropout(0.0));
         let b = batch.to_device(&device);
-        let outputs = |net: &super::network::Net| {
+        let outputs = |net: &Net| {
             (
                 host(&net.normal.forward(b.input.clone(), b.mask.clone())),
                 host(&net.illumination.forward(b.input.clone(), b.mask.clone())),
