@@ -183,8 +183,33 @@ pub fn ssim_at(pred: &[f32], truth: &[f32], mask: &[f32], h: usize, w: usize, ex
     if mask_is_empty(mask) {
         return 1.0;
     }
-    let (a, b) = (tonemap_display(pred, exposure), tonemap_display(truth, exposure));
+    ssim_of_display(
+        &tonemap_display(pred, exposure),
+        &tonemap_display(truth, exposure),
+        mask,
+        h,
+        w,
+    )
+}
+
+/// The SSIM of [`ssim`] between two images already in display values (`[3, H, W]`, [0, 255]):
+/// the window, constants, border rule and object-pixel average of [`ssim`], without its tone map.
+/// The training's structural loss (`train::loss::ssim_loss`) is checked against this.
+///
+/// # Panics
+/// When a slice's length does not match `h`, `w`.
+pub fn ssim_of_display(a: &[f64], b: &[f64], mask: &[f32], h: usize, w: usize) -> f64 {
     let hw = h * w;
+    assert!(
+        a.len() == 3 * hw && b.len() == 3 * hw && mask.len() == hw,
+        "ssim_of_display: images of {} and {} values, mask of {}, for 3 × {h} × {w}",
+        a.len(),
+        b.len(),
+        mask.len()
+    );
+    if mask_is_empty(mask) {
+        return 1.0;
+    }
     let mut total = 0.0;
     for c in 0..3 {
         let (x, y) = (&a[c * hw..(c + 1) * hw], &b[c * hw..(c + 1) * hw]);

@@ -13,8 +13,12 @@
 //! to [0, 1] instead of the hard one (so an over-bright prediction still has a gradient back),
 //! and a display gamma whose slope at black is bounded like sRGB's. The loss therefore weighs
 //! each pixel as the L2 and SSIM scores will see it, whatever the light probe's absolute scale.
-use burn::tensor::module::avg_pool2d;
-use burn::tensor::ops::AvgPoolOptions;
+//!
+//! **Structural loss** (an option, not in the paper): [`ssim_loss`], 1 − the evaluation's SSIM
+//! on the same tone map, added to the perceptual loss with its own weight (`[loss] ssim`).
+use crate::eval::metrics::{SSIM_C1, SSIM_C2, SSIM_RADIUS, SSIM_SIGMA};
+use burn::tensor::module::{avg_pool2d, conv2d};
+use burn::tensor::ops::{AvgPoolOptions, ConvOptions};
 use burn::tensor::{Tensor, TensorData};
 
 /// Masked mean of |n − n'|² over object pixels (Eq. 3, averaged rather than summed so that the
@@ -122,4 +126,77 @@ pub fn perceptual_fallback(pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -
         });
     }
     total.unwrap_or_else(|| Tensor::zeros([1], &d.device()))
+}
+
+/// Gaussian local means of the SSIM window, as the evaluation computes them
+/// (`eval::metrics::ssim`): 11 × 11 taps of σ = 1.5 pixels, the window cut at the image border
+/// and renormalised over the pixels it keeps. Two 1-D passes with zero padding, then a division
+/// by the same passes over an all-ones image (the kept weight, a constant).
+struct SsimWindow {
+    row: Tensor<4>,
+    col: Tensor<4>,
+    kept: Tensor<4>,
+}
+
+impl SsimWindow {
+    fn new(h: usize, w: usize, device: &burn::tensor::Device) -> Self {
+        let n = 2 * SSIM_RADIUS + 1;
+        let taps: Vec<f32> = (0..n)
+            .map(|i| {
+                let d = i as f64 - SSIM_RADIUS as f64;
+                (-d * d / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp() as f32
+            })
+            .collect();
+        let row = Tensor::<4>::from_data(TensorData::new(taps.clone(), [1, 1, 1, n]), device);
+        let col = Tensor::<4>::from_data(TensorData::new(taps, [1, 1, n, 1]), device);
+        let kept = Self::pass(&row, &col, Tensor::ones([1, 1, h, w], device)).detach();
+        Self { row, col, kept }
+    }
+
+    /// The two 1-D passes over each plane of `x` (`[N, 1, H, W]`), zero padded.
+    fn pass(row: &Tensor<4>, col: &Tensor<4>, x: Tensor<4>) -> Tensor<4> {
+        let r = SSIM_RADIUS;
+        let x = conv2d(x, row.clone(), None, ConvOptions::new([1, 1], [0, r], [1, 1], 1));
+        conv2d(x, col.clone(), None, ConvOptions::new([1, 1], [r, 0], [1, 1], 1))
+    }
+
+    /// Window-weighted mean of each plane of `x` (`[N, 1, H, W]`).
+    fn mean(&self, x: Tensor<4>) -> Tensor<4> {
+        Self::pass(&self.row, &self.col, x) / self.kept.clone()
+    }
+}
+
+/// The structural loss (an option, not in the paper): 1 − SSIM between a rendered image and its
+/// ground truth (`[B, 3, H, W]`, linear), both through [`display`] at the truth's exposure, the
+/// SSIM map of `eval::metrics::ssim` (same window, constants and border rule) averaged over each
+/// image's object pixels (`mask`, `[B, 1, H, W]`) and channels, then over the batch. In [0, 2];
+/// 0 for identical images and for an image without object pixels (the metric's "nothing wrong").
+///
+/// The paper's perceptual loss compares VGG16 features, which respond to local structure; the
+/// fallback's L2 does not. This term restores a structural signal when no VGG16 weights are
+/// available.
+pub fn ssim_loss(pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -> Tensor<1> {
+    let [b, c, h, w] = truth.dims();
+    let window = SsimWindow::new(h, w, &truth.device());
+    let e = exposure(&truth, &mask);
+    let planes = |t: Tensor<4>| t.reshape([b * c, 1, h, w]);
+    let x = planes(display(pred, e.clone()));
+    let y = planes(display(truth, e).detach());
+    let (mx, my) = (window.mean(x.clone()), window.mean(y.clone()));
+    let vx = window.mean(x.clone() * x.clone()) - mx.clone() * mx.clone();
+    let vy = window.mean(y.clone() * y.clone()) - my.clone() * my.clone();
+    let vxy = window.mean(x * y) - mx.clone() * my.clone();
+    let num = (mx.clone() * my.clone()).mul_scalar(2.0).add_scalar(SSIM_C1) * vxy.mul_scalar(2.0).add_scalar(SSIM_C2);
+    // Both factors are ≥ the constants (variances are ≥ 0 up to rounding), so the quotient is
+    // finite; the clamp keeps a rounding-negative variance from shrinking the denominator.
+    let den = (mx.clone() * mx + my.clone() * my).add_scalar(SSIM_C1) * (vx + vy).clamp_min(0.0).add_scalar(SSIM_C2);
+    let dissimilarity = (num / den).neg().add_scalar(1.0).reshape([b, c, h, w]) * mask.clone();
+    let per_image = dissimilarity.reshape([b, c * h * w]).sum_dim(1).reshape([b])
+        / mask
+            .reshape([b, h * w])
+            .sum_dim(1)
+            .reshape([b])
+            .mul_scalar(c as f64)
+            .add_scalar(1e-6);
+    per_image.mean()
 }

@@ -95,6 +95,9 @@ pub struct LossSection {
     /// w_L of a direct loss on L' (not in the paper; default 0: none).
     #[serde(default = "default_wl")]
     pub illumination: Spanned<f64>,
+    /// w_s of a structural loss, 1 − SSIM, on I' and O' (not in the paper; default 0: none).
+    #[serde(default = "default_wl")]
+    pub ssim: Spanned<f64>,
     /// Pretrained VGG16 weights (torchvision `.pth`/`.pt`, or safetensors) for the perceptual
     /// loss; without, the documented fallback is used and the log says so.
     #[serde(default)]
@@ -127,6 +130,7 @@ impl Default for LossSection {
             material: default_wm(),
             perceptual: default_wp(),
             illumination: default_wl(),
+            ssim: default_wl(),
             vgg16: None,
             vgg16_layers: default_layers(),
         }
@@ -507,6 +511,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         ("loss.material", &l.material),
         ("loss.perceptual", &l.perceptual),
         ("loss.illumination", &l.illumination),
+        ("loss.ssim", &l.ssim),
     ] {
         if !(v.get_ref().is_finite() && *v.get_ref() >= 0.0) {
             return Err(bad(
@@ -556,6 +561,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         material: *l.material.get_ref(),
         perceptual: *l.perceptual.get_ref(),
         illumination: *l.illumination.get_ref(),
+        ssim: *l.ssim.get_ref(),
     };
     Ok(TrainPlan {
         path: path.to_path_buf(),

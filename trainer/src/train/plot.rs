@@ -17,7 +17,7 @@ pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Resul
         let root = BitMapBackend::new(&tmp, (960, 540)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
         type Series<'a> = (&'static str, RGBColor, Box<dyn Fn(&MetricsLine) -> f64 + 'a>);
-        let series: [Series; 5] = [
+        let series: [Series; 6] = [
             ("total (Eq. 5)", BLACK, Box::new(|l| l.losses.total)),
             (
                 "w_n · normal",
@@ -38,6 +38,11 @@ pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Resul
                 "w_L · illumination",
                 RGBColor(148, 103, 189),
                 Box::new(|l| w.illumination * l.losses.illumination),
+            ),
+            (
+                "w_s · (1 − SSIM)",
+                RGBColor(214, 39, 40),
+                Box::new(|l| w.ssim * l.losses.ssim),
             ),
         ];
         let positive = |v: f64| v.is_finite() && v > 0.0;
@@ -138,17 +143,19 @@ mod tests {
                 let material = 0.2 / (i as f64).powf(0.3);
                 let perceptual = if joint { 5000.0 * wobble } else { 0.0 };
                 let illumination = 300.0 / (i as f64).powf(0.2);
+                let ssim = if joint { 0.3 * wobble } else { 0.0 };
                 MetricsLine {
                     stage: if joint { "joint" } else { "pretrain" }.into(),
                     step: if joint { i - 200 } else { i },
                     global_step: i,
                     lr: 1e-4,
                     losses: Losses {
-                        total: 1e4 * normal + 1e3 * material + perceptual + illumination,
+                        total: 1e4 * normal + 1e3 * material + perceptual + illumination + 1e4 * ssim,
                         normal,
                         material,
                         perceptual,
                         illumination,
+                        ssim,
                     },
                 }
             })
@@ -156,13 +163,20 @@ mod tests {
         let path = std::env::temp_dir().join(format!("matedit-loss-{}.png", std::process::id()));
         let weights = LossWeights {
             illumination: 1.0,
+            ssim: 1e4,
             ..LossWeights::default()
         };
         loss_curves(&lines, &path, &weights).unwrap();
         let img = image::open(&path).unwrap().to_rgb8();
         assert_eq!(img.dimensions(), (960, 540));
         // Each term's colour is on the canvas (the legend alone would be a few pixels).
-        for colour in [[31u8, 119, 180], [255, 127, 14], [44, 160, 44], [148, 103, 189]] {
+        for colour in [
+            [31u8, 119, 180],
+            [255, 127, 14],
+            [44, 160, 44],
+            [148, 103, 189],
+            [214, 39, 40],
+        ] {
             let n = img.pixels().filter(|p| p.0 == colour).count();
             assert!(n > 300, "colour {colour:?}: {n} pixels");
         }

@@ -3,7 +3,7 @@
 //! l = w_n·l_normal + w_m·l_material + w_p·l_perceptual (Eq. 5).
 
 use super::batch::{HostBatch, TensorBatch};
-use super::loss::{illumination_loss, material_loss, normal_loss};
+use super::loss::{illumination_loss, material_loss, normal_loss, ssim_loss};
 use super::network::Net;
 use super::perceptual::Perceptual;
 use crate::render::RenderingLayer;
@@ -96,6 +96,10 @@ pub struct LossWeights {
     /// layer; 0, the default, leaves it out). See [`super::loss::illumination_loss`].
     #[serde(default)]
     pub illumination: f64,
+    /// w_s, a structural loss 1 − SSIM on I' and O' added to the perceptual loss (not in the
+    /// paper; 0, the default, leaves it out). See [`super::loss::ssim_loss`].
+    #[serde(default)]
+    pub ssim: f64,
 }
 
 fn default_wn() -> f64 {
@@ -115,6 +119,7 @@ impl Default for LossWeights {
             material: default_wm(),
             perceptual: default_wp(),
             illumination: 0.0,
+            ssim: 0.0,
         }
     }
 }
@@ -133,6 +138,9 @@ pub struct Losses {
     /// The direct loss on L' (0 unless its weight is set).
     #[serde(default)]
     pub illumination: f64,
+    /// 1 − SSIM on I' plus on O' (0 unless its weight is set, and in pretraining).
+    #[serde(default)]
+    pub ssim: f64,
 }
 
 /// What every step of a run shares.
@@ -254,7 +262,16 @@ pub fn train_step(
             lp = lp + ctx.perceptual.loss(op.clone(), b.target.clone(), b.mask.clone());
         }
         losses.perceptual = scalar(&lp);
-        let grads = lp.mul_scalar(w.perceptual).backward();
+        let mut image_loss = lp.mul_scalar(w.perceptual);
+        if w.ssim > 0.0 {
+            let mut ls = ssim_loss(ip.clone(), b.input.clone(), b.mask.clone());
+            if let Some(op) = &op {
+                ls = ls + ssim_loss(op.clone(), b.target.clone(), b.mask.clone());
+            }
+            losses.ssim = scalar(&ls);
+            image_loss = image_loss + ls.mul_scalar(w.ssim);
+        }
+        let grads = image_loss.backward();
         let upstream = |t: &Tensor<4>, n: usize| t.grad(&grads).map(|g| host(&g)).unwrap_or_else(|| vec![0.0; n]);
         let tracked = |s: Source, t: &Tensor<4>| pick(s).then(|| t.clone());
         let g_i = upstream(&ip, i_r.values().len());
@@ -281,7 +298,8 @@ pub fn train_step(
     losses.total = w.normal * losses.normal
         + w.material * losses.material
         + w.perceptual * losses.perceptual
-        + w.illumination * losses.illumination;
+        + w.illumination * losses.illumination
+        + w.ssim * losses.ssim;
     if !losses.total.is_finite() {
         anyhow::bail!("the loss is not finite ({losses:?}) on batch {:?}", host_batch.ids);
     }

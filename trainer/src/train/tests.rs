@@ -277,6 +277,148 @@ fn the_direct_illumination_loss_is_scale_free_and_finite() {
     assert!(g.iter().all(|v| v.is_finite()), "finite gradient");
 }
 
+/// Deterministic values in [0, 1) (a 64-bit LCG: the tests need variety, not quality).
+fn noise(n: usize, seed: u64) -> Vec<f32> {
+    let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+    (0..n)
+        .map(|_| {
+            x = x
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (x >> 40) as f32 / (1u64 << 24) as f32
+        })
+        .collect()
+}
+
+/// The values of a tensor as f64.
+fn values(t: burn::tensor::Tensor<4>) -> Vec<f64> {
+    t.into_data()
+        .try_to_vec::<f32>()
+        .unwrap()
+        .into_iter()
+        .map(f64::from)
+        .collect()
+}
+
+/// The structural loss is 1 − the evaluation's SSIM (`eval::metrics`, itself checked against
+/// scikit-image) on the fallback's tone map: same window, border rule and object-pixel mean,
+/// per image, then averaged over the batch. At 9 × 14 the 11-tap window is cut at every border.
+#[test]
+fn the_ssim_loss_is_one_minus_the_metrics_ssim_per_image() {
+    use super::loss::{display, exposure, ssim_loss};
+    use crate::eval::metrics::ssim_of_display;
+    let device = Device::flex();
+    let (b, h, w) = (2, 9, 14);
+    let n = 3 * h * w;
+    let truth: Vec<f32> = noise(b * n, 1).iter().map(|v| 2.0 * v).collect();
+    let pred: Vec<f32> = truth
+        .iter()
+        .zip(noise(b * n, 2))
+        .map(|(t, r)| t * (0.4 + 1.2 * r))
+        .collect();
+    // Image 0: all but a 3 × 4 corner; image 1: a disc.
+    let mask: Vec<f32> = (0..b * h * w)
+        .map(|i| {
+            let (k, y, x) = (i / (h * w), (i / w) % h, i % w);
+            let on = if k == 0 {
+                !(y < 3 && x < 4)
+            } else {
+                (y as f32 - 4.0).powi(2) + (x as f32 - 7.0).powi(2) <= 16.0
+            };
+            f32::from(u8::from(on))
+        })
+        .collect();
+    let (p, t, m) = (
+        tensor4(pred, [b, 3, h, w], &device),
+        tensor4(truth, [b, 3, h, w], &device),
+        tensor4(mask.clone(), [b, 1, h, w], &device),
+    );
+    let loss = f64::from(
+        ssim_loss(p.clone(), t.clone(), m.clone())
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap()[0],
+    );
+    let e = exposure(&t, &m);
+    let (dp, dt) = (values(display(p, e.clone())), values(display(t, e)));
+    let expected = (0..b)
+        .map(|k| {
+            1.0 - ssim_of_display(
+                &dp[k * n..(k + 1) * n],
+                &dt[k * n..(k + 1) * n],
+                &mask[k * h * w..(k + 1) * h * w],
+                h,
+                w,
+            )
+        })
+        .sum::<f64>()
+        / b as f64;
+    assert!(expected > 0.1, "the images differ in structure: {expected}");
+    assert!((loss - expected).abs() < 1e-4, "loss {loss}, 1 − SSIM {expected}");
+}
+
+/// Identical images and an image without object pixels give 0 (the metric's "nothing wrong");
+/// zero, tiny, huge and negative pixels and a 1 × 1 image give a finite loss and gradient.
+#[test]
+fn the_ssim_loss_is_zero_at_the_truth_and_finite_on_hard_images() {
+    use super::loss::ssim_loss;
+    let device = Device::flex().autodiff();
+    let (h, w) = (6, 6);
+    let truth: Vec<f32> = noise(3 * h * w, 3);
+    let ones = vec![1.0f32; h * w];
+    let at = |pred: Vec<f32>, mask: &[f32], size: (usize, usize)| {
+        let (h, w) = size;
+        let p = tensor4(pred, [1, 3, h, w], &device).require_grad();
+        let t = tensor4(truth[..3 * h * w].to_vec(), [1, 3, h, w], &device);
+        let l = ssim_loss(p.clone(), t, tensor4(mask.to_vec(), [1, 1, h, w], &device));
+        let v = l.clone().into_data().try_to_vec::<f32>().unwrap()[0];
+        (v, gradient(&p, l))
+    };
+    let (same, _) = at(truth.clone(), &ones, (h, w));
+    assert!(same.abs() < 1e-5, "identical images: {same}");
+    let (empty, g) = at(noise(3 * h * w, 4), &vec![0.0; h * w], (h, w));
+    assert_eq!(empty, 0.0, "no object pixels");
+    assert!(g.iter().all(|v| *v == 0.0), "no object pixels, no gradient");
+    let hard: Vec<f32> = (0..3 * h * w).map(|i| [0.0, 1e-30, 3e38, -5.0][i % 4]).collect();
+    let (l, g) = at(hard, &ones, (h, w));
+    assert!(l.is_finite() && (0.0..=2.0).contains(&l), "hard pixels: {l}");
+    assert!(g.iter().all(|v| v.is_finite()), "hard pixels: finite gradient");
+    let (l, g) = at(vec![0.3, 0.0, 7.0], &[1.0], (1, 1));
+    assert!(l.is_finite() && g.iter().all(|v| v.is_finite()), "1 × 1: {l}, {g:?}");
+}
+
+/// Descending the structural loss restores structure the metric sees: from a copy of the truth
+/// with its detail flattened (each pixel replaced by its row's mean), 40 normalised gradient
+/// steps raise the evaluation's SSIM by more than 0.1.
+#[test]
+fn descending_the_ssim_loss_raises_the_metrics_ssim() {
+    use super::loss::ssim_loss;
+    use crate::eval::metrics::ssim;
+    let device = Device::flex().autodiff();
+    let (h, w) = (16, 16);
+    let truth: Vec<f32> = noise(3 * h * w, 5).iter().map(|v| 0.05 + 0.9 * v).collect();
+    let mask: Vec<f32> = (0..h * w).map(|i| f32::from(u8::from((i / w) % 15 != 0))).collect();
+    let mut pred: Vec<f32> = (0..3 * h * w)
+        .map(|i| truth[i - i % w..i - i % w + w].iter().sum::<f32>() / w as f32)
+        .collect();
+    let before = ssim(&pred, &truth, &mask, h, w);
+    for _ in 0..40 {
+        let p = tensor4(pred.clone(), [1, 3, h, w], &device).require_grad();
+        let l = ssim_loss(
+            p.clone(),
+            tensor4(truth.clone(), [1, 3, h, w], &device),
+            tensor4(mask.clone(), [1, 1, h, w], &device),
+        );
+        let g = gradient(&p, l);
+        let scale = g.iter().fold(0.0f32, |a, v| a.max(v.abs())).max(1e-20);
+        for (x, gi) in pred.iter_mut().zip(&g) {
+            *x -= 0.02 * gi / scale;
+        }
+    }
+    let after = ssim(&pred, &truth, &mask, h, w);
+    assert!(after > before + 0.1, "SSIM {before} → {after}");
+}
+
 /// With a weight on the direct illumination loss, pretraining also trains L' and reports it;
 /// without (the paper), the term is 0.
 #[test]
@@ -343,5 +485,50 @@ fn detached_normals_get_no_gradient_from_the_rendering_layer() {
             moved(&n0, &n1)
         );
         assert!(moved(&l0, &l1) > 1e-6, "{normals:?}: L' did not learn");
+    }
+}
+
+/// The structural loss trains the modules through the rendering layer: with every other weight
+/// 0, a joint step with w_s > 0 reports 1 − SSIM on I' and O' and moves n' and L'; with w_s = 0
+/// it reports 0 and nothing moves.
+#[test]
+fn the_ssim_loss_trains_through_the_rendering_layer() {
+    for w_s in [0.0, 100.0] {
+        let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
+        let (device, layer, net, batch) = fixture(11, Widths::new(4, 16, 32, 8).with_dropout(0.0));
+        let b = batch.to_device(&device);
+        let outputs = |net: &Net| {
+            (
+                host(&net.normal.forward(b.input.clone(), b.mask.clone())),
+                host(&net.illumination.forward(b.input.clone(), b.mask.clone())),
+            )
+        };
+        let (n0, l0) = outputs(&net);
+        let w = LossWeights {
+            normal: 0.0,
+            material: 0.0,
+            perceptual: 0.0,
+            illumination: 0.0,
+            ssim: w_s,
+        };
+        let ctx = StepContext {
+            layer: &layer,
+            weights: &w,
+            perceptual: &Perceptual::Fallback,
+            device: &device,
+        };
+        let (net, l) = train_step(net, &mut AdamConfig::new().init(), 1e-3, &batch, StepKind::JOINT, &ctx).unwrap();
+        let (n1, l1) = outputs(&net);
+        let moved = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        if w_s > 0.0 {
+            assert!(l.ssim > 0.0 && l.ssim <= 4.0 && l.total == w_s * l.ssim, "{l:?}");
+            assert!(moved(&n0, &n1) > 1e-6 && moved(&l0, &l1) > 1e-6, "n' and L' learn");
+        } else {
+            assert!(l.ssim == 0.0 && l.total == 0.0, "{l:?}");
+            assert!(
+                moved(&n0, &n1) == 0.0 && moved(&l0, &l1) == 0.0,
+                "nothing to learn from"
+            );
+        }
     }
 }
