@@ -440,32 +440,41 @@ fn pretraining_with_the_direct_illumination_loss_lowers_it() {
     }
 }
 
+/// One joint step of a fresh seeded network (no dropout) with weights `w`: the step's losses and
+/// how far (largest absolute change on the fixed batch) it moved n' and L'.
+fn one_joint_step(seed: u64, w: &LossWeights, kind: StepKind) -> (super::step::Losses, f32, f32) {
+    let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
+    let (device, layer, net, batch) = fixture(seed, Widths::new(4, 16, 32, 8).with_dropout(0.0));
+    let b = batch.to_device(&device);
+    let outputs = |net: &Net| {
+        (
+            host(&net.normal.forward(b.input.clone(), b.mask.clone())),
+            host(&net.illumination.forward(b.input.clone(), b.mask.clone())),
+        )
+    };
+    let (n0, l0) = outputs(&net);
+    let ctx = StepContext {
+        layer: &layer,
+        weights: w,
+        perceptual: &Perceptual::Fallback,
+        device: &device,
+    };
+    let (net, l) = train_step(net, &mut AdamConfig::new().init(), 1e-3, &batch, kind, &ctx).unwrap();
+    let (n1, l1) = outputs(&net);
+    let moved = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+    (l, moved(&n0, &n1), moved(&l0, &l1))
+}
+
 /// `render_with = { normals = "detached" }`: the rendering layer reads n' but its gradient stops
 /// there. With w_n = w_m = 0 (only the perceptual loss), one joint step leaves the normal
 /// module's output where it was, while with n' predicted (Fig. 2) it moves; L' learns in both.
 #[test]
 fn detached_normals_get_no_gradient_from_the_rendering_layer() {
     for (normals, normals_move) in [(Source::Predicted, true), (Source::Detached, false)] {
-        let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
-        let (device, layer, net, batch) = fixture(7, Widths::new(4, 16, 32, 8).with_dropout(0.0));
-        let b = batch.to_device(&device);
-        let outputs = |net: &Net| {
-            (
-                host(&net.normal.forward(b.input.clone(), b.mask.clone())),
-                host(&net.illumination.forward(b.input.clone(), b.mask.clone())),
-            )
-        };
-        let (n0, l0) = outputs(&net);
         let w = LossWeights {
             normal: 0.0,
             material: 0.0,
             ..LossWeights::default()
-        };
-        let ctx = StepContext {
-            layer: &layer,
-            weights: &w,
-            perceptual: &Perceptual::Fallback,
-            device: &device,
         };
         let kind = StepKind {
             kind: StageKind::Joint,
@@ -474,17 +483,10 @@ fn detached_normals_get_no_gradient_from_the_rendering_layer() {
                 ..RenderWith::default()
             },
         };
-        let (net, l) = train_step(net, &mut AdamConfig::new().init(), 1e-3, &batch, kind, &ctx).unwrap();
+        let (l, n_moved, l_moved) = one_joint_step(7, &w, kind);
         assert!(l.perceptual > 0.0 && l.total.is_finite(), "{l:?}");
-        let (n1, l1) = outputs(&net);
-        let moved = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
-        assert_eq!(
-            moved(&n0, &n1) > 1e-6,
-            normals_move,
-            "{normals:?}: n' moved {}",
-            moved(&n0, &n1)
-        );
-        assert!(moved(&l0, &l1) > 1e-6, "{normals:?}: L' did not learn");
+        assert_eq!(n_moved > 1e-6, normals_move, "{normals:?}: n' moved {n_moved}");
+        assert!(l_moved > 1e-6, "{normals:?}: L' did not learn");
     }
 }
 
@@ -494,16 +496,6 @@ fn detached_normals_get_no_gradient_from_the_rendering_layer() {
 #[test]
 fn the_ssim_loss_trains_through_the_rendering_layer() {
     for w_s in [0.0, 100.0] {
-        let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
-        let (device, layer, net, batch) = fixture(11, Widths::new(4, 16, 32, 8).with_dropout(0.0));
-        let b = batch.to_device(&device);
-        let outputs = |net: &Net| {
-            (
-                host(&net.normal.forward(b.input.clone(), b.mask.clone())),
-                host(&net.illumination.forward(b.input.clone(), b.mask.clone())),
-            )
-        };
-        let (n0, l0) = outputs(&net);
         let w = LossWeights {
             normal: 0.0,
             material: 0.0,
@@ -511,24 +503,13 @@ fn the_ssim_loss_trains_through_the_rendering_layer() {
             illumination: 0.0,
             ssim: w_s,
         };
-        let ctx = StepContext {
-            layer: &layer,
-            weights: &w,
-            perceptual: &Perceptual::Fallback,
-            device: &device,
-        };
-        let (net, l) = train_step(net, &mut AdamConfig::new().init(), 1e-3, &batch, StepKind::JOINT, &ctx).unwrap();
-        let (n1, l1) = outputs(&net);
-        let moved = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        let (l, n_moved, l_moved) = one_joint_step(11, &w, StepKind::JOINT);
         if w_s > 0.0 {
             assert!(l.ssim > 0.0 && l.ssim <= 4.0 && l.total == w_s * l.ssim, "{l:?}");
-            assert!(moved(&n0, &n1) > 1e-6 && moved(&l0, &l1) > 1e-6, "n' and L' learn");
+            assert!(n_moved > 1e-6 && l_moved > 1e-6, "n' and L' learn");
         } else {
             assert!(l.ssim == 0.0 && l.total == 0.0, "{l:?}");
-            assert!(
-                moved(&n0, &n1) == 0.0 && moved(&l0, &l1) == 0.0,
-                "nothing to learn from"
-            );
+            assert!(n_moved == 0.0 && l_moved == 0.0, "nothing to learn from");
         }
     }
 }
