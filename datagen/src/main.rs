@@ -76,7 +76,7 @@ enum Command {
         /// Output PNG (default DIR/inspect.png).
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Number of samples (rows), spread over the index.
+        /// Number of samples (rows), chosen to cover the most shapes, materials and environments.
         #[arg(long, default_value_t = 6)]
         samples: usize,
         /// Only samples of this split.

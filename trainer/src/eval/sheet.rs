@@ -1,17 +1,29 @@
 //! The contact sheet of `trainer eval`: one row per shown sample, columns I, I', O, O', n, n',
-//! L, L' (the final checkpoint's predictions). Each pair shares the ground truth's exposure (the
-//! metrics' rule, [`super::metrics::metric_exposure`]), so a brightness error shows as one.
+//! L, L' (the final checkpoint's predictions) under a header row naming them. Each pair shares
+//! the ground truth's exposure (the metrics' rule, [`super::metrics::metric_exposure`]), so a
+//! brightness error shows as one.
 
 use super::metrics::metric_exposure;
 use anyhow::Result;
-use matedit_datagen::io::{normal_to_u8, write_contact_sheet};
+use matedit_datagen::io::{SheetLabels, contact_sheet, normal_to_u8, write_labelled_contact_sheet};
 use matedit_physics::tonemap::tonemap_u8;
 use std::path::Path;
 
 /// Tile side in pixels.
 pub const TILE: usize = 96;
-/// Column titles, in order.
-pub const COLUMNS: [&str; 8] = ["I", "I'", "O", "O'", "n", "n'", "L", "L'"];
+/// Column titles, in order: the sheet's header row shows them. Ground truth and prediction
+/// alternate; I' is the input re-rendered from the predictions, O' the edit (the predicted
+/// normals and light with the target material m_t).
+pub const COLUMNS: [&str; 8] = [
+    "I (input)",
+    "I' (pred)",
+    "O (truth)",
+    "O' (pred)",
+    "n (truth)",
+    "n' (pred)",
+    "L (truth)",
+    "L' (pred)",
+];
 
 /// The images of one shown sample, channel-first.
 #[derive(Clone, Debug, Default)]
@@ -95,8 +107,106 @@ pub fn tiles(s: &Shown) -> Vec<Tile> {
     out
 }
 
+const LABELS: SheetLabels<'static> = SheetLabels {
+    columns: &COLUMNS,
+    rows: &[],
+};
+
+/// The sheet of `shown`, header row included.
+pub fn sheet_image(shown: &[Shown]) -> image::RgbaImage {
+    let tiles: Vec<Tile> = shown.iter().flat_map(tiles).collect();
+    contact_sheet(&tiles, TILE, TILE, COLUMNS.len(), &LABELS)
+}
+
 /// Writes the sheet of `shown` to `path` (PNG, atomically).
 pub fn write(path: &Path, shown: &[Shown]) -> Result<()> {
     let tiles: Vec<Tile> = shown.iter().flat_map(tiles).collect();
-    write_contact_sheet(path, &tiles, TILE, TILE, COLUMNS.len())
+    write_labelled_contact_sheet(path, &tiles, TILE, TILE, COLUMNS.len(), &LABELS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A lit sphere (prediction a little darker) under a sky-to-ground gradient.
+    fn sphere(size: usize, env_height: usize) -> Shown {
+        let hw = size * size;
+        let (mut mask, mut n) = (vec![0.0f32; hw], vec![0.0f32; 3 * hw]);
+        for p in 0..hw {
+            let x = 2.0 * ((p % size) as f32 + 0.5) / size as f32 - 1.0;
+            let y = 1.0 - 2.0 * ((p / size) as f32 + 0.5) / size as f32;
+            let z2 = 1.0 - x * x - y * y;
+            if z2 > 0.0 {
+                mask[p] = 1.0;
+                [n[p], n[hw + p], n[2 * hw + p]] = [x, y, z2.sqrt()];
+            }
+        }
+        let shade = |gain: f32| -> Vec<f32> {
+            let z = &n[2 * hw..];
+            (0..3)
+                .flat_map(|c| z.iter().map(move |z| (0.3 + 0.2 * c as f32) * gain * z))
+                .collect()
+        };
+        let (he, we) = (env_height, 2 * env_height);
+        let env: Vec<f32> = (0..3)
+            .flat_map(|c| (0..he * we).map(move |t| (1.0 - (t / we) as f32 / he as f32) * (0.4 + 0.3 * c as f32)))
+            .collect();
+        Shown {
+            size,
+            env_height,
+            mask,
+            images: [shade(1.0), shade(0.8), shade(0.6), shade(0.5)],
+            normals: [n.clone(), n],
+            env: [env.clone(), env.iter().map(|v| v * 0.7).collect()],
+        }
+    }
+
+    #[test]
+    fn the_sheet_has_a_header_row_naming_each_column_from_the_column_list() {
+        let shown = [sphere(64, 8), sphere(32, 4)];
+        let img = sheet_image(&shown);
+        let path = std::env::temp_dir().join(format!("matedit-eval-sheet-{}.png", std::process::id()));
+        write(&path, &shown).unwrap();
+        let written = ::image::open(&path).unwrap().to_rgba8();
+        std::fs::remove_file(&path).unwrap();
+        assert_eq!(written, img, "the written sheet is the one drawn");
+        let header = LABELS.header_height();
+        assert!(header > 0);
+        assert_eq!(img.width() as usize, COLUMNS.len() * TILE);
+        assert_eq!(
+            img.height() as usize,
+            header + shown.len() * TILE,
+            "taller by the header"
+        );
+        assert_eq!(tiles(&shown[0]).len(), COLUMNS.len(), "one tile per named column");
+
+        // Column c's header cell is exactly the header of a one-column sheet titled COLUMNS[c]:
+        // the names come from the column list, in its order.
+        let background = *img.get_pixel(0, 0);
+        for (c, name) in COLUMNS.iter().enumerate() {
+            let alone = contact_sheet(
+                &[],
+                TILE,
+                TILE,
+                1,
+                &SheetLabels {
+                    columns: &[name],
+                    rows: &[],
+                },
+            );
+            let mut lit = 0;
+            for y in 0..header as u32 {
+                for x in 0..TILE as u32 {
+                    let px = *img.get_pixel(c as u32 * TILE as u32 + x, y);
+                    assert_eq!(
+                        px,
+                        *alone.get_pixel(x, y),
+                        "column {c}'s header is not {name:?} at ({x}, {y})"
+                    );
+                    lit += usize::from(px != background);
+                }
+            }
+            assert!(lit > 0, "column {c} ({name}) has no header text");
+        }
+    }
 }
