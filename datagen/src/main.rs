@@ -68,6 +68,10 @@ enum Command {
     Verify {
         /// The dataset directory.
         dir: PathBuf,
+        /// Also recompute every member's content fingerprint from this manifest's sources (the
+        /// dataset's own manifest) and check the recorded ones and the split boundary with them.
+        #[arg(long, value_name = "MANIFEST")]
+        sources: Option<PathBuf>,
     },
     /// Write a contact sheet of samples (I, O, normals, mask, regions, environment).
     Inspect {
@@ -447,8 +451,14 @@ mod dataset {
         Ok(())
     }
 
-    pub fn verify(dir: &std::path::Path) -> ExitCode {
-        match v::verify(dir) {
+    pub fn verify(dir: &std::path::Path, sources: Option<&std::path::Path>) -> ExitCode {
+        let report = v::verify(dir).and_then(|mut rep| {
+            if let Some(m) = sources {
+                rep.problems.extend(v::verify_sources(dir, m)?);
+            }
+            Ok(rep)
+        });
+        match report {
             Ok(rep) => {
                 for p in &rep.problems {
                     println!("{p}");
@@ -565,7 +575,7 @@ fn main() -> ExitCode {
         Command::Plan { manifest } => dataset::plan(&manifest),
         Command::Run { manifest, out, worker } => dataset::run(&manifest, out, worker),
         Command::Join { dir, from } => dataset::join(&dir, &from),
-        Command::Verify { dir } => return dataset::verify(&dir),
+        Command::Verify { dir, sources } => return dataset::verify(&dir, sources.as_deref()),
         Command::Inspect {
             dir,
             out,

@@ -2,6 +2,7 @@
 //! a stable id, sorted by id. Ids name things inside their source, never where it is mounted,
 //! so two machines build identical datasets from the same manifest.
 
+use super::content::Merge;
 use super::manifest::{EnvSourceToml, ManifestError, ManifestFile, MaterialSourceToml, ShapeSourceToml};
 use crate::assets::envmaps::Family;
 use crate::materials::library::library;
@@ -24,6 +25,13 @@ pub struct ShapeItem {
     pub spec: String,
     /// Up axis of the file.
     pub up: UpAxis,
+    /// Content group (the id of its first member): identical or near-duplicate geometry
+    /// (`content.rs`); all members go to the same split.
+    pub group: String,
+    /// Geometry fingerprint, `blake3:HEX` (`content.rs`; empty until the plan computes it).
+    pub fingerprint: String,
+    /// Index of the `[[shapes]]` entry that provides it (for messages).
+    pub entry: usize,
 }
 
 /// Where a material's BRDF comes from.
@@ -46,6 +54,10 @@ pub struct MaterialItem {
     pub group: String,
     /// The source BRDF.
     pub source: MaterialSource,
+    /// Parameter fingerprint, `blake3:HEX` (`content.rs`; empty until the plan computes it).
+    pub fingerprint: String,
+    /// Index of the `[[materials]]` entry that provides it (for messages).
+    pub entry: usize,
 }
 
 /// An environment of the catalogue.
@@ -55,6 +67,12 @@ pub struct EnvItem {
     pub id: String,
     /// What [`load_env`](crate::io::load_env) accepts.
     pub spec: String,
+    /// Content group (the id of its first member): identical pixels go to the same split.
+    pub group: String,
+    /// Pixel fingerprint, `blake3:HEX`, computed only when splits deal environments.
+    pub fingerprint: String,
+    /// Index of the `[[environments]]` entry that provides it (for messages).
+    pub entry: usize,
 }
 
 /// Everything the sources provide.
@@ -68,6 +86,8 @@ pub struct Catalogue {
     pub envs: Vec<EnvItem>,
     /// Sources that were missing and replaced by embedded defaults (`if_missing`), as notes.
     pub substitutions: Vec<String>,
+    /// Groups joined because their content is identical or nearly so (`content.rs`).
+    pub merges: Vec<Merge>,
 }
 
 impl Catalogue {
@@ -76,13 +96,19 @@ impl Catalogue {
     pub fn resolve(mf: &ManifestFile) -> Result<Catalogue, ManifestError> {
         let mut cat = Catalogue::default();
         for (i, entry) in mf.manifest.shapes.iter().enumerate() {
+            let first = cat.shapes.len();
             shapes_of(mf, &mut cat, i, entry)?;
+            cat.shapes[first..].iter_mut().for_each(|s| s.entry = i);
         }
         for (i, entry) in mf.manifest.materials.iter().enumerate() {
+            let first = cat.materials.len();
             materials_of(mf, &mut cat, i, entry)?;
+            cat.materials[first..].iter_mut().for_each(|m| m.entry = i);
         }
         for (i, entry) in mf.manifest.environments.iter().enumerate() {
+            let first = cat.envs.len();
             envs_of(mf, &mut cat, i, entry)?;
+            cat.envs[first..].iter_mut().for_each(|e| e.entry = i);
         }
         let m = &mf.manifest;
         dedup(mf, &mut cat.shapes, |s| &s.id, first_span(&m.shapes), "shapes")?;
@@ -226,10 +252,13 @@ fn shapes_of(
     let procedural = |cat: &mut Catalogue, c: Category, first: u64, count: usize| {
         for e in sources::procedural(c, first, count) {
             cat.shapes.push(ShapeItem {
+                group: e.id.clone(),
                 id: e.id,
                 category: c.name().into(),
                 spec: e.spec,
                 up: UpAxis::PosY,
+                fingerprint: String::new(),
+                entry: i,
             });
         }
     };
@@ -299,10 +328,13 @@ fn shapes_of(
                     for e in found {
                         let category = e.category.map(|c| c.name()).unwrap_or("uncategorised");
                         cat.shapes.push(ShapeItem {
+                            group: e.id.clone(),
                             id: e.id,
                             category: category.into(),
                             spec: e.spec,
                             up,
+                            fingerprint: String::new(),
+                            entry: i,
                         });
                     }
                 }
@@ -370,6 +402,8 @@ fn library_items(names: Option<&Vec<String>>, families: Option<&Vec<String>>) ->
             id: format!("library:{}", m.name),
             group: format!("library:{}", m.group),
             source: MaterialSource::Library(m.spec),
+            fingerprint: String::new(),
+            entry: 0,
         })
         .collect())
 }
@@ -477,7 +511,13 @@ fn materials_of(
                         } else {
                             (format!("merl:{name}"), merl_group(&name), MaterialSource::Merl(f))
                         };
-                        cat.materials.push(MaterialItem { id, group, source });
+                        cat.materials.push(MaterialItem {
+                            id,
+                            group,
+                            source,
+                            fingerprint: String::new(),
+                            entry: i,
+                        });
                     }
                 }
                 None => {
@@ -518,7 +558,13 @@ fn procedural_envs(family: &str, first: u64, count: usize) -> Result<Vec<EnvItem
         .flat_map(|f| {
             (first..first + count as u64).map(move |seed| {
                 let spec = format!("builtin:{}:{seed}", f.name());
-                EnvItem { id: spec.clone(), spec }
+                EnvItem {
+                    id: spec.clone(),
+                    group: spec.clone(),
+                    spec,
+                    fingerprint: String::new(),
+                    entry: 0,
+                }
             })
         })
         .collect())
@@ -613,9 +659,13 @@ fn envs_of(
                         let spec = f.to_str().map(str::to_string).ok_or_else(|| {
                             mf.invalid(span.clone(), &format!("{field}.path"), "path is not valid UTF-8")
                         })?;
+                        let id = format!("file:{name}");
                         cat.envs.push(EnvItem {
-                            id: format!("file:{name}"),
+                            group: id.clone(),
+                            id,
                             spec,
+                            fingerprint: String::new(),
+                            entry: i,
                         });
                     }
                 }

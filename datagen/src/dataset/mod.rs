@@ -2,6 +2,8 @@
 //!
 //! * [`manifest`]: the file format, with errors that name the file, line and field;
 //! * [`catalogue`]: every shape, material and environment the manifest's sources provide;
+//! * [`content`]: fingerprints of what they are, and groups of identical or near-duplicate
+//!   content that the plan deals whole;
 //! * [`plan`]: the split deal (no shape or material in two splits), combinations, views,
 //!   samples and shards;
 //! * [`materials`]: fitted 108-parameter labels and the BRDFs that render them;
@@ -14,6 +16,7 @@
 
 pub mod bench;
 pub mod catalogue;
+pub mod content;
 pub mod inspect;
 pub mod manifest;
 pub mod materials;

@@ -6,6 +6,11 @@
 //! shuffle; materials are dealt by near-duplicate *group*, so variants of one material (the
 //! library's `gold-polished` / `gold-brushed`, MERL's `paint` / `paint2`) can never sit on both
 //! sides. Explicit id lists are checked for the same two rules.
+//!
+//! **Nor content.** Shapes, materials and dealt environments are fingerprinted first
+//! (`content.rs`); identical (and, for shapes, near-duplicate) content forms one group, and
+//! groups are dealt whole. Groups of one member are dealt exactly as single items were, so a
+//! catalogue without duplicates gets the same deal as before fingerprints existed.
 
 use super::catalogue::Catalogue;
 use super::manifest::{ManifestError, ManifestFile};
@@ -315,7 +320,7 @@ fn settings(mf: &ManifestFile) -> Result<Settings, ManifestError> {
 
 impl Plan {
     /// Builds the plan; every impossible request is an error naming its field and line.
-    pub fn new(mf: &ManifestFile, catalogue: Catalogue) -> Result<Plan, ManifestError> {
+    pub fn new(mf: &ManifestFile, mut catalogue: Catalogue) -> Result<Plan, ManifestError> {
         let settings = settings(mf)?;
         let m = &mf.manifest;
         let seed = m.dataset.seed;
@@ -355,6 +360,8 @@ impl Plan {
                 }
             })
             .collect::<Result<_, _>>()?;
+        let envs_dealt = m.splits.iter().any(|s| s.get_ref().environments.is_some());
+        super::content::analyse(mf, &mut catalogue, envs_dealt)?;
         let shapes = deal_shapes(mf, &catalogue, seed)?;
         let materials = deal_materials(mf, &catalogue, seed, &roles)?;
         let envs = deal_envs(mf, &catalogue, seed)?;
@@ -512,6 +519,9 @@ fn deal_shapes(mf: &ManifestFile, cat: &Catalogue, seed: u64) -> Result<Vec<Vec<
     let splits = &mf.manifest.splits;
     let index: BTreeMap<&str, usize> = cat.shapes.iter().enumerate().map(|(i, s)| (s.id.as_str(), i)).collect();
     let mut taken: BTreeMap<usize, usize> = BTreeMap::new();
+    // Content group → (split, the member it took), so a second split reaching the same group
+    // through another id is named with both ids.
+    let mut owner: BTreeMap<&str, (usize, usize)> = BTreeMap::new();
     let mut out = vec![Vec::new(); splits.len()];
     for (i, s) in splits.iter().enumerate() {
         for id in &s.get_ref().shape_ids {
@@ -532,34 +542,74 @@ fn deal_shapes(mf: &ManifestFile, cat: &Catalogue, seed: u64) -> Result<Vec<Vec<
                     ),
                 ));
             }
+            let g = cat.shapes[k].group.as_str();
+            if let Some(&(j, other)) = owner.get(g)
+                && j != i
+            {
+                return Err(mf.invalid(
+                    s.span(),
+                    &format!("splits[{i}].shape_ids"),
+                    format!(
+                        "{id} and {} in split {:?} are one shape by content ({}): splits may not share a shape",
+                        cat.shapes[other].id,
+                        splits[j].get_ref().name,
+                        why_joined(cat, "shape", &cat.shapes[other].id, id)
+                    ),
+                ));
+            }
+            owner.entry(g).or_insert((i, k));
             taken.insert(k, i);
             out[i].push(k);
         }
     }
     let categories: BTreeSet<&str> = cat.shapes.iter().map(|s| s.category.as_str()).collect();
     for c in &categories {
-        let mut pool: Vec<usize> = (0..cat.shapes.len())
-            .filter(|k| cat.shapes[*k].category == *c && !taken.contains_key(k))
-            .collect();
+        // Whole groups not reached by explicit ids, in the order of their first member: a
+        // catalogue without duplicates gives the same pool, shuffle and deal as single shapes.
+        let mut groups: Vec<Vec<usize>> = Vec::new();
+        let mut slot: BTreeMap<&str, usize> = BTreeMap::new();
+        for (k, s) in cat.shapes.iter().enumerate() {
+            if s.category != *c || owner.contains_key(s.group.as_str()) {
+                continue;
+            }
+            let at = *slot.entry(s.group.as_str()).or_insert_with(|| {
+                groups.push(Vec::new());
+                groups.len() - 1
+            });
+            groups[at].push(k);
+        }
         let total = cat.shapes.iter().filter(|s| s.category == *c).count();
-        shuffle(&mut pool, &mut Draw::new(seed, stream_of(&["shapes", c])));
+        let pooled: usize = groups.iter().map(Vec::len).sum();
+        shuffle(&mut groups, &mut Draw::new(seed, stream_of(&["shapes", c])));
         let mut next = 0;
+        let mut dealt = 0;
         for (i, s) in splits.iter().enumerate() {
             if let Some(n) = s.get_ref().shapes.get(*c) {
                 let want = *n.get_ref();
-                if next + want > pool.len() {
+                let left: usize = groups[next..].iter().map(Vec::len).sum();
+                if want > left {
                     return Err(mf.invalid(
                         n.span(),
                         &format!("splits[{i}].shapes.{c}"),
                         format!(
-                            "asks for {want} {c} shapes but only {} are left ({total} provided, {} taken by explicit ids, {next} by earlier splits)",
-                            pool.len() - next,
-                            total - pool.len()
+                            "asks for {want} {c} shapes but only {left} are left ({total} provided, {} taken by explicit ids or their content groups, {dealt} by earlier splits, whole groups)",
+                            total - pooled
                         ),
                     ));
                 }
-                out[i].extend_from_slice(&pool[next..next + want]);
-                next += want;
+                let mut got = 0;
+                while got < want {
+                    // A group dealt in part leaves its other members unused: they never go
+                    // to another split.
+                    for &k in &groups[next] {
+                        if got < want {
+                            out[i].push(k);
+                            got += 1;
+                        }
+                    }
+                    dealt += groups[next].len();
+                    next += 1;
+                }
             }
         }
     }
@@ -581,6 +631,34 @@ fn deal_shapes(mf: &ManifestFile, cat: &Catalogue, seed: u64) -> Result<Vec<Vec<
     Ok(out)
 }
 
+/// Why two ids of one kind share a content group, from the recorded merges: the reason of the
+/// merge that names both, else of the merges naming either (a chain), else a near-duplicate
+/// name group.
+fn why_joined(cat: &Catalogue, kind: &str, a: &str, b: &str) -> String {
+    let of = |x: &str| {
+        cat.merges
+            .iter()
+            .filter(|m| m.kind == kind && m.ids.iter().any(|i| i == x))
+            .map(|m| m.reason.clone())
+            .collect::<Vec<_>>()
+    };
+    if let Some(m) = cat
+        .merges
+        .iter()
+        .find(|m| m.kind == kind && m.ids.iter().any(|i| i == a) && m.ids.iter().any(|i| i == b))
+    {
+        return m.reason.clone();
+    }
+    let mut reasons: Vec<String> = of(a).into_iter().chain(of(b)).collect();
+    reasons.sort();
+    reasons.dedup();
+    if reasons.is_empty() {
+        "near-duplicate group".into()
+    } else {
+        format!("joined by {}", reasons.join(", "))
+    }
+}
+
 fn deal_materials(
     mf: &ManifestFile,
     cat: &Catalogue,
@@ -594,8 +672,8 @@ fn deal_materials(
         .enumerate()
         .map(|(i, m)| (m.id.as_str(), i))
         .collect();
-    // Group → split that owns it.
-    let mut owner: BTreeMap<&str, usize> = BTreeMap::new();
+    // Group → (split that owns it, the member it listed first).
+    let mut owner: BTreeMap<&str, (usize, usize)> = BTreeMap::new();
     let mut out = vec![Vec::new(); splits.len()];
     for (i, s) in splits.iter().enumerate() {
         for id in &s.get_ref().material_ids {
@@ -608,13 +686,15 @@ fn deal_materials(
             })?;
             let g = cat.materials[k].group.as_str();
             match owner.get(g) {
-                Some(&j) if j != i => {
+                Some(&(j, other)) if j != i => {
+                    let other = &cat.materials[other].id;
                     return Err(mf.invalid(
                         s.span(),
                         &format!("splits[{i}].material_ids"),
                         format!(
-                            "{id} (group {g}) would share its near-duplicate group with split {:?}: splits may not share a material",
-                            splits[j].get_ref().name
+                            "{id} (group {g}) would share its near-duplicate group with {other} in split {:?} ({}): splits may not share a material",
+                            splits[j].get_ref().name,
+                            why_joined(cat, "material", other, id)
                         ),
                     ));
                 }
@@ -627,7 +707,7 @@ fn deal_materials(
                     format!("{id} is listed twice"),
                 ));
             }
-            owner.insert(g, i);
+            owner.entry(g).or_insert((i, k));
             out[i].push(k);
         }
     }
@@ -700,15 +780,19 @@ fn deal_materials(
                 continue;
             }
             for &a in &out[i] {
-                if out[j].iter().any(|&b| cat.materials[b].group == cat.materials[a].group) {
+                if let Some(&b) = out[j]
+                    .iter()
+                    .find(|&&b| cat.materials[b].group == cat.materials[a].group)
+                {
+                    let group = &cat.materials[a].group;
+                    let (a, b) = (&cat.materials[a].id, &cat.materials[b].id);
                     return Err(mf.invalid(
                         splits[i].span(),
                         &format!("splits[{i}].material_ids"),
                         format!(
-                            "{} shares its near-duplicate group {} with split {:?}: splits may not share a material",
-                            cat.materials[a].id,
-                            cat.materials[a].group,
-                            splits[j].get_ref().name
+                            "{a} shares its near-duplicate group {group} with {b} in split {:?} ({}): splits may not share a material",
+                            splits[j].get_ref().name,
+                            why_joined(cat, "material", b, a)
                         ),
                     ));
                 }
@@ -727,7 +811,17 @@ fn deal_envs(mf: &ManifestFile, cat: &Catalogue, seed: u64) -> Result<Vec<Vec<us
     if counted.iter().all(Option::is_none) {
         return Ok(vec![(0..cat.envs.len()).collect(); splits.len()]);
     }
-    let mut pool: Vec<usize> = (0..cat.envs.len()).collect();
+    // Whole groups of identical pixels, in the order of their first member (single maps deal
+    // as before).
+    let mut pool: Vec<Vec<usize>> = Vec::new();
+    let mut slot: BTreeMap<&str, usize> = BTreeMap::new();
+    for (k, e) in cat.envs.iter().enumerate() {
+        let at = *slot.entry(e.group.as_str()).or_insert_with(|| {
+            pool.push(Vec::new());
+            pool.len() - 1
+        });
+        pool[at].push(k);
+    }
     shuffle(&mut pool, &mut Draw::new(seed, stream_of(&["environments"])));
     let mut next = 0;
     let mut out = Vec::new();
@@ -740,21 +834,28 @@ fn deal_envs(mf: &ManifestFile, cat: &Catalogue, seed: u64) -> Result<Vec<Vec<us
             ));
         };
         let want = *n.get_ref();
-        if next + want > pool.len() {
+        let left: usize = pool[next..].iter().map(Vec::len).sum();
+        if want > left {
             return Err(mf.invalid(
                 n.span(),
                 &format!("splits[{i}].environments"),
                 format!(
-                    "asks for {want} environments but only {} are left of {}",
-                    pool.len() - next,
-                    pool.len()
+                    "asks for {want} environments but only {left} are left of {} (identical maps go to one split)",
+                    cat.envs.len()
                 ),
             ));
         }
-        let mut mine = pool[next..next + want].to_vec();
+        let mut mine = Vec::new();
+        while mine.len() < want {
+            for &k in &pool[next] {
+                if mine.len() < want {
+                    mine.push(k);
+                }
+            }
+            next += 1;
+        }
         mine.sort();
         out.push(mine);
-        next += want;
     }
     Ok(out)
 }

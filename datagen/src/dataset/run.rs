@@ -119,6 +119,16 @@ pub fn describe(l: &Loaded) -> String {
         p.catalogue.materials.len(),
         p.catalogue.envs.len()
     );
+    // Merges change which items can go where, so each one is shown, with its reason.
+    for m in &p.catalogue.merges {
+        let _ = writeln!(
+            s,
+            "  merged {}s {} into one group: {}",
+            m.kind,
+            m.ids.join(" and "),
+            m.reason
+        );
+    }
     for sp in &p.splits {
         let mut per_cat = std::collections::BTreeMap::<&str, usize>::new();
         for &k in &sp.shapes {

@@ -70,6 +70,37 @@ pub struct PlanRecord {
     pub splits: Vec<SplitRecord>,
     /// Missing sources replaced by embedded defaults.
     pub substitutions: Vec<String>,
+    /// Content fingerprints and groups of every split member (empty in datasets made before
+    /// fingerprints existed).
+    #[serde(default)]
+    pub content: ContentRecord,
+}
+
+/// A shape's, material's or environment's content, as recorded.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ContentEntry {
+    /// `blake3:HEX` of its geometry, parameters or pixels (`content.rs`).
+    pub fingerprint: String,
+    /// Content group: the id of the group's first member. One group never spans a training and a
+    /// test split (shapes and environments: never two splits).
+    pub group: String,
+}
+
+/// The content analysis of the plan, for audits and `datagen verify`.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ContentRecord {
+    /// Fingerprint definitions ([`content::SCHEME`](super::content::SCHEME)).
+    pub scheme: String,
+    /// By shape id.
+    pub shapes: BTreeMap<String, ContentEntry>,
+    /// By material id (the group is the dealing group, as in `materials[ID].group`).
+    pub materials: BTreeMap<String, ContentEntry>,
+    /// By environment id; empty when splits do not deal environments.
+    pub environments: BTreeMap<String, ContentEntry>,
+    /// Groups joined because of their content.
+    pub merges: Vec<super::content::Merge>,
 }
 
 /// A material as recorded in `dataset.json`.
@@ -172,7 +203,41 @@ impl PlanRecord {
             settings: serde_json::to_value::<&Settings>(&plan.settings)?,
             splits,
             substitutions: cat.substitutions.clone(),
+            content: ContentRecord::of(plan),
         })
+    }
+}
+
+impl ContentRecord {
+    /// The fingerprints and groups of every member of the plan's splits.
+    pub fn of(plan: &Plan) -> ContentRecord {
+        let cat = &plan.catalogue;
+        let entry = |fingerprint: &str, group: &str| ContentEntry {
+            fingerprint: fingerprint.to_string(),
+            group: group.to_string(),
+        };
+        let mut r = ContentRecord {
+            scheme: super::content::SCHEME.into(),
+            merges: cat.merges.clone(),
+            ..Default::default()
+        };
+        for s in &plan.splits {
+            for &k in &s.shapes {
+                let it = &cat.shapes[k];
+                r.shapes.insert(it.id.clone(), entry(&it.fingerprint, &it.group));
+            }
+            for &k in &s.materials {
+                let it = &cat.materials[k];
+                r.materials.insert(it.id.clone(), entry(&it.fingerprint, &it.group));
+            }
+            for &k in &s.envs {
+                let it = &cat.envs[k];
+                if !it.fingerprint.is_empty() {
+                    r.environments.insert(it.id.clone(), entry(&it.fingerprint, &it.group));
+                }
+            }
+        }
+        r
     }
 }
 

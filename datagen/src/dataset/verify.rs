@@ -2,7 +2,7 @@
 //! from what is on disk (never from the manifest).
 
 use super::sample::{SampleRecord, checksum};
-use super::store::{DatasetRecord, IMAGE_CHANNELS};
+use super::store::{ContentEntry, DatasetRecord, IMAGE_CHANNELS, SplitRecord};
 use anyhow::{Context, Result};
 use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
@@ -127,6 +127,90 @@ pub fn verify(dir: &Path) -> Result<Report> {
     Ok(r)
 }
 
+/// Recomputes the content of every split member from the sources of `manifest` (which must be
+/// the dataset's own: same manifest hash) and checks it against `dataset.json`: a recorded
+/// fingerprint or group that its source no longer gives, and content that the recomputed
+/// fingerprints find on both sides of a boundary, are problems.
+pub fn verify_sources(dir: &Path, manifest: &Path) -> Result<Vec<String>> {
+    let ds_path = dir.join("dataset.json");
+    let mut ds: DatasetRecord = serde_json::from_str(
+        &std::fs::read_to_string(&ds_path).with_context(|| format!("cannot read {}", ds_path.display()))?,
+    )
+    .with_context(|| format!("{}: not a dataset record", ds_path.display()))?;
+    let l = super::run::load(manifest)?;
+    let fresh = super::store::PlanRecord::of(&l.plan, &l.file.manifest)?;
+    let mut problems = Vec::new();
+    if fresh.manifest_hash != ds.plan.manifest_hash {
+        problems.push(format!(
+            "{}: not the manifest of this dataset ({} ≠ {})",
+            manifest.display(),
+            fresh.manifest_hash,
+            ds.plan.manifest_hash
+        ));
+        return Ok(problems);
+    }
+    let cat = &l.plan.catalogue;
+    let entry = |f: &String, g: &String| ContentEntry {
+        fingerprint: f.clone(),
+        group: g.clone(),
+    };
+    let shapes: BTreeMap<&str, ContentEntry> = cat
+        .shapes
+        .iter()
+        .map(|s| (s.id.as_str(), entry(&s.fingerprint, &s.group)))
+        .collect();
+    let materials: BTreeMap<&str, ContentEntry> = cat
+        .materials
+        .iter()
+        .map(|m| (m.id.as_str(), entry(&m.fingerprint, &m.group)))
+        .collect();
+    let envs: BTreeMap<&str, ContentEntry> = cat
+        .envs
+        .iter()
+        .filter(|e| !e.fingerprint.is_empty())
+        .map(|e| (e.id.as_str(), entry(&e.fingerprint, &e.group)))
+        .collect();
+    let recomputed = |kind: &str, id: &str| -> Option<ContentEntry> {
+        match kind {
+            "shape" => shapes.get(id),
+            "material" => materials.get(id),
+            _ => envs.get(id),
+        }
+        .cloned()
+    };
+    let c = &mut ds.plan.content;
+    for (kind, table) in [
+        ("shape", &mut c.shapes),
+        ("material", &mut c.materials),
+        ("environment", &mut c.environments),
+    ] {
+        for (id, rec) in table.iter_mut() {
+            let Some(now) = recomputed(kind, id) else {
+                problems.push(format!(
+                    "{kind} {id}: not provided by the sources of {}",
+                    manifest.display()
+                ));
+                continue;
+            };
+            if now.fingerprint != rec.fingerprint {
+                problems.push(format!(
+                    "{kind} {id}: recorded fingerprint {} but its source gives {} (source changed or record edited)",
+                    rec.fingerprint, now.fingerprint
+                ));
+            }
+            if now.group != rec.group {
+                problems.push(format!(
+                    "{kind} {id}: recorded group {} but the sources give {}",
+                    rec.group, now.group
+                ));
+            }
+            *rec = now;
+        }
+    }
+    content_leaks(&ds, &mut problems);
+    Ok(problems)
+}
+
 fn exr_channels(bytes: &[u8]) -> Result<(usize, usize, Vec<String>)> {
     let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)?;
     let header = meta.headers.first().context("no EXR header")?;
@@ -216,4 +300,80 @@ fn integrity(ds: &DatasetRecord, records: &[SampleRecord], problems: &mut Vec<St
     leak("shape", shape_split, false);
     leak("material", material_split, true);
     leak("material group", group_split, true);
+    content_leaks(ds, problems);
+}
+
+/// Content shared across the boundary: two *different* ids with the same recorded fingerprint
+/// or content group in splits that may not share it (shapes and environments: any two splits;
+/// materials: a training and a test split). Datasets made before fingerprints existed record
+/// none and are not checked here.
+fn content_leaks(ds: &DatasetRecord, problems: &mut Vec<String>) {
+    let c = &ds.plan.content;
+    if c.scheme.is_empty() {
+        return;
+    }
+    let splits = &ds.plan.splits;
+    type Members<'a> = fn(&'a SplitRecord) -> &'a Vec<String>;
+    let kinds: [(&str, &BTreeMap<String, ContentEntry>, Members<'_>, bool); 3] = [
+        ("shape", &c.shapes, |s| &s.shapes, false),
+        ("material", &c.materials, |s| &s.materials, true),
+        ("environment", &c.environments, |s| &s.environments, false),
+    ];
+    for (kind, table, members, by_role) in kinds {
+        // Environments are recorded only when splits deal them.
+        if kind == "environment" && table.is_empty() {
+            continue;
+        }
+        // (id, split, role) of every member, with its entry.
+        let mut all: Vec<(&str, &str, &str, &ContentEntry)> = Vec::new();
+        for s in splits {
+            for id in members(s) {
+                match table.get(id) {
+                    Some(e) => all.push((id, &s.name, &s.role, e)),
+                    None => problems.push(format!(
+                        "{kind} {id} (split {}): no fingerprint recorded in dataset.json",
+                        s.name
+                    )),
+                }
+            }
+        }
+        let mut reported = BTreeSet::new();
+        for key in [Key::Fingerprint, Key::Group] {
+            let mut by: BTreeMap<&str, Vec<usize>> = BTreeMap::new();
+            for (n, (_, _, _, e)) in all.iter().enumerate() {
+                let k = match key {
+                    Key::Fingerprint => e.fingerprint.as_str(),
+                    Key::Group => e.group.as_str(),
+                };
+                by.entry(k).or_default().push(n);
+            }
+            for (k, list) in by {
+                for (x, &a) in list.iter().enumerate() {
+                    for &b in &list[x + 1..] {
+                        let (ia, sa, ra, _) = all[a];
+                        let (ib, sb, rb, _) = all[b];
+                        let clash = if by_role { ra != rb } else { sa != sb };
+                        if ia == ib || !clash || !reported.insert((ia.min(ib), ia.max(ib))) {
+                            continue;
+                        }
+                        let what = match (key, kind) {
+                            (Key::Fingerprint, "shape") => format!("identical geometry ({k})"),
+                            (Key::Fingerprint, "material") => format!("identical parameters ({k})"),
+                            (Key::Fingerprint, _) => format!("identical pixels ({k})"),
+                            (Key::Group, _) => format!("one content group ({k})"),
+                        };
+                        problems.push(format!(
+                            "content leak: {kind} {ia} (split {sa}) and {kind} {ib} (split {sb}) share {what}"
+                        ));
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[derive(Clone, Copy)]
+enum Key {
+    Fingerprint,
+    Group,
 }
