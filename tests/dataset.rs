@@ -302,7 +302,7 @@ fn manifests_that_try_to_leak_or_ask_too_much_are_refused_with_field_and_line() 
 #[test]
 fn datasets_are_byte_identical_across_thread_counts() {
     let d = scratch("threads");
-    for quality in ["zonal", "lut"] {
+    for quality in ["zonal", "fast"] {
         let m = write(
             &d,
             &format!("{quality}.toml"),

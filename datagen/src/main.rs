@@ -98,7 +98,7 @@ enum Command {
         #[arg(long, default_value = "exact")]
         reference: Quality,
         /// Options to time, comma-separated.
-        #[arg(long, default_value = "zonal,lut,fast", value_delimiter = ',')]
+        #[arg(long, default_value = "zonal,fast", value_delimiter = ',')]
         options: Vec<Quality>,
         /// Override the image side.
         #[arg(long)]
@@ -299,7 +299,7 @@ struct RenderArgs {
     #[arg(long, default_value = "off")]
     shadows: Shadows,
     /// Eq. 2 implementation: fast (f32, vectorised), exact (f64 reference, slow), or without
-    /// shadows zonal (convolution about the view axis) or lut (lobe-adaptive); see
+    /// shadows zonal (convolution about the view axis; materials it cannot resolve use fast); see
     /// docs/PERFORMANCE.md for their speed and error.
     #[arg(long, default_value = "fast")]
     quality: Quality,

@@ -176,9 +176,9 @@ pub fn render(opts: &RenderOptions) -> Result<Rendered> {
         }
     };
 
-    // The table-based qualities shade the whole image at once (without shadows only: with
-    // them, every quality goes through the per-pixel shader below).
-    if !trace && matches!(opts.quality, Quality::Zonal | Quality::Lut) {
+    // The zonal quality shades the whole image at once (without shadows only: with them, every
+    // quality goes through the per-pixel shader below).
+    if !trace && opts.quality == Quality::Zonal {
         let (rgb, bad) = shade_with(&brdf, &env, opts.quality, &g.normal, &g.mask, None);
         stats.sanitized_pixels = bad;
         stats.shading_s = t2.elapsed().as_secs_f64();

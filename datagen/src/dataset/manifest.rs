@@ -112,7 +112,7 @@ pub struct RenderSection {
     /// Environment resolution, `HxW` with W = 2H.
     #[serde(default = "default_env_resolution")]
     pub env_resolution: Spanned<String>,
-    /// `exact`, `fast` or `lut` (see `docs/PERFORMANCE.md` for speed against error).
+    /// `exact`, `fast` or `zonal` (see `docs/PERFORMANCE.md` for speed against error).
     #[serde(default = "default_quality")]
     pub quality: Spanned<String>,
     /// `off`, `on` or `auto` (on for shapes that can shadow themselves).

@@ -75,6 +75,23 @@ fn source_model(item: &MaterialItem) -> Result<BrdfModel> {
     })
 }
 
+/// The BRDF that renders `item`, if it is known without fitting anything (a stored fit in `dir`
+/// with a matching fingerprint, a DSBRDF file, a measured ground truth): what `datagen plan`
+/// can say about a material without doing `datagen run`'s work.
+pub fn peek_render(dir: &Path, item: &MaterialItem, truth: GroundTruth) -> Option<BrdfModel> {
+    if truth == GroundTruth::Measured || matches!(item.source, MaterialSource::Dsbrdf(_)) {
+        return source_model(item).ok();
+    }
+    let stem = file_stem(&item.id);
+    let stamp: FitStamp =
+        serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{stem}.fit.json"))).ok()?).ok()?;
+    if stamp.fingerprint != fingerprint(item) {
+        return None;
+    }
+    let m = Dsbrdf::load(&dir.join(format!("{stem}.dsbrdf.json"))).ok()?;
+    Some(BrdfModel::Dsbrdf(Box::new(m)))
+}
+
 fn prepare(dir: &Path, item: &MaterialItem, truth: GroundTruth) -> Result<MaterialEntry> {
     let stem = file_stem(&item.id);
     let mat_path = dir.join(format!("{stem}.dsbrdf.json"));

@@ -97,7 +97,6 @@ fn ser_quality<S: serde::Serializer>(q: &Quality, s: S) -> Result<S::Ok, S::Erro
     s.serialize_str(match q {
         Quality::Exact => "exact",
         Quality::Fast => "fast",
-        Quality::Lut => "lut",
         Quality::Zonal => "zonal",
     })
 }
@@ -233,10 +232,9 @@ fn settings(mf: &ManifestFile) -> Result<Settings, ManifestError> {
             ));
         }
     };
-    let quality = match choice(mf, &r.quality, "render.quality", &["exact", "fast", "lut", "zonal"])? {
+    let quality = match choice(mf, &r.quality, "render.quality", &["exact", "fast", "zonal"])? {
         "exact" => Quality::Exact,
         "fast" => Quality::Fast,
-        "lut" => Quality::Lut,
         _ => Quality::Zonal,
     };
     let shadows = match choice(mf, &r.shadows, "render.shadows", &["off", "on", "auto"])? {

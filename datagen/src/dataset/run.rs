@@ -2,13 +2,15 @@
 
 use super::catalogue::Catalogue;
 use super::manifest::ManifestFile;
-use super::materials::{needed, prepare_all};
+use super::materials::{needed, peek_render, prepare_all};
 use super::plan::Plan;
 use super::sample::Renderer;
 use super::store::{PlanRecord, join, read_plan, shard_done, shards_dir, write_plan, write_shard};
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
+use matedit_physics::BrdfModel;
 use matedit_physics::shading::Quality;
+use matedit_physics::shading::zonal::{ZonalPlan, ZonalRefusal};
 use std::fs::{File, TryLockError};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -90,10 +92,75 @@ pub fn seconds_per_sample(quality: Quality, pixels: f64) -> f64 {
             let (t64, t256) = (1.0 / 250.0, 1.0 / 52.0);
             t64 + (t256 - t64) * (pixels - 4096.0) / (at_256 - 4096.0)
         }
-        Quality::Lut => pixels / at_256 / 1.66,
         Quality::Fast => pixels / at_256 / 0.30,
         Quality::Exact => pixels / at_256 / 0.021,
     }
+}
+
+/// The run log's account of the `zonal` quality: which materials are shaded per pixel in every
+/// sample and why, which hold only maps with a weak sun, and what a per-pixel shading costs.
+pub fn zonal_log(report: &[(String, Result<(usize, f64), ZonalRefusal>)], resolution: usize) -> String {
+    use std::fmt::Write;
+    let pixels = (resolution * resolution) as f64;
+    let ratio = seconds_per_sample(Quality::Fast, pixels) / seconds_per_sample(Quality::Zonal, pixels);
+    let off: Vec<String> = report
+        .iter()
+        .filter_map(|(id, r)| r.as_ref().err().map(|e| format!("{id} ({e})")))
+        .collect();
+    let limited: Vec<String> = report
+        .iter()
+        .filter_map(|(id, r)| match r {
+            Ok((rows, share)) if *share < 1.0 => Some(format!("{id} ({rows} rows, ≤ {:.1} %)", 100.0 * share)),
+            _ => None,
+        })
+        .collect();
+    let mut s = String::new();
+    if !off.is_empty() {
+        let _ = writeln!(
+            s,
+            "note: zonal: {} of {} materials are shaded per pixel (fast path) in every sample, about {ratio:.0}× the cost of a zonal shading at {resolution}²: {}",
+            off.len(),
+            report.len(),
+            off.join(", ")
+        );
+    }
+    if !limited.is_empty() {
+        let _ = writeln!(
+            s,
+            "note: zonal: {} materials stay on the grid only under maps whose brightest texel carries at most the share of the power shown (measured against the fast path, 0.4 % budget); under brighter suns they are shaded per pixel: {}",
+            limited.len(),
+            limited.join(", ")
+        );
+    }
+    s
+}
+
+/// Which of `materials` (id, rendering BRDF) the `zonal` quality cannot put on its grid and shades
+/// per pixel instead, with what that costs at `resolution`² (`None` when all are on the grid).
+pub fn zonal_note<'m>(materials: impl Iterator<Item = (&'m str, &'m BrdfModel)>, resolution: usize) -> Option<String> {
+    let mut total = 0;
+    let mut off: Vec<String> = Vec::new();
+    for (id, brdf) in materials {
+        total += 1;
+        match ZonalPlan::for_brdf(brdf) {
+            ZonalPlan::Grid(_) => {}
+            ZonalPlan::Unresolved { rows_needed, .. } => off.push(format!("{id} (needs {rows_needed} rows)")),
+            ZonalPlan::Measured => off.push(format!("{id} (measured: exact path)")),
+        }
+    }
+    if off.is_empty() {
+        return None;
+    }
+    let pixels = (resolution * resolution) as f64;
+    let ratio = seconds_per_sample(Quality::Fast, pixels) / seconds_per_sample(Quality::Zonal, pixels);
+    Some(format!(
+        "zonal: {} of {total} materials are shaded per pixel (fast path) because the zonal grid (at most {} rows) \
+         cannot resolve their lobes within its error budget; a sample using one costs about {ratio:.0}× a zonal \
+         sample at {resolution}²: {}",
+        off.len(),
+        matedit_physics::shading::zonal::MAX_ROWS,
+        off.join(", ")
+    ))
 }
 
 /// Prints what a manifest would produce.
@@ -174,6 +241,41 @@ pub fn describe(l: &Loaded) -> String {
         human_bytes(bytes),
         human_duration(secs)
     );
+    if st.quality == Quality::Zonal {
+        // Which materials leave the zonal grid depends on their fits: report what is known
+        // without fitting (the output's stored fits, DSBRDF files); `datagen run` logs the rest.
+        let dir = Path::new(&l.file.manifest.dataset.output).join("materials");
+        let need = needed(p);
+        let known: Vec<(String, BrdfModel)> = p
+            .catalogue
+            .materials
+            .iter()
+            .zip(&need)
+            .filter(|(_, n)| **n)
+            .filter_map(|(item, _)| Some((item.id.clone(), peek_render(&dir, item, st.ground_truth)?)))
+            .collect();
+        let wanted = need.iter().filter(|&&n| n).count();
+        match zonal_note(known.iter().map(|(id, b)| (id.as_str(), b)), st.resolution) {
+            Some(note) => {
+                let _ = writeln!(s, "{note}");
+            }
+            None if !known.is_empty() => {
+                let _ = writeln!(s, "zonal: all {} materials checked are on the zonal grid", known.len());
+            }
+            None => {}
+        }
+        let _ = writeln!(
+            s,
+            "zonal: each material on the grid is also checked under suns when `datagen run` builds its kernel; a sample whose map's sun is brighter than that check holds is shaded per pixel (the run logs both)"
+        );
+        if known.len() < wanted {
+            let _ = writeln!(
+                s,
+                "zonal: {} materials are not fitted yet; `datagen run` checks them once fitted and logs any that leave the grid",
+                wanted - known.len()
+            );
+        }
+    }
     s
 }
 
@@ -343,6 +445,12 @@ pub fn run(l: &Loaded, opts: &RunOptions) -> Result<RunSummary> {
     );
     renderer.prepare_zonal(&used, &|| kbar.inc(1))?;
     kbar.finish_and_clear();
+    if plan.settings.quality == Quality::Zonal {
+        eprint!(
+            "{}",
+            zonal_log(&renderer.zonal_report(&used)?, plan.settings.resolution)
+        );
+    }
     let t0 = Instant::now();
     for shard in &todo {
         write_shard(&dir, plan, &renderer, shard, &|| sbar.inc(1))
@@ -350,6 +458,13 @@ pub fn run(l: &Loaded, opts: &RunOptions) -> Result<RunSummary> {
     }
     sbar.finish_and_clear();
     let render_s = t0.elapsed().as_secs_f64();
+    let (on_grid, bright) = renderer.zonal_counts();
+    if bright > 0 {
+        eprintln!(
+            "note: zonal: {bright} of {} material shadings with a kernel were shaded per pixel because their map's sun was brighter than the kernel holds",
+            on_grid + bright
+        );
+    }
     let joined = opts.worker.count == 1;
     if joined {
         join(&dir, &[], Some(&materials))?;

@@ -9,7 +9,8 @@
 //! Shortcuts ("model only what a scene needs"), each measured in `docs/PERFORMANCE.md`:
 //! one BVH per shape serves all its views (rays are turned into object space instead);
 //! no shadow rays for convex shapes under `shadows = "auto"`; a region that no pixel shows gets
-//! no shader; the `lut` quality shades a normal-space table instead of every pixel.
+//! no shader; the `zonal` quality shades a grid of normals per material instead of every pixel,
+//! and shares one set of environment spectra between all materials on the same grid.
 
 use super::catalogue::ShapeItem;
 use super::materials::MaterialEntry;
@@ -23,7 +24,9 @@ use crate::shapes::{Mesh, Shape};
 use anyhow::{Context, Result};
 use glam::Mat3;
 use matedit_physics::EnvMap;
-use matedit_physics::shading::zonal::{PolarNormals, ZonalEnv, ZonalKernel, shade_image_zonal};
+use matedit_physics::shading::zonal::{
+    PolarNormals, ZonalEnv, ZonalKernel, ZonalRefusal, shade_image_zonal, sun_share,
+};
 use matedit_physics::shading::{Quality, VisibilityFn, shade_with};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -147,8 +150,11 @@ pub struct Renderer<'a> {
     materials: &'a [Option<MaterialEntry>],
     shapes: Cache<LoadedShape>,
     envs: Cache<EnvMap>,
-    /// Per catalogue material, its zonal kernel (`zonal` quality), built once.
-    zonal: Vec<OnceLock<Option<ZonalKernel>>>,
+    /// Per catalogue material, its zonal kernel (`zonal` quality), built and checked once.
+    zonal: Vec<OnceLock<Result<ZonalKernel, ZonalRefusal>>>,
+    /// Shadings of a material with a kernel: on the grid, and per pixel because the sample's map
+    /// has a brighter sun than the kernel holds.
+    zonal_counts: (std::sync::atomic::AtomicUsize, std::sync::atomic::AtomicUsize),
 }
 
 /// Shapes kept loaded at once; samples are ordered by shape, so a small cache suffices.
@@ -174,6 +180,7 @@ impl<'a> Renderer<'a> {
             // Environments are small (a few hundred KB at 2 × 64 rows): keep them all.
             envs: Cache::new(usize::MAX),
             zonal: (0..materials.len()).map(|_| OnceLock::new()).collect(),
+            zonal_counts: Default::default(),
         }
     }
 
@@ -200,11 +207,40 @@ impl<'a> Renderer<'a> {
         Ok(todo.len())
     }
 
-    /// The zonal kernel of material `k`, built on first use.
+    /// The zonal kernel of material `k`, built and checked on first use.
     fn zonal_kernel(&self, k: usize) -> Result<Option<&ZonalKernel>> {
+        Ok(self.zonal_outcome(k)?.as_ref().ok())
+    }
+
+    fn zonal_outcome(&self, k: usize) -> Result<&Result<ZonalKernel, ZonalRefusal>> {
         let render = &self.material(k)?.render;
         let cell = self.zonal.get(k).context("material index out of range")?;
-        Ok(cell.get_or_init(|| ZonalKernel::for_brdf(render)).as_ref())
+        Ok(cell.get_or_init(|| ZonalKernel::checked(render, &Default::default())))
+    }
+
+    /// For the log: each of `materials` (catalogue indices) with a built kernel (its rows and the
+    /// largest sun share it holds) or why it has none. Builds what is not built yet.
+    pub fn zonal_report(&self, materials: &[usize]) -> Result<Vec<(String, Result<(usize, f64), ZonalRefusal>)>> {
+        materials
+            .iter()
+            .map(|&k| {
+                let outcome = self.zonal_outcome(k)?;
+                let id = self.plan.catalogue.materials[k].id.clone();
+                Ok((
+                    id,
+                    outcome
+                        .as_ref()
+                        .map(|z| (z.grid().rows, z.max_sun_share()))
+                        .map_err(|e| *e),
+                ))
+            })
+            .collect()
+    }
+
+    /// Material shadings so far on the zonal grid, and per pixel because of a bright sun.
+    pub fn zonal_counts(&self) -> (usize, usize) {
+        use std::sync::atomic::Ordering::Relaxed;
+        (self.zonal_counts.0.load(Relaxed), self.zonal_counts.1.load(Relaxed))
     }
 
     fn shape(&self, k: usize) -> Result<Arc<LoadedShape>> {
@@ -314,6 +350,7 @@ impl<'a> Renderer<'a> {
         // and the environment's spectra between materials on the same grid.
         let zonal = st.quality == Quality::Zonal && vis.is_none();
         let polar = zonal.then(|| PolarNormals::new(&g.normal, &g.mask));
+        let sun = if zonal { sun_share(&env) } else { 0.0 };
         let mut spectra: Vec<ZonalEnv> = Vec::new();
         let mut image_i = vec![[0.0_f32; 3]; res * res];
         let mut image_o = vec![[0.0_f32; 3]; res * res];
@@ -328,7 +365,18 @@ impl<'a> Renderer<'a> {
                 continue;
             }
             for (mat, out) in [(mi, &mut image_i), (mt, &mut image_o)] {
+                // A kernel shades only under maps whose sun its measured accuracy covers.
                 let kernel = if zonal { self.zonal_kernel(mat)? } else { None };
+                let kernel = kernel.filter(|k| {
+                    let holds = sun <= k.max_sun_share();
+                    let counter = if holds {
+                        &self.zonal_counts.0
+                    } else {
+                        &self.zonal_counts.1
+                    };
+                    counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    holds
+                });
                 let (rgb, _) = match (&polar, kernel) {
                     (Some(polar), Some(kernel)) => {
                         let at = match spectra.iter().position(|e| e.grid() == kernel.grid()) {
@@ -340,7 +388,16 @@ impl<'a> Renderer<'a> {
                         };
                         shade_image_zonal(kernel, &spectra[at], polar, &mask_r)
                     }
-                    _ => shade_with(&self.material(mat)?.render, &env, st.quality, &g.normal, &mask_r, vis),
+                    // Shadows, or a material the zonal grid cannot resolve (or a measured one,
+                    // which the fast shader hands to the exact path): shade per pixel.
+                    _ => {
+                        let quality = if st.quality == Quality::Zonal {
+                            Quality::Fast
+                        } else {
+                            st.quality
+                        };
+                        shade_with(&self.material(mat)?.render, &env, quality, &g.normal, &mask_r, vis)
+                    }
                 };
                 for ((o, v), &m) in out.iter_mut().zip(rgb).zip(&mask_r) {
                     if m > 0.0 {

@@ -9,23 +9,19 @@
 //!   Fresnel term and the DSBRDF lobe parameters depend on the texel only, so they are computed
 //!   once per texel; per pixel only n·ω_i and n·h remain. Texels of zero radiance are dropped.
 //!
-//! * [`lut`]: the fast path evaluated on a normal-space table and interpolated per pixel (valid
-//!   without shadows, where radiance depends on the normal alone);
-//! * [`multires`]: for the DSBRDF, each lobe at the environment resolution, neighbourhood and
-//!   table resolution its width needs (the `lut` quality's DSBRDF path).
+//! * [`zonal`]: without shadows, Eq. 2 as a circular convolution about the view axis, per-material
+//!   kernel spectra and per-sample FFTs (the dataset factory's default). A material whose lobes
+//!   the grid cannot resolve is shaded by the fast path instead ([`zonal::ZonalPlan`]).
 //!
 //! All apply the same [normal policy](shading_normal) and never return NaN or Inf.
 
 pub mod exact;
 pub mod fast;
-pub mod lut;
-pub mod multires;
 pub mod zonal;
 
 use crate::{BrdfModel, EnvMap};
 use glam::DVec3;
 use rayon::prelude::*;
-use std::ops::{Add, Mul, Neg, Sub};
 
 /// Normals whose z component (n·ω_o) is below this are bent towards the viewer until
 /// n·ω_o equals it (see [`shading_normal`]).
@@ -64,9 +60,6 @@ pub enum Quality {
     /// `f32` vectorised ([`fast::FastShader`]).
     #[default]
     Fast,
-    /// Normal-space table over the fast path ([`lut`]); falls back to `Fast` where a table would
-    /// not save work or where shadows make radiance depend on more than the normal.
-    Lut,
     /// Convolution about the view axis ([`zonal`]): per-material kernel spectra, per-sample FFTs;
     /// falls back to `Fast` where shadows make radiance depend on more than the normal, and to
     /// `Exact` for measured BRDFs.
@@ -79,9 +72,10 @@ impl std::str::FromStr for Quality {
         match s {
             "exact" => Ok(Quality::Exact),
             "fast" => Ok(Quality::Fast),
-            "lut" => Ok(Quality::Lut),
             "zonal" => Ok(Quality::Zonal),
-            _ => Err(format!("quality {s:?}: expected exact, fast, lut or zonal")),
+            // `lut` was superseded by `zonal` (faster, within its error budget everywhere).
+            "lut" => Err("quality \"lut\" was removed: use zonal (or fast)".to_string()),
+            _ => Err(format!("quality {s:?}: expected exact, fast or zonal")),
         }
     }
 }
@@ -96,11 +90,11 @@ pub trait Shader: Send + Sync {
     fn shade(&self, n: [f32; 3], visibility: Option<&[f32]>) -> [f32; 3];
 }
 
-/// Builds a per-pixel shader of the requested quality (`Lut` gives its per-pixel equivalent,
+/// Builds a per-pixel shader of the requested quality (`Zonal` gives its per-pixel equivalent,
 /// the fast shader). Measured (tabulated) BRDFs always use the exact path.
 pub fn make_shader(brdf: &BrdfModel, env: &EnvMap, quality: Quality) -> Box<dyn Shader> {
     let fast = match quality {
-        Quality::Fast | Quality::Lut | Quality::Zonal => fast::FastShader::new(brdf, env),
+        Quality::Fast | Quality::Zonal => fast::FastShader::new(brdf, env),
         Quality::Exact => None,
     };
     match fast {
@@ -109,20 +103,14 @@ pub fn make_shader(brdf: &BrdfModel, env: &EnvMap, quality: Quality) -> Box<dyn 
     }
 }
 
-/// Catmull–Rom weights of nodes i−1, i, i+1, i+2 at fraction t, in the precision of `T` (the
-/// normal tables interpolate in f32, the zonal method's grids in f64; every constant is exact
-/// in both, so each precision gives the bits of its own hand-written formula).
-pub(crate) fn catmull_rom<T>(t: T) -> [T; 4]
-where
-    T: Copy + From<f32> + Add<Output = T> + Sub<Output = T> + Mul<Output = T> + Neg<Output = T>,
-{
-    let c = |v: f32| T::from(v);
+/// Catmull–Rom weights of nodes i−1, i, i+1, i+2 at fraction t (they sum to 1 for every t).
+pub(crate) fn catmull_rom(t: f64) -> [f64; 4] {
     let (t2, t3) = (t * t, t * t * t);
     [
-        c(0.5) * (-t3 + c(2.0) * t2 - t),
-        c(0.5) * (c(3.0) * t3 - c(5.0) * t2 + c(2.0)),
-        c(0.5) * (c(-3.0) * t3 + c(4.0) * t2 + t),
-        c(0.5) * (t3 - t2),
+        0.5 * (-t3 + 2.0 * t2 - t),
+        0.5 * (3.0 * t3 - 5.0 * t2 + 2.0),
+        0.5 * (-3.0 * t3 + 4.0 * t2 + t),
+        0.5 * (t3 - t2),
     ]
 }
 
@@ -182,9 +170,9 @@ pub fn shade_image(
     (out.into_iter().map(|o| o.0).collect(), bad)
 }
 
-/// Shades an image with the requested quality: [`lut::shade_image_lut`] for `Lut` without
-/// visibility, otherwise [`make_shader`] and [`shade_image`]. Returns radiance and the number of
-/// non-finite values replaced.
+/// Shades an image with the requested quality: the zonal method for `Zonal` without visibility
+/// where it resolves the material, otherwise [`make_shader`] and [`shade_image`]. Returns radiance
+/// and the number of non-finite values replaced.
 pub fn shade_with(
     brdf: &BrdfModel,
     env: &EnvMap,
@@ -198,14 +186,6 @@ pub fn shade_with(
         && let Some(out) = zonal::shade_image_once(brdf, env, normals, mask)
     {
         return out;
-    }
-    if quality == Quality::Lut && visibility.is_none() {
-        if let BrdfModel::Dsbrdf(m) = brdf {
-            let (rgb, bad, _) = multires::shade_image_dsbrdf(m, env, normals, mask);
-            return (rgb, bad);
-        }
-        let (rgb, bad, _) = lut::shade_image_lut(brdf, env, normals, mask);
-        return (rgb, bad);
     }
     let shader = make_shader(brdf, env, quality);
     shade_image(shader.as_ref(), normals, mask, visibility)

@@ -50,7 +50,7 @@ use std::sync::Arc;
 pub const SPACING_PER_WIDTH: f64 = 0.5;
 /// Fewest normal rows (the clamped cosine's kink at the terminator needs some resolution even
 /// for a matte material).
-pub const MIN_ROWS: usize = 32;
+pub const MIN_ROWS: usize = 48;
 /// Most normal rows (the spectra of a 128-row grid take tens of MB per material).
 pub const MAX_ROWS: usize = 128;
 /// A spectrum is cut after the harmonic beyond which the sum of |coefficients| falls below this
@@ -81,14 +81,109 @@ impl Default for ZonalParams {
     }
 }
 
-/// A DSBRDF lobe member sets the grid spacing when its energy, expm1(κ)·2π/(γ+1), is at least
-/// this fraction of its channel's at that θ_d. Weaker members (the fits' narrow "sparkle" lobes
-/// with κ ~ 1e-3) are still summed, at the grid's resolution.
-pub const SIGNIFICANT_ENERGY: f64 = 2e-3;
+/// A DSBRDF lobe member sets the grid when its share of the image under a point light, peak
+/// times width (expm1(κ)·min(1, 1/√γ'): the highlight's value times the square root of its
+/// area, i.e. its part of the image's RMS), is at least this fraction of its channel's sum at
+/// that θ_d. A lobe the grid does not resolve is wrong by up to its whole share, so this bounds
+/// what weak lobes can add to the error. (Energy, peak × width², is the wrong measure: a lobe
+/// with 10⁻³ of a matte base's energy but γ = 10⁴ is 8× brighter than the base at its peak, and
+/// on a 32-row grid it made a 5 % error under a sun.) Weaker members (the fits' narrow "sparkle"
+/// lobes with κ ~ 1e-3) are still summed, at the grid's resolution.
+pub const SIGNIFICANT_SHARE: f64 = 1e-3;
+
+/// The most a kernel may be off, as the relative RMSE of a sphere's image under a single-texel
+/// sun against the fast path, worst over [`PROBES`]. A map is a sum of such point lights and
+/// the point light is the hardest case for the grid (a sky averages the errors out), so the
+/// factory's images stay below this plus the fast path's own 10⁻⁵; the budget is 0.5 %.
+pub const PROBE_BUDGET: f64 = 4e-3;
+
+/// The single-texel suns of the check: (θ from the view in degrees, φ in radians). θ runs from
+/// in front of the object to behind it, where only a crescent at the terminator is lit (the
+/// hardest case for the clamped cosine's kink); θ/2 = θ_d covers the DSBRDF's knots.
+pub const PROBES: [(f64, f64); 14] = [
+    (5.0, 0.3),
+    (35.0, 0.3),
+    (65.0, 0.3),
+    (95.0, 0.3),
+    (125.0, 0.3),
+    (155.0, 0.3),
+    (172.0, 0.3),
+    (20.0, 1.9),
+    (50.0, 1.9),
+    (80.0, 1.9),
+    (110.0, 1.9),
+    (140.0, 1.9),
+    (163.0, 1.9),
+    (177.0, 1.9),
+];
+
+/// Side of the sphere image of the check (its error at 96² matched 256²'s within 2 %).
+const PROBE_RES: usize = 96;
 
 /// The largest angle of a shading normal from the view (see [`shading_normal`]).
 fn theta_max() -> f64 {
     super::MIN_FACING.acos()
+}
+
+/// Whether the zonal method can shade a material, and on which grid.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ZonalPlan {
+    /// The grid resolves every lobe that carries energy.
+    Grid(ZonalGrid),
+    /// The material's lobes are narrower than the grid can be: they need `rows_needed` rows,
+    /// more than the cap. Shading it on the capped grid would be wrong by more than the
+    /// method's error budget (up to 9× the radiance at sharp highlights), so callers use the
+    /// per-pixel fast path for it.
+    Unresolved {
+        /// Normal (and environment) rows the material would need.
+        rows_needed: usize,
+        /// The cap it exceeds ([`ZonalParams::max_rows`]).
+        max_rows: usize,
+    },
+    /// A measured (tabulated) BRDF: its sharpness is unknown, so it is shaded by the exact path.
+    Measured,
+}
+
+impl ZonalPlan {
+    /// The plan of `brdf` with the default knobs.
+    pub fn for_brdf(brdf: &BrdfModel) -> Self {
+        Self::for_brdf_with(brdf, &ZonalParams::default())
+    }
+
+    /// The plan of `brdf` with explicit knobs.
+    pub fn for_brdf_with(brdf: &BrdfModel, params: &ZonalParams) -> Self {
+        let Some(rows) = ZonalGrid::rows_needed(brdf, params) else {
+            return Self::Measured;
+        };
+        let max_rows = params.max_rows.max(params.min_rows);
+        if rows > max_rows {
+            Self::Unresolved {
+                rows_needed: rows,
+                max_rows,
+            }
+        } else {
+            Self::Grid(ZonalGrid::with_rows(rows.max(params.min_rows)))
+        }
+    }
+
+    /// The grid, when the zonal method can shade the material.
+    pub fn grid(&self) -> Option<ZonalGrid> {
+        match self {
+            Self::Grid(g) => Some(*g),
+            _ => None,
+        }
+    }
+
+    /// A short description for plans and logs.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Grid(g) => format!("zonal, {} rows", g.rows),
+            Self::Unresolved { rows_needed, max_rows } => {
+                format!("fast (lobes need {rows_needed} zonal rows > {max_rows})")
+            }
+            Self::Measured => "exact (measured BRDF)".to_string(),
+        }
+    }
 }
 
 /// The polar grid about the view axis on which a material is tabulated.
@@ -122,23 +217,34 @@ impl ZonalGrid {
     }
 
     /// The grid a material needs: spacing [`SPACING_PER_WIDTH`] of its sharpest lobe's width,
-    /// between [`MIN_ROWS`] and [`MAX_ROWS`] rows. `None` for measured BRDFs (unknown
-    /// sharpness).
+    /// at least [`MIN_ROWS`] rows. `None` for measured BRDFs (unknown sharpness) and for
+    /// materials that would need more than [`MAX_ROWS`] rows ([`ZonalPlan::Unresolved`]).
     pub fn for_brdf(brdf: &BrdfModel) -> Option<Self> {
-        Self::for_brdf_with(brdf, &ZonalParams::default())
+        ZonalPlan::for_brdf(brdf).grid()
     }
 
     /// [`for_brdf`](ZonalGrid::for_brdf) with explicit knobs.
     pub fn for_brdf_with(brdf: &BrdfModel, params: &ZonalParams) -> Option<Self> {
+        ZonalPlan::for_brdf_with(brdf, params).grid()
+    }
+
+    /// Rows (normal and environment) the material needs, uncapped: enough for
+    /// [`SPACING_PER_WIDTH`] of its sharpest significant lobe's width. `None` for measured BRDFs.
+    /// This is the starting point: [`ZonalKernel::checked`] then measures the kernel and refines
+    /// the grid where that is not enough.
+    pub fn rows_needed(brdf: &BrdfModel, params: &ZonalParams) -> Option<usize> {
         let width = match brdf {
             BrdfModel::Dsbrdf(m) => dsbrdf_width(m),
             BrdfModel::Measured(_) => return None,
-            other => 1.0 / super::lut::sharpness(other)?.max(1.0).sqrt(),
+            other => 1.0 / sharpness(other)?.max(1.0).sqrt(),
         };
-        let rows = (theta_max() / (params.spacing_per_width * width)).ceil() as usize;
-        Some(Self::with_rows(
-            rows.clamp(params.min_rows, params.max_rows.max(params.min_rows)),
-        ))
+        let rows = theta_max() / (params.spacing_per_width * width);
+        // Non-finite only for absurd parameters: treat as unresolvable.
+        Some(if rows.is_finite() {
+            rows.ceil() as usize
+        } else {
+            usize::MAX
+        })
     }
 
     fn normal_theta(&self, a: usize) -> f64 {
@@ -155,17 +261,44 @@ impl ZonalGrid {
     }
 }
 
+/// The sharpness γ of an analytic BRDF's narrowest lobe, as in cos^γ θ_h. `None` for measured
+/// BRDFs.
+pub fn sharpness(brdf: &BrdfModel) -> Option<f64> {
+    match brdf {
+        BrdfModel::Lambert(_) => Some(1.0),
+        // GGX near its peak falls off like exp(−θ_h²/α²): γ ≈ 2/α².
+        BrdfModel::Ggx(g) => Some(2.0 / (g.alpha * g.alpha)),
+        BrdfModel::Plastic(p) => Some(2.0 / (p.coat.alpha * p.coat.alpha)),
+        BrdfModel::Dsbrdf(m) => Some(1.0 / dsbrdf_width(m).powi(2)),
+        BrdfModel::Measured(_) => None,
+    }
+}
+
+/// The curvature-equivalent sharpness of expm1(κ cos^γ θ) at its peak: γ·κ/(1 − e^−κ). For
+/// κ ≪ 1 the lobe is κ cos^γ (sharpness γ); for large κ it is e^κ·e^(−κγθ²/2), κ times sharper.
+pub fn effective_gamma(kappa: f64, gamma: f64) -> f64 {
+    if kappa < 1e-6 {
+        gamma
+    } else {
+        gamma * kappa / -(-kappa).exp_m1()
+    }
+}
+
+/// A lobe member's share of the image under a point light (see [`SIGNIFICANT_SHARE`]).
+fn lobe_share(&(kappa, gamma): &(f64, f64)) -> f64 {
+    kappa.exp_m1() * (1.0 / effective_gamma(kappa, gamma).sqrt()).min(1.0)
+}
+
 /// Width 1/√γ' of a DSBRDF's sharpest member that carries energy (γ' the curvature-equivalent
-/// sharpness, [`super::multires::effective_gamma`]), over θ_d in whole degrees.
+/// sharpness, [`effective_gamma`]), over θ_d in whole degrees.
 fn dsbrdf_width(m: &Dsbrdf) -> f64 {
     let mut sharpest = 1.0_f64;
     for deg in 0..=90 {
         for ch in &m.lobes_at((deg as f64).to_radians()) {
-            let energy = |&(kappa, gamma): &(f64, f64)| kappa.exp_m1() * 2.0 * PI / (gamma + 1.0);
-            let total: f64 = ch.iter().map(energy).sum();
+            let total: f64 = ch.iter().map(lobe_share).sum();
             for lobe in ch {
-                if energy(lobe) >= SIGNIFICANT_ENERGY * total {
-                    sharpest = sharpest.max(super::multires::effective_gamma(lobe.0, lobe.1));
+                if lobe_share(lobe) >= SIGNIFICANT_SHARE * total {
+                    sharpest = sharpest.max(effective_gamma(lobe.0, lobe.1));
                 }
             }
         }
@@ -190,6 +323,24 @@ pub struct ZonalKernel {
     entries: Vec<Vec<Entry>>,
     /// Per normal row, the real cosine coefficients of its spectra.
     coeffs: Vec<Vec<f32>>,
+    /// What [`ZonalKernel::checked`] measured.
+    max_sun_share: f64,
+}
+
+/// Why the zonal method does not shade a material (the caller shades it per pixel instead).
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+pub enum ZonalRefusal {
+    /// A measured BRDF: unknown sharpness (the exact path shades it).
+    #[error("measured BRDF")]
+    Measured,
+    /// Lobes narrower than the finest grid resolves.
+    #[error("lobes need {rows_needed} zonal rows > {max_rows}")]
+    TooSharp {
+        /// Rows the widest rule asks for.
+        rows_needed: usize,
+        /// The cap.
+        max_rows: usize,
+    },
 }
 
 impl ZonalKernel {
@@ -237,17 +388,60 @@ impl ZonalKernel {
             })
             .collect();
         let (entries, coeffs) = per_row.into_iter().unzip();
-        Some(Self { grid, entries, coeffs })
+        Some(Self {
+            grid,
+            entries,
+            coeffs,
+            max_sun_share: 1.0,
+        })
     }
 
-    /// The kernel of `brdf` on the grid [`ZonalGrid::for_brdf`] chooses.
+    /// The kernel of `brdf`, checked ([`checked`](ZonalKernel::checked)); `None` for measured BRDFs
+    /// and lobes the grid cannot resolve (callers then shade per pixel).
     pub fn for_brdf(brdf: &BrdfModel) -> Option<Self> {
-        Self::for_brdf_with(brdf, &ZonalParams::default())
+        Self::checked(brdf, &ZonalParams::default()).ok()
     }
 
     /// [`for_brdf`](ZonalKernel::for_brdf) with explicit knobs.
     pub fn for_brdf_with(brdf: &BrdfModel, params: &ZonalParams) -> Option<Self> {
-        Self::with_tail(brdf, ZonalGrid::for_brdf_with(brdf, params)?, params.tail)
+        Self::checked(brdf, params).ok()
+    }
+
+    /// Builds the kernel on the grid the lobe widths ask for and measures it under suns of every
+    /// share of a map's power ([`max_sun_share`](ZonalKernel::max_sun_share)). Refuses measured
+    /// BRDFs and materials whose lobes need more rows than the cap.
+    pub fn checked(brdf: &BrdfModel, params: &ZonalParams) -> Result<Self, ZonalRefusal> {
+        let grid = match ZonalPlan::for_brdf_with(brdf, params) {
+            ZonalPlan::Grid(g) => g,
+            ZonalPlan::Unresolved { rows_needed, max_rows } => {
+                return Err(ZonalRefusal::TooSharp { rows_needed, max_rows });
+            }
+            ZonalPlan::Measured => return Err(ZonalRefusal::Measured),
+        };
+        let mut kernel = Self::with_tail(brdf, grid, params.tail).ok_or(ZonalRefusal::Measured)?;
+        kernel.max_sun_share = max_sun_share(&probe(&kernel, brdf));
+        Ok(kernel)
+    }
+
+    /// The largest [`sun_share`] of a map under which this kernel's images stay within
+    /// [`PROBE_BUDGET`] of the fast path (measured by [`checked`](ZonalKernel::checked); 1 for
+    /// unchecked kernels). A map above it is shaded per pixel.
+    pub fn max_sun_share(&self) -> f64 {
+        self.max_sun_share
+    }
+
+    /// Whether this kernel may shade under `env` (see [`max_sun_share`](ZonalKernel::max_sun_share)).
+    pub fn holds_under(&self, env: &EnvMap) -> bool {
+        sun_share(env) <= self.max_sun_share
+    }
+
+    /// The kernel on the grid the material needs, capped at `params.max_rows` even where that
+    /// cannot resolve it. Only for measuring what the fallback of [`ZonalPlan::Unresolved`]
+    /// avoids; shading never uses it.
+    pub fn on_capped_grid(brdf: &BrdfModel, params: &ZonalParams) -> Option<Self> {
+        let rows = ZonalGrid::rows_needed(brdf, params)?;
+        let rows = rows.clamp(params.min_rows, params.max_rows.max(params.min_rows));
+        Self::with_tail(brdf, ZonalGrid::with_rows(rows), params.tail)
     }
 
     /// The grid.
@@ -569,14 +763,14 @@ impl PolarNormals {
         let (theta, phi) = normals
             .par_iter()
             .zip(mask.par_iter())
-            .map(|(n, &m)| match (m > 0.0).then(|| shading_normal(*n)).flatten() {
-                Some(d) => (
-                    d.z.clamp(-1.0, 1.0).acos() as f32,
-                    d.y.atan2(d.x).rem_euclid(2.0 * PI) as f32,
-                ),
-                None => (f32::NAN, 0.0),
-            })
+            .map(|(n, &m)| polar(n, m))
             .unzip();
+        Self { theta, phi }
+    }
+
+    /// [`new`](PolarNormals::new) without rayon (for work inside a kernel build).
+    fn new_sequential(normals: &[[f32; 3]], mask: &[f32]) -> Self {
+        let (theta, phi) = normals.iter().zip(mask).map(|(n, &m)| polar(n, m)).unzip();
         Self { theta, phi }
     }
 
@@ -598,6 +792,17 @@ impl PolarNormals {
     }
 }
 
+/// A pixel's shading normal in polar coordinates about the view (θ NaN: shades to black).
+fn polar(n: &[f32; 3], m: f32) -> (f32, f32) {
+    match (m > 0.0).then(|| shading_normal(*n)).flatten() {
+        Some(d) => (
+            d.z.clamp(-1.0, 1.0).acos() as f32,
+            d.y.atan2(d.x).rem_euclid(2.0 * PI) as f32,
+        ),
+        None => (f32::NAN, 0.0),
+    }
+}
+
 /// The interval index and fraction of angle θ among a grid's normal rows.
 fn row_of(theta: f64, grid: &ZonalGrid) -> usize {
     let u = (theta / theta_max() * grid.rows as f64).clamp(0.0, grid.rows as f64);
@@ -607,6 +812,12 @@ fn row_of(theta: f64, grid: &ZonalGrid) -> usize {
 /// Radiance at the normals of the grid, `[row][column]`, for the rows `need` marks (the others
 /// stay 0) (step 3 of the module docs).
 fn normal_table(kernel: &ZonalKernel, env: &ZonalEnv, need: &[bool]) -> Vec<Vec<[f32; 3]>> {
+    normal_table_with(kernel, env, need, true)
+}
+
+/// [`normal_table`], on rayon's threads or (`parallel` false, inside a kernel build) on this one;
+/// the same bits either way.
+fn normal_table_with(kernel: &ZonalKernel, env: &ZonalEnv, need: &[bool], parallel: bool) -> Vec<Vec<[f32; 3]>> {
     let grid = kernel.grid;
     let (n, m) = (grid.phi, grid.harmonics());
     let ifft = inverse_plan(n);
@@ -637,60 +848,61 @@ fn normal_table(kernel: &ZonalKernel, env: &ZonalEnv, need: &[bool]) -> Vec<Vec<
         acc
     };
     // Rows in pairs, so the six real results take three inverse transforms (x + iy).
-    let pairs: Vec<[Vec<[f32; 3]>; 2]> = (0..=grid.rows / 2)
-        .into_par_iter()
-        .map_init(
-            || {
-                (
-                    vec![Complex32::default(); n],
-                    vec![Complex32::default(); ifft.get_inplace_scratch_len()],
-                )
-            },
-            |(buf, scratch), p| {
-                let rows = [2 * p, 2 * p + 1];
-                let live = rows.map(|a| a <= grid.rows && need[a]);
-                let mut out = [vec![[0.0_f32; 3]; n], vec![[0.0_f32; 3]; n]];
-                if !live[0] && !live[1] {
-                    return out;
-                }
-                let acc = rows.map(|a| {
-                    if a <= grid.rows && need[a] {
-                        Some(accumulate(a))
-                    } else {
-                        None
-                    }
-                });
-                for (x, y) in [((0, 0), Some((0, 1))), ((0, 2), Some((1, 2))), ((1, 0), Some((1, 1)))] {
-                    let spectrum = |(row, c): (usize, usize)| acc[row].as_ref().map(|a| &a[c]);
-                    let (sx, sy) = (spectrum(x), y.and_then(spectrum));
-                    if sx.is_none() && sy.is_none() {
-                        continue;
-                    }
-                    for f in 0..m {
-                        let real_only = f == 0 || 2 * f == n;
-                        let get = |s: Option<&(Vec<f32>, Vec<f32>)>| {
-                            s.map_or(Complex32::default(), |(re, im)| {
-                                Complex32::new(re[f], if real_only { 0.0 } else { im[f] })
-                            })
-                        };
-                        let (zx, zy) = (get(sx), get(sy));
-                        buf[f] = zx + Complex32::new(-zy.im, zy.re);
-                        if f > 0 && f < n - f {
-                            buf[n - f] = zx.conj() + Complex32::new(zy.im, zy.re);
-                        }
-                    }
-                    ifft.process_with_scratch(buf, scratch);
-                    for (j, z) in buf.iter().enumerate() {
-                        out[x.0][j][x.1] = z.re * scale;
-                        if let Some((row, c)) = y {
-                            out[row][j][c] = z.im * scale;
-                        }
-                    }
-                }
-                out
-            },
+    let buffers = || {
+        (
+            vec![Complex32::default(); n],
+            vec![Complex32::default(); ifft.get_inplace_scratch_len()],
         )
-        .collect();
+    };
+    let pair = |(buf, scratch): &mut (Vec<Complex32>, Vec<Complex32>), p: usize| -> [Vec<[f32; 3]>; 2] {
+        let rows = [2 * p, 2 * p + 1];
+        let live = rows.map(|a| a <= grid.rows && need[a]);
+        let mut out = [vec![[0.0_f32; 3]; n], vec![[0.0_f32; 3]; n]];
+        if !live[0] && !live[1] {
+            return out;
+        }
+        let acc = rows.map(|a| {
+            if a <= grid.rows && need[a] {
+                Some(accumulate(a))
+            } else {
+                None
+            }
+        });
+        for (x, y) in [((0, 0), Some((0, 1))), ((0, 2), Some((1, 2))), ((1, 0), Some((1, 1)))] {
+            let spectrum = |(row, c): (usize, usize)| acc[row].as_ref().map(|a| &a[c]);
+            let (sx, sy) = (spectrum(x), y.and_then(spectrum));
+            if sx.is_none() && sy.is_none() {
+                continue;
+            }
+            for f in 0..m {
+                let real_only = f == 0 || 2 * f == n;
+                let get = |s: Option<&(Vec<f32>, Vec<f32>)>| {
+                    s.map_or(Complex32::default(), |(re, im)| {
+                        Complex32::new(re[f], if real_only { 0.0 } else { im[f] })
+                    })
+                };
+                let (zx, zy) = (get(sx), get(sy));
+                buf[f] = zx + Complex32::new(-zy.im, zy.re);
+                if f > 0 && f < n - f {
+                    buf[n - f] = zx.conj() + Complex32::new(zy.im, zy.re);
+                }
+            }
+            ifft.process_with_scratch(buf, scratch);
+            for (j, z) in buf.iter().enumerate() {
+                out[x.0][j][x.1] = z.re * scale;
+                if let Some((row, c)) = y {
+                    out[row][j][c] = z.im * scale;
+                }
+            }
+        }
+        out
+    };
+    let pairs: Vec<[Vec<[f32; 3]>; 2]> = if parallel {
+        (0..=grid.rows / 2).into_par_iter().map_init(buffers, pair).collect()
+    } else {
+        let mut b = buffers();
+        (0..=grid.rows / 2).map(|p| pair(&mut b, p)).collect()
+    };
     let mut rows: Vec<Vec<[f32; 3]>> = pairs.into_iter().flatten().collect();
     rows.truncate(grid.rows + 1);
     rows
@@ -757,6 +969,107 @@ impl Padded {
     }
 }
 
+/// The share of a map's power (L·dω) in its brightest texel: the [`probe`]'s model of a map (one
+/// texel of sun over a sky), and what decides whether a kernel is accurate enough for it. The
+/// bench's procedural maps put 0.0–0.6 % there, the real HDRIs of the eval assets up to 60 % (a
+/// sunny park; a studio's softbox 19 %), so the same material can be on the grid under one map
+/// and need the fast path under another (`zonal_range --sun-share --all-maps`).
+pub fn sun_share(env: &EnvMap) -> f64 {
+    let (w, h) = (env.width(), env.height());
+    let (mut total, mut brightest) = (0.0_f64, 0.0_f64);
+    for (t, l) in env.texels().iter().enumerate() {
+        let p = (l[0] as f64 + l[1] as f64 + l[2] as f64) * texel_solid_angle(t / w, w, h);
+        total += p;
+        brightest = brightest.max(p);
+    }
+    if total > 0.0 && total.is_finite() {
+        (brightest / total).clamp(0.0, 1.0)
+    } else if total > 0.0 {
+        1.0
+    } else {
+        0.0
+    }
+}
+
+/// Per probe direction, what [`max_sun_share`] needs: ‖Z − F‖², ‖F‖², ‖A‖² and ⟨F, A⟩ for the
+/// zonal (Z) and fast (F) images of a unit-power sun and the image A of a unit-power uniform sky.
+type ProbeStats = [f64; 4];
+
+/// The error of a probe at sun share `s` (the sun has power s, the sky 1 − s): the sun's
+/// error over the whole image, relative.
+fn probe_relative(&[e2, f2, a2, fa]: &ProbeStats, s: f64) -> f64 {
+    let norm2 = s * s * f2 + 2.0 * s * (1.0 - s) * fa + (1.0 - s) * (1.0 - s) * a2;
+    if norm2 > 0.0 { s * e2.sqrt() / norm2.sqrt() } else { 0.0 }
+}
+
+/// The kernel's measurements under a sun: a [`PROBE_RES`]² sphere under a 64×128 map of one
+/// texel at each of [`PROBES`], shaded with the kernel and with the fast path (which skips black
+/// texels, so each reference costs one texel per pixel), and under a uniform sky with the kernel
+/// (smooth light, where the grid is within 10⁻⁴). Single-threaded, like the kernel build (see
+/// [`ZonalKernel::with_tail`]).
+fn probe(kernel: &ZonalKernel, brdf: &BrdfModel) -> Vec<ProbeStats> {
+    let (normals, mask) = crate::camera::unit_sphere_normals(PROBE_RES);
+    let pixels = PolarNormals::new_sequential(&normals, &mask);
+    let need = pixels.rows_needed(&kernel.grid, &mask);
+    let (h, w) = (64, 128);
+    let zonal = |env: &EnvMap| {
+        let spectra = ZonalEnv::new(env, kernel.grid);
+        Padded::new(&normal_table_with(kernel, &spectra, &need, false), &kernel.grid)
+    };
+    let sky = zonal(&EnvMap::constant(h, [(1.0 / (4.0 * PI)) as f32; 3]));
+    let mut out = Vec::new();
+    for &(theta_deg, phi) in &PROBES {
+        // θ from +z (the view), φ about it: the zonal method's own polar coordinates.
+        let (st, ct) = theta_deg.to_radians().sin_cos();
+        let d = DVec3::new(st * phi.cos(), st * phi.sin(), ct);
+        let (col, row) = crate::envmap::direction_to_texel(d, w, h);
+        let mut texels = vec![[0.0_f32; 3]; w * h];
+        texels[row * w + col] = [(1.0 / texel_solid_angle(row, w, h)) as f32; 3];
+        let Ok((env, _)) = EnvMap::from_texels(w, h, texels) else {
+            continue;
+        };
+        let Some(fast) = super::fast::FastShader::new(brdf, &env) else {
+            continue;
+        };
+        let sun = zonal(&env);
+        let mut st = [0.0_f64; 4];
+        for (p, n) in normals.iter().enumerate() {
+            let (t, ph) = (pixels.theta[p], pixels.phi[p]);
+            if mask[p] <= 0.0 || t.is_nan() {
+                continue;
+            }
+            let (z, a) = (sun.at(&kernel.grid, t, ph), sky.at(&kernel.grid, t, ph));
+            let f = super::Shader::shade(&fast, *n, None);
+            for c in 0..3 {
+                let (z, a, f) = (z[c] as f64, a[c] as f64, f[c] as f64);
+                st[0] += (z - f) * (z - f);
+                st[1] += f * f;
+                st[2] += a * a;
+                st[3] += f * a;
+            }
+        }
+        out.push(st);
+    }
+    out
+}
+
+/// The largest sun share (on a log scale from 10⁻⁴ to 1, 8 steps per decade) up to which every
+/// probe stays within [`PROBE_BUDGET`]; 0 when not even 10⁻⁴ does (or anything is non-finite).
+fn max_sun_share(stats: &[ProbeStats]) -> f64 {
+    if stats.iter().flatten().any(|v| !v.is_finite()) {
+        return 0.0;
+    }
+    let mut best = 0.0;
+    for k in 0..=32 {
+        let s = 10f64.powf(-4.0 + k as f64 / 8.0);
+        if stats.iter().any(|st| probe_relative(st, s) > PROBE_BUDGET) {
+            break;
+        }
+        best = s;
+    }
+    best
+}
+
 /// Shades every pixel with `mask > 0` from a material's kernel and an environment on the same
 /// grid. Returns radiance (0 outside the mask) and the number of non-finite values replaced
 /// (see [`sanitize`](super::sanitize)).
@@ -790,7 +1103,8 @@ pub fn shade_image_zonal(
 
 /// Shades an image with the zonal method, building the kernel and the environment's spectra on
 /// the spot (callers that shade many images keep a [`ZonalKernel`] per material instead).
-/// `None` for measured BRDFs.
+/// `None` where the zonal method does not shade this material under this map: measured BRDFs,
+/// lobes the grid cannot resolve, a map whose sun is beyond the kernel's measured accuracy.
 pub fn shade_image_once(
     brdf: &BrdfModel,
     env: &EnvMap,
@@ -798,6 +1112,9 @@ pub fn shade_image_once(
     mask: &[f32],
 ) -> Option<(Vec<[f32; 3]>, usize)> {
     let kernel = ZonalKernel::for_brdf(brdf)?;
+    if !kernel.holds_under(env) {
+        return None;
+    }
     let spectra = ZonalEnv::new(env, kernel.grid);
     let pixels = PolarNormals::new(normals, mask);
     Some(shade_image_zonal(&kernel, &spectra, &pixels, mask))
@@ -931,8 +1248,19 @@ mod tests {
         // γ' = 400·0.5/(1 − e^−0.5) ≈ 508: width 0.044, rows = θ_max/(0.5 · 0.044) ≈ 71 → 72.
         let g = ZonalGrid::for_brdf(&glossy).unwrap();
         assert_eq!((g.rows, g.env_rows, g.phi), (72, 72, 288));
-        // A lobe with no energy (κ = 1e-5) does not refine the grid; a mirror hits the cap.
+        // A lobe with no share of the image (κ = 1e-5) does not refine the grid; a mirror is
+        // beyond the cap, so it is refused rather than shaded on a grid too coarse for it.
         let mirror = BrdfModel::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d([[(5.0, 1e4); 3]; 3])));
-        assert_eq!(ZonalGrid::for_brdf(&mirror).unwrap().rows, MAX_ROWS);
+        assert_eq!(ZonalGrid::for_brdf(&mirror), None);
+        assert!(matches!(
+            ZonalKernel::checked(&mirror, &ZonalParams::default()),
+            Err(ZonalRefusal::TooSharp { max_rows: MAX_ROWS, .. })
+        ));
+        // A lobe with 10⁻³ of a matte base's energy but 8× its peak (κ 1, γ 10⁴) refines the grid:
+        // measured by its share of the image under a point light, not by its energy.
+        let peaky = BrdfModel::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
+            [[(0.2, 1e-3), (1.0, 1e4), (1e-5, 1e4)]; 3],
+        )));
+        assert_eq!(ZonalGrid::for_brdf(&peaky), None);
     }
 }
