@@ -323,8 +323,9 @@ fn fast_matches_exact_over_the_whole_dsbrdf_range() {
 fn zonal_never_strays_beyond_half_a_percent_over_the_whole_dsbrdf_range() {
     // Every material of the documented range, as the factory shades it with `zonal` (the grid
     // where it resolves the material, the fast path where it does not), against the fast path
-    // (within 1e-3 of exact, above) at 128² under maps with suns and sharp-edged lights.
-    let res = 128;
+    // (within 1e-3 of exact, above) at 96² (whose errors matched 256²'s within 2 % in
+    // `zonal_range`) under maps with suns and sharp-edged lights.
+    let res = 96;
     let (normals, mask) = unit_sphere_normals(res);
     let pixels: Vec<usize> = (0..mask.len()).filter(|&p| mask[p] > 0.0).collect();
     let maps = hard_maps();

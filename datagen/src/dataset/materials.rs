@@ -62,7 +62,8 @@ fn fingerprint(item: &MaterialItem) -> String {
         MaterialSource::Dsbrdf(_) => "dsbrdf-file".into(),
         MaterialSource::Merl(p) => {
             let size = std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
-            format!("{FIT_VERSION}|merl|{size}")
+            // Fits made while MERL lookups took the nearest bin must not be reused.
+            format!("{FIT_VERSION}|merl-trilinear|{size}")
         }
     }
 }

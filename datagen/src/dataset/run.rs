@@ -4,13 +4,13 @@ use super::catalogue::Catalogue;
 use super::manifest::ManifestFile;
 use super::materials::{needed, peek_render, prepare_all};
 use super::plan::Plan;
-use super::sample::Renderer;
+use super::sample::{Renderer, ZonalStatus};
 use super::store::{PlanRecord, join, read_plan, shard_done, shards_dir, write_plan, write_shard};
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use matedit_physics::BrdfModel;
 use matedit_physics::shading::Quality;
-use matedit_physics::shading::zonal::{ZonalPlan, ZonalRefusal};
+use matedit_physics::shading::zonal::ZonalPlan;
 use std::fs::{File, TryLockError};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -99,7 +99,7 @@ pub fn seconds_per_sample(quality: Quality, pixels: f64) -> f64 {
 
 /// The run log's account of the `zonal` quality: which materials are shaded per pixel in every
 /// sample and why, which hold only maps with a weak sun, and what a per-pixel shading costs.
-pub fn zonal_log(report: &[(String, Result<(usize, f64), ZonalRefusal>)], resolution: usize) -> String {
+pub fn zonal_log(report: &[(String, ZonalStatus)], resolution: usize) -> String {
     use std::fmt::Write;
     let pixels = (resolution * resolution) as f64;
     let ratio = seconds_per_sample(Quality::Fast, pixels) / seconds_per_sample(Quality::Zonal, pixels);

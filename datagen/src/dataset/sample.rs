@@ -144,6 +144,10 @@ impl<T> Cache<T> {
     }
 }
 
+/// A material's zonal kernel for the log: its rows and the largest sun share it holds, or why it
+/// has none.
+pub type ZonalStatus = std::result::Result<(usize, f64), ZonalRefusal>;
+
 /// Shared, thread-safe state for rendering the samples of a plan.
 pub struct Renderer<'a> {
     plan: &'a Plan,
@@ -220,7 +224,7 @@ impl<'a> Renderer<'a> {
 
     /// For the log: each of `materials` (catalogue indices) with a built kernel (its rows and the
     /// largest sun share it holds) or why it has none. Builds what is not built yet.
-    pub fn zonal_report(&self, materials: &[usize]) -> Result<Vec<(String, Result<(usize, f64), ZonalRefusal>)>> {
+    pub fn zonal_report(&self, materials: &[usize]) -> Result<Vec<(String, ZonalStatus)>> {
         materials
             .iter()
             .map(|&k| {
