@@ -98,7 +98,7 @@ pub fn seconds_per_sample(quality: Quality, pixels: f64) -> f64 {
 }
 
 /// The run log's account of the `zonal` quality: which materials are shaded per pixel in every
-/// sample and why, which hold only maps with a weak sun, and what a per-pixel shading costs.
+/// sample, why, and what that costs.
 pub fn zonal_log(report: &[(String, ZonalStatus)], resolution: usize) -> String {
     use std::fmt::Write;
     let pixels = (resolution * resolution) as f64;
@@ -106,13 +106,6 @@ pub fn zonal_log(report: &[(String, ZonalStatus)], resolution: usize) -> String 
     let off: Vec<String> = report
         .iter()
         .filter_map(|(id, r)| r.as_ref().err().map(|e| format!("{id} ({e})")))
-        .collect();
-    let limited: Vec<String> = report
-        .iter()
-        .filter_map(|(id, r)| match r {
-            Ok((rows, share)) if *share < 1.0 => Some(format!("{id} ({rows} rows, ≤ {:.1} %)", 100.0 * share)),
-            _ => None,
-        })
         .collect();
     let mut s = String::new();
     if !off.is_empty() {
@@ -122,14 +115,6 @@ pub fn zonal_log(report: &[(String, ZonalStatus)], resolution: usize) -> String 
             off.len(),
             report.len(),
             off.join(", ")
-        );
-    }
-    if !limited.is_empty() {
-        let _ = writeln!(
-            s,
-            "note: zonal: {} materials stay on the grid only under maps whose brightest texel carries at most the share of the power shown (measured against the fast path, 0.4 % budget); under brighter suns they are shaded per pixel: {}",
-            limited.len(),
-            limited.join(", ")
         );
     }
     s
@@ -264,10 +249,6 @@ pub fn describe(l: &Loaded) -> String {
             }
             None => {}
         }
-        let _ = writeln!(
-            s,
-            "zonal: each material on the grid is also checked under suns when `datagen run` builds its kernel; a sample whose map's sun is brighter than that check holds is shaded per pixel (the run logs both)"
-        );
         if known.len() < wanted {
             let _ = writeln!(
                 s,
@@ -458,13 +439,6 @@ pub fn run(l: &Loaded, opts: &RunOptions) -> Result<RunSummary> {
     }
     sbar.finish_and_clear();
     let render_s = t0.elapsed().as_secs_f64();
-    let (on_grid, bright) = renderer.zonal_counts();
-    if bright > 0 {
-        eprintln!(
-            "note: zonal: {bright} of {} material shadings with a kernel were shaded per pixel because their map's sun was brighter than the kernel holds",
-            on_grid + bright
-        );
-    }
     let joined = opts.worker.count == 1;
     if joined {
         join(&dir, &[], Some(&materials))?;

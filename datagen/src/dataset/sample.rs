@@ -24,9 +24,7 @@ use crate::shapes::{Mesh, Shape};
 use anyhow::{Context, Result};
 use glam::Mat3;
 use matedit_physics::EnvMap;
-use matedit_physics::shading::zonal::{
-    PolarNormals, ZonalEnv, ZonalKernel, ZonalRefusal, shade_image_zonal, sun_share,
-};
+use matedit_physics::shading::zonal::{PolarNormals, ZonalEnv, ZonalKernel, ZonalRefusal, shade_image_zonal};
 use matedit_physics::shading::{Quality, VisibilityFn, shade_with};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -144,9 +142,8 @@ impl<T> Cache<T> {
     }
 }
 
-/// A material's zonal kernel for the log: its rows and the largest sun share it holds, or why it
-/// has none.
-pub type ZonalStatus = std::result::Result<(usize, f64), ZonalRefusal>;
+/// A material's zonal kernel for the log: its rows, or why it has none.
+pub type ZonalStatus = std::result::Result<usize, ZonalRefusal>;
 
 /// Shared, thread-safe state for rendering the samples of a plan.
 pub struct Renderer<'a> {
@@ -154,11 +151,8 @@ pub struct Renderer<'a> {
     materials: &'a [Option<MaterialEntry>],
     shapes: Cache<LoadedShape>,
     envs: Cache<EnvMap>,
-    /// Per catalogue material, its zonal kernel (`zonal` quality), built and checked once.
+    /// Per catalogue material, its zonal kernel (`zonal` quality) or why it has none, built once.
     zonal: Vec<OnceLock<Result<ZonalKernel, ZonalRefusal>>>,
-    /// Shadings of a material with a kernel: on the grid, and per pixel because the sample's map
-    /// has a brighter sun than the kernel holds.
-    zonal_counts: (std::sync::atomic::AtomicUsize, std::sync::atomic::AtomicUsize),
 }
 
 /// Shapes kept loaded at once; samples are ordered by shape, so a small cache suffices.
@@ -184,7 +178,6 @@ impl<'a> Renderer<'a> {
             // Environments are small (a few hundred KB at 2 × 64 rows): keep them all.
             envs: Cache::new(usize::MAX),
             zonal: (0..materials.len()).map(|_| OnceLock::new()).collect(),
-            zonal_counts: Default::default(),
         }
     }
 
@@ -222,29 +215,17 @@ impl<'a> Renderer<'a> {
         Ok(cell.get_or_init(|| ZonalKernel::checked(render, &Default::default())))
     }
 
-    /// For the log: each of `materials` (catalogue indices) with a built kernel (its rows and the
-    /// largest sun share it holds) or why it has none. Builds what is not built yet.
+    /// For the log: each of `materials` (catalogue indices) with its kernel's rows or why it has
+    /// none. Builds what is not built yet.
     pub fn zonal_report(&self, materials: &[usize]) -> Result<Vec<(String, ZonalStatus)>> {
         materials
             .iter()
             .map(|&k| {
                 let outcome = self.zonal_outcome(k)?;
                 let id = self.plan.catalogue.materials[k].id.clone();
-                Ok((
-                    id,
-                    outcome
-                        .as_ref()
-                        .map(|z| (z.grid().rows, z.max_sun_share()))
-                        .map_err(|e| *e),
-                ))
+                Ok((id, outcome.as_ref().map(|z| z.grid().rows).map_err(|e| *e)))
             })
             .collect()
-    }
-
-    /// Material shadings so far on the zonal grid, and per pixel because of a bright sun.
-    pub fn zonal_counts(&self) -> (usize, usize) {
-        use std::sync::atomic::Ordering::Relaxed;
-        (self.zonal_counts.0.load(Relaxed), self.zonal_counts.1.load(Relaxed))
     }
 
     fn shape(&self, k: usize) -> Result<Arc<LoadedShape>> {
@@ -354,7 +335,6 @@ impl<'a> Renderer<'a> {
         // and the environment's spectra between materials on the same grid.
         let zonal = st.quality == Quality::Zonal && vis.is_none();
         let polar = zonal.then(|| PolarNormals::new(&g.normal, &g.mask));
-        let sun = if zonal { sun_share(&env) } else { 0.0 };
         let mut spectra: Vec<ZonalEnv> = Vec::new();
         let mut image_i = vec![[0.0_f32; 3]; res * res];
         let mut image_o = vec![[0.0_f32; 3]; res * res];
@@ -369,18 +349,7 @@ impl<'a> Renderer<'a> {
                 continue;
             }
             for (mat, out) in [(mi, &mut image_i), (mt, &mut image_o)] {
-                // A kernel shades only under maps whose sun its measured accuracy covers.
                 let kernel = if zonal { self.zonal_kernel(mat)? } else { None };
-                let kernel = kernel.filter(|k| {
-                    let holds = sun <= k.max_sun_share();
-                    let counter = if holds {
-                        &self.zonal_counts.0
-                    } else {
-                        &self.zonal_counts.1
-                    };
-                    counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                    holds
-                });
                 let (rgb, _) = match (&polar, kernel) {
                     (Some(polar), Some(kernel)) => {
                         let at = match spectra.iter().position(|e| e.grid() == kernel.grid()) {
