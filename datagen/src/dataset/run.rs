@@ -10,7 +10,7 @@ use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use matedit_physics::BrdfModel;
 use matedit_physics::shading::Quality;
-use matedit_physics::shading::zonal::ZonalPlan;
+use matedit_physics::shading::zonal::{ZonalPlan, ZonalRefusal};
 use std::fs::{File, TryLockError};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -87,9 +87,9 @@ pub fn seconds_per_sample(quality: Quality, pixels: f64) -> f64 {
     match quality {
         // Part of a zonal sample's time does not grow with the image (environment spectra,
         // per-material tables, the environment file): interpolate between the two measured
-        // rates, 250 samples/s at 64² and 52 at 256².
+        // rates, 144 samples/s at 64² and 40 at 256² (2026-11-24, docs/PERFORMANCE.md).
         Quality::Zonal => {
-            let (t64, t256) = (1.0 / 250.0, 1.0 / 52.0);
+            let (t64, t256) = (1.0 / 144.0, 1.0 / 40.0);
             t64 + (t256 - t64) * (pixels - 4096.0) / (at_256 - 4096.0)
         }
         Quality::Fast => pixels / at_256 / 0.30,
@@ -120,32 +120,14 @@ pub fn zonal_log(report: &[(String, ZonalStatus)], resolution: usize) -> String 
     s
 }
 
-/// Which of `materials` (id, rendering BRDF) the `zonal` quality cannot put on its grid and shades
-/// per pixel instead, with what that costs at `resolution`² (`None` when all are on the grid).
-pub fn zonal_note<'m>(materials: impl Iterator<Item = (&'m str, &'m BrdfModel)>, resolution: usize) -> Option<String> {
-    let mut total = 0;
-    let mut off: Vec<String> = Vec::new();
-    for (id, brdf) in materials {
-        total += 1;
-        match ZonalPlan::for_brdf(brdf) {
-            ZonalPlan::Grid(_) => {}
-            ZonalPlan::Unresolved { rows_needed, .. } => off.push(format!("{id} (needs {rows_needed} rows)")),
-            ZonalPlan::Measured => off.push(format!("{id} (measured: exact path)")),
-        }
+/// What `datagen plan` can say of a material before its kernel is built: refused by lobe width
+/// (or measured), or headed for the grid (rows from the widths; the run's check may refine them).
+fn planned_status(brdf: &BrdfModel) -> ZonalStatus {
+    match ZonalPlan::for_brdf(brdf) {
+        ZonalPlan::Grid(g) => Ok(g.rows),
+        ZonalPlan::Unresolved { rows_needed, max_rows } => Err(ZonalRefusal::TooSharp { rows_needed, max_rows }),
+        ZonalPlan::Measured => Err(ZonalRefusal::Measured),
     }
-    if off.is_empty() {
-        return None;
-    }
-    let pixels = (resolution * resolution) as f64;
-    let ratio = seconds_per_sample(Quality::Fast, pixels) / seconds_per_sample(Quality::Zonal, pixels);
-    Some(format!(
-        "zonal: {} of {total} materials are shaded per pixel (fast path) because the zonal grid (at most {} rows) \
-         cannot resolve their lobes within its error budget; a sample using one costs about {ratio:.0}× a zonal \
-         sample at {resolution}²: {}",
-        off.len(),
-        matedit_physics::shading::zonal::MAX_ROWS,
-        off.join(", ")
-    ))
 }
 
 /// Prints what a manifest would produce.
@@ -231,24 +213,19 @@ pub fn describe(l: &Loaded) -> String {
         // without fitting (the output's stored fits, DSBRDF files); `datagen run` logs the rest.
         let dir = Path::new(&l.file.manifest.dataset.output).join("materials");
         let need = needed(p);
-        let known: Vec<(String, BrdfModel)> = p
+        let known: Vec<(String, ZonalStatus)> = p
             .catalogue
             .materials
             .iter()
             .zip(&need)
             .filter(|(_, n)| **n)
-            .filter_map(|(item, _)| Some((item.id.clone(), peek_render(&dir, item, st.ground_truth)?)))
+            .filter_map(|(item, _)| {
+                let brdf = peek_render(&dir, item, st.ground_truth)?;
+                Some((item.id.clone(), planned_status(&brdf)))
+            })
             .collect();
         let wanted = need.iter().filter(|&&n| n).count();
-        match zonal_note(known.iter().map(|(id, b)| (id.as_str(), b)), st.resolution) {
-            Some(note) => {
-                let _ = writeln!(s, "{note}");
-            }
-            None if !known.is_empty() => {
-                let _ = writeln!(s, "zonal: all {} materials checked are on the zonal grid", known.len());
-            }
-            None => {}
-        }
+        s.push_str(&zonal_log(&known, st.resolution));
         if known.len() < wanted {
             let _ = writeln!(
                 s,

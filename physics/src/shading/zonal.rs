@@ -161,17 +161,6 @@ impl ZonalPlan {
             _ => None,
         }
     }
-
-    /// A short description for plans and logs.
-    pub fn describe(&self) -> String {
-        match self {
-            Self::Grid(g) => format!("zonal, {} rows", g.rows),
-            Self::Unresolved { rows_needed, max_rows } => {
-                format!("fast (lobes need {rows_needed} zonal rows > {max_rows})")
-            }
-            Self::Measured => "exact (measured BRDF)".to_string(),
-        }
-    }
 }
 
 /// The polar grid about the view axis on which a material is tabulated.
