@@ -15,7 +15,8 @@
 //!
 //! Other modes: `--probe KAPPA,GAMMA,ROWS` (one material on a forced grid, error per map),
 //! `--cost KAPPA,GAMMA` (time of one image per grid size), `--library DIR` (the grid of every
-//! fitted library material, after `datagen assets materials --out DIR`), `--sun-share` (the share
+//! fitted library material, after `datagen assets materials --out DIR`, its bands and its check's
+//! worst probe error), `--sun-share` (the share
 //! of each map's power in its brightest texel).
 
 use matedit_datagen::assets::envmaps::Family;
@@ -23,7 +24,9 @@ use matedit_datagen::io::load_env;
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::brdf::dsbrdf::{KNOTS, LobeParam, PARAMS, param_index};
 use matedit_physics::envmap::texel_solid_angle;
-use matedit_physics::shading::zonal::{PolarNormals, ZonalEnv, ZonalGrid, ZonalKernel, ZonalParams, shade_image_zonal};
+use matedit_physics::shading::zonal::{
+    PolarNormals, ZonalEnv, ZonalGrid, ZonalKernel, ZonalParams, probe_error, shade_image_zonal,
+};
 use matedit_physics::shading::{Quality, make_shader, shade_image};
 use matedit_physics::{BrdfModel, EnvMap};
 use rayon::prelude::*;
@@ -192,11 +195,17 @@ fn main() {
                 let outcome = ZonalKernel::checked(brdf, &ZonalParams::default());
                 let secs = t.elapsed().as_secs_f64();
                 match outcome {
-                    Ok(k) => format!(
-                        "{family:9} {name:28} zonal {:3} rows  {:.1} MB  {secs:.2} s",
-                        k.grid().rows,
-                        k.coefficients() as f64 * 4e-6
-                    ),
+                    Ok(k) => {
+                        let (error, map) = probe_error(&k, brdf);
+                        format!(
+                            "{family:9} {name:28} zonal {:3} rows, {:3} env rows {:?}  {:.1} MB  {secs:.2} s  probe {:.3} % ({map})",
+                            k.grid().rows,
+                            k.grid().env_rows,
+                            (k.grid().normal_bands, k.grid().env_bands),
+                            k.coefficients() as f64 * 4e-6,
+                            100.0 * error
+                        )
+                    }
                     Err(e) => format!("{family:9} {name:28} per pixel: {e}"),
                 }
             })
