@@ -197,7 +197,9 @@ impl<'a> Renderer<'a> {
         // A kernel is built without rayon, so a thread waiting on another's cell cannot hold up
         // the one building it.
         todo.par_iter().try_for_each(|&k| {
-            self.zonal_kernel(k)?;
+            if let Some(kernel) = self.zonal_kernel(k)? {
+                kernel.prepare_for_maps(self.plan.settings.env_rows);
+            }
             on_done();
             Ok::<_, anyhow::Error>(())
         })?;

@@ -654,6 +654,13 @@ impl ZonalKernel {
         self.grid
     }
 
+    /// Builds, ahead of shading, what spreading maps of `env_height` rows onto this kernel's grid
+    /// needs (a few ms, memoised for the process), so that a run pays it with the kernel's set-up
+    /// rather than in its first samples.
+    pub fn prepare_for_maps(&self, env_height: usize) {
+        spread_for(env_height, self.grid);
+    }
+
     /// Stored coefficients (memory: 4 bytes each).
     pub fn coefficients(&self) -> usize {
         self.coeffs.iter().map(Vec::len).sum()
@@ -822,7 +829,8 @@ fn cut_spectra(
 type Plan = Arc<dyn Fft<f32>>;
 static FORWARD: Memo<usize, Plan> = Memo::new();
 static INVERSE: Memo<usize, Plan> = Memo::new();
-static SPLATS: Memo<(usize, ZonalGrid), Splat> = Memo::new();
+/// Keyed by map height, environment bands and columns: all a spread depends on.
+static SPLATS: Memo<(usize, [u16; BANDS], usize), Splat> = Memo::new();
 
 fn forward_plan(n: usize) -> Plan {
     FORWARD
@@ -1022,6 +1030,11 @@ fn from_polar(theta: f32, phi: f32) -> DVec3 {
     DVec3::new(st * cp, st * sp, ct)
 }
 
+/// The spreading weights of maps of `height` rows onto `grid` (memoised for the process).
+fn spread_for(height: usize, grid: ZonalGrid) -> Arc<Splat> {
+    SPLATS.get((height, grid.env_bands, grid.phi), || Splat::new(height, grid))
+}
+
 /// An environment's row spectra on a grid (step 2 of the module docs).
 pub struct ZonalEnv {
     grid: ZonalGrid,
@@ -1036,7 +1049,7 @@ impl ZonalEnv {
     /// Spreads `env`'s texels (L·dω at each texel centre, camera space) onto `grid` and
     /// transforms each row.
     pub fn new(env: &EnvMap, grid: ZonalGrid) -> Self {
-        let splat = SPLATS.get((env.height(), grid), || Splat::new(env.height(), grid));
+        let splat = spread_for(env.height(), grid);
         let (rows, n) = (grid.env_rows, grid.phi);
         // Per channel, the spread power of every grid node.
         let mut power = vec![vec![0.0_f32; rows * n]; 3];
