@@ -354,7 +354,7 @@ impl<'a> Renderer<'a> {
                 let kernel = if zonal { self.zonal_kernel(mat)? } else { None };
                 let (rgb, _) = match (&polar, kernel) {
                     (Some(polar), Some(kernel)) => {
-                        let at = match spectra.iter().position(|e| e.grid() == kernel.grid()) {
+                        let at = match spectra.iter().position(|e| e.serves(&kernel.grid())) {
                             Some(i) => i,
                             None => {
                                 spectra.push(ZonalEnv::new(&env, kernel.grid()));

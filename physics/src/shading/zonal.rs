@@ -1108,6 +1108,12 @@ impl ZonalEnv {
     pub fn grid(&self) -> ZonalGrid {
         self.grid
     }
+
+    /// Whether these spectra serve a kernel on `grid`: they depend only on the environment rows
+    /// and the columns, so materials whose normal rows differ can share them.
+    pub fn serves(&self, grid: &ZonalGrid) -> bool {
+        self.grid.env_bands == grid.env_bands && self.grid.phi == grid.phi
+    }
 }
 
 /// Pixel normals in polar coordinates about the view axis, after the [normal
@@ -1424,7 +1430,7 @@ pub fn shade_image_zonal(
     pixels: &PolarNormals,
     mask: &[f32],
 ) -> (Vec<[f32; 3]>, usize) {
-    assert_eq!(kernel.grid, env.grid, "kernel and environment on different grids");
+    assert!(env.serves(&kernel.grid), "kernel and environment on different grids");
     let grid = kernel.grid;
     let need = pixels.rows_needed(&grid, mask);
     let table = Padded::new(&normal_table(kernel, env, &need), &grid);
