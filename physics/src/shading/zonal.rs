@@ -157,7 +157,7 @@ impl ZonalPlan {
                 max_rows,
             }
         } else {
-            let grid = ZonalGrid::for_needs(&need, 1.0, params);
+            let grid = ZonalGrid::for_needs(&need, params);
             Self::Grid(grid.refined_for(brdf, params.lobe_step))
         }
     }
@@ -347,19 +347,14 @@ impl ZonalGrid {
         }))
     }
 
-    /// The rows of a uniform grid as fine as the finest band that `band_rows_needed` asks for.
-    pub fn rows_needed(brdf: &BrdfModel, params: &ZonalParams) -> Option<usize> {
-        Some(uniform_equivalent(&Self::band_rows_needed(brdf, params)?).ceil() as usize)
-    }
-
-    /// The grid for per-band needs `need` × `scale`, each band within the shares of
-    /// `params.min_rows` and of `params.max_rows`.
-    fn for_needs(need: &[f64; BANDS], scale: f64, params: &ZonalParams) -> Self {
+    /// The grid for per-band needs `need`, each band within the shares of `params.min_rows` and
+    /// of `params.max_rows`.
+    fn for_needs(need: &[f64; BANDS], params: &ZonalParams) -> Self {
         let edges = normal_edges();
         let max_rows = params.max_rows.max(params.min_rows);
         let (lo, hi) = (dealt(params.min_rows as f64, &edges), dealt(max_rows as f64, &edges));
         let bands: [usize; BANDS] = std::array::from_fn(|i| {
-            let n = (need[i] * scale).ceil();
+            let n = need[i].ceil();
             let n = if n.is_finite() {
                 n.min(hi[i] as f64) as usize
             } else {
@@ -375,7 +370,7 @@ impl ZonalGrid {
     /// of `params.max_rows`; environment rows as [`with_bands`](ZonalGrid::with_bands) gives.
     fn finer(&self, factor: f64, params: &ZonalParams) -> Self {
         let need = self.normal_bands.map(|n| n as f64 * factor);
-        Self::for_needs(&need, 1.0, params)
+        Self::for_needs(&need, params)
     }
 
     fn normal_theta(&self, a: usize) -> f64 {
@@ -394,6 +389,11 @@ impl ZonalGrid {
     /// The continuous environment-row coordinate of θ_ω ∈ [0, π]: row r's centre is at r.
     fn env_row_coord(&self, theta: f64) -> f64 {
         band_coord(&self.env_bands, &env_edges(), theta) - 0.5
+    }
+
+    /// What an environment's spread and spectra depend on: the environment rows and columns.
+    fn env_layout(&self) -> ([u16; BANDS], usize) {
+        (self.env_bands, self.phi)
     }
 
     /// Harmonics kept per spectrum (0..=phi/2).
@@ -645,7 +645,7 @@ impl ZonalKernel {
     /// avoids; shading never uses it.
     pub fn on_capped_grid(brdf: &BrdfModel, params: &ZonalParams) -> Option<Self> {
         let need = ZonalGrid::band_rows_needed(brdf, params)?;
-        let grid = ZonalGrid::for_needs(&need, 1.0, params).refined_for(brdf, params.lobe_step);
+        let grid = ZonalGrid::for_needs(&need, params).refined_for(brdf, params.lobe_step);
         Self::with_tail(brdf, grid, params.tail)
     }
 
@@ -674,6 +674,22 @@ struct RowLobes {
 }
 
 impl RowLobes {
+    /// Σ_k expm1(κ_k cos^γ_k θ_h) of each channel, from lc = ln cos θ_h; 0 where the half
+    /// vector is behind the surface (`front` false). The kernel and the per-pixel texels use
+    /// this one formula, so they agree to the bit.
+    #[inline]
+    fn rho(&self, lc: f32, front: bool) -> [f32; 3] {
+        std::array::from_fn(|c| {
+            let mut rho = 0.0_f32;
+            for k in 0..3 {
+                let pw = fastmath::exp(self.gamma[c][k] * lc);
+                let pw = if front { pw } else { 0.0 };
+                rho += fastmath::expm1(self.kappa[c][k] * pw);
+            }
+            rho
+        })
+    }
+
     fn new(m: &Dsbrdf, theta_d: f64) -> Self {
         let l = m.lobes_at(theta_d);
         Self {
@@ -727,16 +743,8 @@ impl Geometry {
                 let w = if cos_i > 0.0 { cos_i } else { 0.0 };
                 let t = base + coef * half_sin2;
                 let front = t < 1.0;
-                let lc = fastmath::ln_1m(t);
-                std::array::from_fn(|c| {
-                    let mut rho = 0.0_f32;
-                    for k in 0..3 {
-                        let pw = fastmath::exp(lobes.gamma[c][k] * lc);
-                        let pw = if front { pw } else { 0.0 };
-                        rho += fastmath::expm1(lobes.kappa[c][k] * pw);
-                    }
-                    w * rho
-                })
+                let rho = lobes.rho(fastmath::ln_1m(t), front);
+                std::array::from_fn(|c| w * rho[c])
             })
             .collect();
         Some(std::array::from_fn(|c| {
@@ -829,8 +837,8 @@ fn cut_spectra(
 type Plan = Arc<dyn Fft<f32>>;
 static FORWARD: Memo<usize, Plan> = Memo::new();
 static INVERSE: Memo<usize, Plan> = Memo::new();
-/// Keyed by map height, environment bands and columns: all a spread depends on.
-static SPLATS: Memo<(usize, [u16; BANDS], usize), Splat> = Memo::new();
+/// Keyed by map height and [`ZonalGrid::env_layout`]: all a spread depends on.
+static SPLATS: Memo<(usize, ([u16; BANDS], usize)), Splat> = Memo::new();
 
 fn forward_plan(n: usize) -> Plan {
     FORWARD
@@ -995,16 +1003,8 @@ fn point_radiance(brdf: &BrdfModel, lit: &[LitPoint], n: DVec3) -> [f32; 3] {
                 if n.dot(p.half) <= 0.0 {
                     continue;
                 }
-                // 1 − n·h as |n − h|²/2: no cancellation for the sharpest lobes. As in the
-                // kernel (f32, the same fast functions).
-                let lc = fastmath::ln_1m(((n - p.half).length_squared() / 2.0) as f32);
-                std::array::from_fn(|c| {
-                    let mut rho = 0.0_f32;
-                    for k in 0..3 {
-                        rho += fastmath::expm1(lobes.kappa[c][k] * fastmath::exp(lobes.gamma[c][k] * lc));
-                    }
-                    rho
-                })
+                // 1 − n·h as |n − h|²/2: no cancellation for the sharpest lobes.
+                lobes.rho(fastmath::ln_1m(((n - p.half).length_squared() / 2.0) as f32), true)
             }
             None => {
                 let frame = Frame::from_normal(n);
@@ -1023,6 +1023,26 @@ fn point_radiance(brdf: &BrdfModel, lit: &[LitPoint], n: DVec3) -> [f32; 3] {
     out
 }
 
+/// The radiance of a pixel whose shading normal is at polar angles (θ, φ): the grid's table
+/// there plus the texels shaded per pixel.
+fn pixel_radiance(
+    table: &Padded,
+    grid: &ZonalGrid,
+    brdf: &BrdfModel,
+    lit: &[LitPoint],
+    theta: f32,
+    phi: f32,
+) -> [f32; 3] {
+    let mut rgb = table.at(grid, theta, phi);
+    if !lit.is_empty() {
+        let direct = point_radiance(brdf, lit, from_polar(theta, phi));
+        for c in 0..3 {
+            rgb[c] += direct[c];
+        }
+    }
+    rgb
+}
+
 /// The unit normal at polar angles (θ, φ) about the view.
 fn from_polar(theta: f32, phi: f32) -> DVec3 {
     let (st, ct) = (theta as f64).sin_cos();
@@ -1032,7 +1052,7 @@ fn from_polar(theta: f32, phi: f32) -> DVec3 {
 
 /// The spreading weights of maps of `height` rows onto `grid` (memoised for the process).
 fn spread_for(height: usize, grid: ZonalGrid) -> Arc<Splat> {
-    SPLATS.get((height, grid.env_bands, grid.phi), || Splat::new(height, grid))
+    SPLATS.get((height, grid.env_layout()), || Splat::new(height, grid))
 }
 
 /// An environment's row spectra on a grid (step 2 of the module docs).
@@ -1054,8 +1074,10 @@ impl ZonalEnv {
         // Per channel, the spread power of every grid node.
         let mut power = vec![vec![0.0_f32; rows * n]; 3];
         let points = point_texels(env);
+        let mut off_grid: Vec<usize> = points.iter().map(|&(i, _)| i).collect();
+        off_grid.sort_unstable();
         for (t, (l, nodes)) in env.texels().iter().zip(&splat.nodes).enumerate() {
-            if *l == [0.0; 3] || points.iter().any(|&(i, _)| i == t) {
+            if *l == [0.0; 3] || off_grid.binary_search(&t).is_ok() {
                 continue;
             }
             for &(node, w) in nodes {
@@ -1112,7 +1134,7 @@ impl ZonalEnv {
     /// Whether these spectra serve a kernel on `grid`: they depend only on the environment rows
     /// and the columns, so materials whose normal rows differ can share them.
     pub fn serves(&self, grid: &ZonalGrid) -> bool {
-        self.grid.env_bands == grid.env_bands && self.grid.phi == grid.phi
+        self.grid.env_layout() == grid.env_layout()
     }
 }
 
@@ -1400,11 +1422,7 @@ pub fn probe_error(kernel: &ZonalKernel, brdf: &BrdfModel) -> (f64, &'static str
             if mask[p] <= 0.0 || t.is_nan() {
                 continue;
             }
-            let mut z = table.at(&kernel.grid, t, ph);
-            let direct = point_radiance(brdf, &lit, from_polar(t, ph));
-            for c in 0..3 {
-                z[c] += direct[c];
-            }
+            let z = pixel_radiance(&table, &kernel.grid, brdf, &lit, t, ph);
             let f = super::Shader::shade(&fast, *n, None);
             for c in 0..3 {
                 err += ((z[c] - f[c]) as f64).powi(2);
@@ -1444,13 +1462,7 @@ pub fn shade_image_zonal(
             if m <= 0.0 || t.is_nan() {
                 return ([0.0; 3], 0);
             }
-            let mut rgb = table.at(&grid, t, p);
-            if !lit.is_empty() {
-                let direct = point_radiance(&kernel.brdf, &lit, from_polar(t, p));
-                for c in 0..3 {
-                    rgb[c] += direct[c];
-                }
-            }
+            let mut rgb = pixel_radiance(&table, &grid, &kernel.brdf, &lit, t, p);
             let bad = sanitize(&mut rgb);
             (rgb, bad)
         })
@@ -1717,5 +1729,73 @@ mod tests {
         }
         let e = (err / norm).sqrt();
         assert!(e < 2e-3, "relative RMSE {e}");
+    }
+
+    #[test]
+    fn point_texels_are_the_bright_ones_behind_at_most_the_cap_brightest_first() {
+        let (h, w) = (64, 128);
+        let map = |texels: Vec<[f32; 3]>| EnvMap::from_texels(w, h, texels).unwrap().0;
+        // Black, and uniform (each texel ~1/8192 of the power): nothing leaves the grid.
+        assert!(point_texels(&map(vec![[0.0; 3]; w * h])).is_empty());
+        assert!(point_texels(&map(vec![[5.0; 3]; w * h])).is_empty());
+        // 40 equal suns behind the object (θ > 130°), one brighter in front, a dim sky.
+        let mut texels = vec![[0.01_f32; 3]; w * h];
+        let mut behind = Vec::new();
+        for t in 0..w * h {
+            let d = texel_direction(t % w, t / w, w, h);
+            if d.z < -0.9 && behind.len() < 40 {
+                behind.push(t);
+                texels[t] = [50.0; 3];
+            } else if d.z > 0.9 && texels[t] == [0.01; 3] && !texels.contains(&[500.0; 3]) {
+                texels[t] = [500.0; 3];
+            }
+        }
+        let env = map(texels);
+        let points = point_texels(&env);
+        assert_eq!(points.len(), MAX_POINTS);
+        for (t, p) in &points {
+            assert!(behind.contains(t), "texel {t} is not one of the suns behind");
+            assert!(p.dir.z <= POINT_MIN_THETA_DEG.to_radians().cos());
+        }
+        // Brightest first (by power, so by solid angle among equal radiances), ties by index,
+        // and the same choice every time.
+        let power = |t: usize| texel_solid_angle(t / w, w, h);
+        for pair in points.windows(2) {
+            let (a, b) = (pair[0].0, pair[1].0);
+            assert!(power(a) > power(b) || (power(a) == power(b) && a < b));
+        }
+        assert_eq!(points, point_texels(&env));
+    }
+
+    #[test]
+    fn refined_grids_stay_bounded_at_the_corners_of_the_range() {
+        use crate::brdf::dsbrdf::{GAMMA_RANGE, KAPPA_RANGE, LobeParam, param_index};
+        let corners = [KAPPA_RANGE.0, KAPPA_RANGE.1]
+            .into_iter()
+            .flat_map(|k| [GAMMA_RANGE.0, GAMMA_RANGE.1].map(|g| (k, g)));
+        let corners: Vec<(f64, f64)> = corners.collect();
+        // Every pair of corners, switching from one to the other at each knot.
+        for &(k0, g0) in &corners {
+            for &(k1, g1) in &corners {
+                for switch in 1..KNOTS {
+                    let mut p = *Dsbrdf::isotropic_in_theta_d([[(0.2, 1e-3), (k0, g0), (1e-5, 1e4)]; 3]).params();
+                    for c in 0..3 {
+                        for j in switch..KNOTS {
+                            p[param_index(c, 1, LobeParam::Kappa, j)] = k1;
+                            p[param_index(c, 1, LobeParam::Gamma, j)] = g1;
+                        }
+                    }
+                    let brdf = BrdfModel::Dsbrdf(Box::new(Dsbrdf::from_params(&p).unwrap()));
+                    let g = ZonalGrid::with_rows(MIN_ROWS).refined_for(&brdf, LOBE_STEP);
+                    for b in g.normal_bands.iter().chain(&g.env_bands) {
+                        assert!((1..=MAX_BAND_ROWS as u16).contains(b), "{g:?}");
+                    }
+                    assert_eq!(g.rows, g.normal_bands.iter().map(|&n| n as usize).sum::<usize>());
+                    assert_eq!(g.env_rows, g.env_bands.iter().map(|&n| n as usize).sum::<usize>());
+                    // The plan is finite too: a grid, or a refusal, never a panic.
+                    let _ = ZonalPlan::for_brdf(&brdf);
+                }
+            }
+        }
     }
 }
