@@ -25,7 +25,7 @@ use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::brdf::dsbrdf::{KNOTS, LobeParam, PARAMS, param_index};
 use matedit_physics::envmap::texel_solid_angle;
 use matedit_physics::shading::zonal::{
-    PolarNormals, ZonalEnv, ZonalGrid, ZonalKernel, ZonalParams, probe_error, shade_image_zonal,
+    PolarNormals, ProbeReference, ZonalEnv, ZonalGrid, ZonalKernel, ZonalParams, probe_error, shade_image_zonal,
 };
 use matedit_physics::shading::{Quality, make_shader, shade_image};
 use matedit_physics::{BrdfModel, EnvMap};
@@ -196,7 +196,7 @@ fn main() {
                 let secs = t.elapsed().as_secs_f64();
                 match outcome {
                     Ok(k) => {
-                        let (error, map) = probe_error(&k, brdf);
+                        let (error, map) = ProbeReference::new(brdf).map_or((f64::NAN, "none"), |r| probe_error(&k, &r));
                         format!(
                             "{family:9} {name:28} zonal {:3} rows, {:3} env rows {:?}  {:.1} MB  {secs:.2} s  probe {:.3} % ({map})",
                             k.grid().rows,

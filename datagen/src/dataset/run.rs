@@ -11,6 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use matedit_physics::BrdfModel;
 use matedit_physics::shading::Quality;
 use matedit_physics::shading::zonal::{ZonalPlan, ZonalRefusal};
+use rayon::prelude::*;
 use std::fs::{File, TryLockError};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -410,10 +411,12 @@ pub fn run(l: &Loaded, opts: &RunOptions) -> Result<RunSummary> {
         );
     }
     let t0 = Instant::now();
-    for shard in &todo {
+    // Shards in parallel as well as their samples: with one shard at a time, every shard's
+    // slowest samples left the other threads idle at its end.
+    todo.par_iter().try_for_each(|shard| {
         write_shard(&dir, plan, &renderer, shard, &|| sbar.inc(1))
-            .with_context(|| format!("shard {}", shard.name(plan)))?;
-    }
+            .with_context(|| format!("shard {}", shard.name(plan)))
+    })?;
     sbar.finish_and_clear();
     let render_s = t0.elapsed().as_secs_f64();
     let joined = opts.worker.count == 1;

@@ -240,17 +240,41 @@ fn band_theta(bands: &[u16; BANDS], edges: &[f64; BANDS + 1], x: f64) -> f64 {
     edges[BANDS]
 }
 
-/// The continuous row coordinate of angle θ (the inverse of [`band_theta`]).
-fn band_coord(bands: &[u16; BANDS], edges: &[f64; BANDS + 1], theta: f64) -> f64 {
-    let mut first = 0.0;
-    for (i, &n) in bands.iter().enumerate() {
-        let n = n as f64;
-        if theta <= edges[i + 1] || i == BANDS - 1 {
-            return first + (theta - edges[i]) / (edges[i + 1] - edges[i]) * n;
+/// The continuous row coordinate of an angle over bands of rows (the inverse of [`band_theta`]), with each band's edges, width
+/// and first row worked out once: a pixel's lookup is then a few compares, not a trip through
+/// the knots (and `acos` for the last edge).
+#[derive(Clone, Copy, Debug)]
+struct BandCoords {
+    edges: [f64; BANDS + 1],
+    widths: [f64; BANDS],
+    rows: [f64; BANDS],
+    first: [f64; BANDS],
+}
+
+impl BandCoords {
+    fn new(bands: &[u16; BANDS], edges: &[f64; BANDS + 1]) -> Self {
+        let rows = bands.map(f64::from);
+        let mut first = [0.0; BANDS];
+        for i in 1..BANDS {
+            first[i] = first[i - 1] + rows[i - 1];
         }
-        first += n;
+        Self {
+            edges: *edges,
+            widths: std::array::from_fn(|i| edges[i + 1] - edges[i]),
+            rows,
+            first,
+        }
     }
-    first
+
+    /// Row coordinate of `theta` (0 at the first edge; beyond the last edge, extrapolated).
+    #[inline]
+    fn coord(&self, theta: f64) -> f64 {
+        let mut i = 0;
+        while i < BANDS - 1 && theta > self.edges[i + 1] {
+            i += 1;
+        }
+        self.first[i] + (theta - self.edges[i]) / self.widths[i] * self.rows[i]
+    }
 }
 
 /// The rows a uniform grid of `rows` rows over the bands puts in each.
@@ -377,9 +401,10 @@ impl ZonalGrid {
         band_theta(&self.normal_bands, &normal_edges(), a as f64)
     }
 
-    /// The continuous normal-row coordinate of θ_n ∈ [0, θ_max]: row a is at a.
-    fn normal_coord(&self, theta: f64) -> f64 {
-        band_coord(&self.normal_bands, &normal_edges(), theta).clamp(0.0, self.rows as f64)
+    /// The normal rows' [`BandCoords`]: θ_n ∈ [0, θ_max] to a row coordinate (row a at a), for
+    /// lookups per pixel.
+    fn normal_coords(&self) -> BandCoords {
+        BandCoords::new(&self.normal_bands, &normal_edges())
     }
 
     fn env_theta(&self, r: usize) -> f64 {
@@ -388,7 +413,7 @@ impl ZonalGrid {
 
     /// The continuous environment-row coordinate of θ_ω ∈ [0, π]: row r's centre is at r.
     fn env_row_coord(&self, theta: f64) -> f64 {
-        band_coord(&self.env_bands, &env_edges(), theta) - 0.5
+        BandCoords::new(&self.env_bands, &env_edges()).coord(theta) - 0.5
     }
 
     /// What an environment's spread and spectra depend on: the environment rows and columns.
@@ -618,10 +643,11 @@ impl ZonalKernel {
             }
             ZonalPlan::Measured => return Err(ZonalRefusal::Measured),
         };
+        let reference = ProbeReference::new(brdf).ok_or(ZonalRefusal::Measured)?;
         let mut scale = 1.0;
         loop {
             let kernel = Self::with_tail(brdf, grid, params.tail).ok_or(ZonalRefusal::Measured)?;
-            let (error, map) = probe_error(&kernel, brdf);
+            let (error, map) = probe_error(&kernel, &reference);
             if error <= PROBE_BUDGET {
                 return Ok(kernel);
             }
@@ -669,32 +695,43 @@ impl ZonalKernel {
 
 /// κ and γ of every (channel, lobe) at one environment row's θ_d, as f32.
 struct RowLobes {
-    kappa: [[f32; 3]; 3],
-    gamma: [[f32; 3]; 3],
+    /// κ and γ of lobe k of channel c at `3 c + k`, padded with κ = 0 lobes (which add
+    /// expm1(0) = 0) to three 4-wide vectors.
+    kappa: [f32; LOBE_LANES],
+    gamma: [f32; LOBE_LANES],
 }
+
+/// Lanes of [`RowLobes`]: the 9 (channel, lobe) pairs, padded.
+const LOBE_LANES: usize = 12;
 
 impl RowLobes {
     /// Σ_k expm1(κ_k cos^γ_k θ_h) of each channel, from lc = ln cos θ_h; 0 where the half
     /// vector is behind the surface (`front` false). The kernel and the per-pixel texels use
-    /// this one formula, so they agree to the bit.
+    /// this one formula, so they agree to the bit. Branch-free over flat lanes, so it
+    /// vectorises.
     #[inline]
     fn rho(&self, lc: f32, front: bool) -> [f32; 3] {
-        std::array::from_fn(|c| {
-            let mut rho = 0.0_f32;
-            for k in 0..3 {
-                let pw = fastmath::exp(self.gamma[c][k] * lc);
-                let pw = if front { pw } else { 0.0 };
-                rho += fastmath::expm1(self.kappa[c][k] * pw);
-            }
-            rho
-        })
+        let mut v = [0.0_f32; LOBE_LANES];
+        for (i, v) in v.iter_mut().enumerate() {
+            let pw = fastmath::exp(self.gamma[i] * lc);
+            let pw = if front { pw } else { 0.0 };
+            *v = fastmath::expm1(self.kappa[i] * pw);
+        }
+        std::array::from_fn(|c| v[3 * c] + v[3 * c + 1] + v[3 * c + 2])
     }
 
     fn new(m: &Dsbrdf, theta_d: f64) -> Self {
         let l = m.lobes_at(theta_d);
+        let lane = |i: usize, kappa: bool| {
+            if i >= 9 {
+                return 0.0;
+            }
+            let (k, g) = l[i / 3][i % 3];
+            (if kappa { k } else { g }) as f32
+        };
         Self {
-            kappa: l.map(|ch| ch.map(|(k, _)| k as f32)),
-            gamma: l.map(|ch| ch.map(|(_, g)| g as f32)),
+            kappa: std::array::from_fn(|i| lane(i, true)),
+            gamma: std::array::from_fn(|i| lane(i, false)),
         }
     }
 }
@@ -975,8 +1012,17 @@ struct LitPoint {
     lobes: Option<RowLobes>,
 }
 
-fn lit_points(brdf: &BrdfModel, points: &[PointTexel]) -> Vec<LitPoint> {
-    points
+/// The point texels prepared for one material, and the polar angle below which a normal sees
+/// none of them.
+struct LitPoints {
+    points: Vec<LitPoint>,
+    /// n·ω ≤ cos(θ_ω − θ_n), so a normal with θ_n ≤ θ_ω − 90° for every point is lit by none;
+    /// a thousandth of a radian short of that, so the skip never drops light.
+    unlit_below: f32,
+}
+
+fn lit_points(brdf: &BrdfModel, points: &[PointTexel]) -> LitPoints {
+    let points: Vec<LitPoint> = points
         .iter()
         .map(|&point| {
             let half = (point.dir + DVec3::Z).normalize_or_zero();
@@ -986,7 +1032,12 @@ fn lit_points(brdf: &BrdfModel, points: &[PointTexel]) -> Vec<LitPoint> {
             };
             LitPoint { point, half, lobes }
         })
-        .collect()
+        .collect();
+    let unlit_below = points
+        .iter()
+        .map(|p| p.point.dir.z.clamp(-1.0, 1.0).acos() - PI / 2.0 - 1e-3)
+        .fold(f64::INFINITY, f64::min) as f32;
+    LitPoints { points, unlit_below }
 }
 
 /// Radiance at shading normal `n` from the point texels (Eq. 2's summands for those texels, as
@@ -1029,13 +1080,13 @@ fn pixel_radiance(
     table: &Padded,
     grid: &ZonalGrid,
     brdf: &BrdfModel,
-    lit: &[LitPoint],
+    lit: &LitPoints,
     theta: f32,
     phi: f32,
 ) -> [f32; 3] {
     let mut rgb = table.at(grid, theta, phi);
-    if !lit.is_empty() {
-        let direct = point_radiance(brdf, lit, from_polar(theta, phi));
+    if theta > lit.unlit_below {
+        let direct = point_radiance(brdf, &lit.points, from_polar(theta, phi));
         for c in 0..3 {
             rgb[c] += direct[c];
         }
@@ -1161,9 +1212,10 @@ impl PolarNormals {
     /// Which normal rows of `grid` the pixels with `mask > 0` interpolate from.
     fn rows_needed(&self, grid: &ZonalGrid, mask: &[f32]) -> Vec<bool> {
         let mut need = vec![false; grid.rows + 1];
+        let coords = grid.normal_coords();
         for (t, &m) in self.theta.iter().zip(mask) {
             if m > 0.0 && !t.is_nan() {
-                let i = row_of(*t as f64, grid);
+                let i = row_of(*t as f64, &coords, grid.rows);
                 // Rows i−1..=i+2; row −1 is row 1 across the pole, rows beyond the last are
                 // extrapolated from the last two.
                 let (lo, hi) = (i.saturating_sub(1), (i + 2).min(grid.rows));
@@ -1187,9 +1239,9 @@ fn polar(n: &[f32; 3], m: f32) -> (f32, f32) {
     }
 }
 
-/// The interval index and fraction of angle θ among a grid's normal rows.
-fn row_of(theta: f64, grid: &ZonalGrid) -> usize {
-    (grid.normal_coord(theta).floor() as usize).min(grid.rows - 1)
+/// The interval of angle θ among a grid's normal rows.
+fn row_of(theta: f64, coords: &BandCoords, rows: usize) -> usize {
+    (coords.coord(theta).clamp(0.0, rows as f64).floor() as usize).min(rows - 1)
 }
 
 /// Radiance at the normals of the grid, `[row][column]`, for the rows `need` marks (the others
@@ -1297,6 +1349,7 @@ fn normal_table_with(kernel: &ZonalKernel, env: &ZonalEnv, need: &[bool], parall
 struct Padded {
     width: usize,
     values: Vec<[f32; 3]>,
+    coords: BandCoords,
 }
 
 impl Padded {
@@ -1319,13 +1372,17 @@ impl Padded {
                 values.push(v);
             }
         }
-        Self { width, values }
+        Self {
+            width,
+            values,
+            coords: grid.normal_coords(),
+        }
     }
 
     /// Bicubic (Catmull–Rom) value at polar angles (θ, φ), negative values clamped to 0 (the
     /// interpolant may undershoot next to a sharp peak).
     fn at(&self, grid: &ZonalGrid, theta: f32, phi: f32) -> [f32; 3] {
-        let u = grid.normal_coord(theta as f64);
+        let u = self.coords.coord(theta as f64).clamp(0.0, grid.rows as f64);
         let i = (u.floor() as usize).min(grid.rows - 1);
         let s = (phi as f64 / (2.0 * PI) * grid.phi as f64).clamp(0.0, grid.phi as f64);
         let j = (s.floor() as usize).min(grid.phi - 1);
@@ -1358,72 +1415,173 @@ impl Padded {
 /// fitted lobes switch on between the last two knots), and a studio of two sharp-edged panels
 /// over a dark room. Camera space: +z towards the viewer.
 pub fn probe_maps() -> Vec<(&'static str, EnvMap)> {
-    let sky = |d: DVec3| {
-        if d.y >= 0.0 {
-            let t = (0.3 + 0.7 * d.y) as f32;
-            [0.6 * t, 0.8 * t, t]
-        } else {
-            [0.15, 0.13, 0.1]
+    let parts = ProbeParts::new();
+    parts
+        .probes
+        .iter()
+        .map(|p| {
+            let base = parts.bases[p.base].texels();
+            let texels = base
+                .iter()
+                .zip(p.sparse.texels())
+                .map(|(b, s)| [0, 1, 2].map(|c| b[c] + s[c]))
+                .collect();
+            let env = EnvMap::from_texels(p.sparse.width(), p.sparse.height(), texels)
+                .map_or_else(|_| parts.bases[p.base].clone(), |(e, _)| e);
+            (p.name, env)
+        })
+        .collect()
+}
+
+/// The [`probe_maps`] as smooth bases shared by several probes plus a sparse part each (a sun,
+/// two panels). The fast path is linear in the map and skips black texels, so its reference
+/// images cost one full pass per base and a few texels per probe, not a full pass per probe.
+struct ProbeParts {
+    bases: Vec<EnvMap>,
+    probes: Vec<ProbePart>,
+}
+
+struct ProbePart {
+    name: &'static str,
+    base: usize,
+    /// What the probe adds to its base: black but for a few texels.
+    sparse: EnvMap,
+}
+
+impl ProbeParts {
+    fn new() -> Self {
+        let sky = EnvMap::from_fn(PROBE_MAP_ROWS, |d| {
+            if d.y >= 0.0 {
+                let t = (0.3 + 0.7 * d.y) as f32;
+                [0.6 * t, 0.8 * t, t]
+            } else {
+                [0.15, 0.13, 0.1]
+            }
+        });
+        let (w, h) = (sky.width(), sky.height());
+        let sparse = |texels: Vec<[f32; 3]>| EnvMap::from_texels(w, h, texels).map(|(e, _)| e);
+        let sky_power: f64 = sky.power().iter().sum::<f64>() / 3.0;
+        let sun = |dir: DVec3| {
+            let (col, row) = crate::envmap::direction_to_texel(dir.normalize(), w, h);
+            // Sun power 1.5× the sky's: 60 % of the total. The sparse part replaces the sky's texel.
+            let l = (1.5 * sky_power / texel_solid_angle(row, w, h)) as f32;
+            let under = sky.texel(col, row);
+            let mut texels = vec![[0.0_f32; 3]; w * h];
+            texels[row * w + col] = [l - under[0], 0.95 * l - under[1], 0.85 * l - under[2]];
+            sparse(texels)
+        };
+        let room = [0.05_f32; 3];
+        let dark_room = EnvMap::from_fn(PROBE_MAP_ROWS, |_| room);
+        let panel = |d: DVec3, centre: DVec3| d.dot(centre.normalize()) > 0.97;
+        let panels = EnvMap::from_fn(PROBE_MAP_ROWS, |d| {
+            if panel(d, DVec3::new(0.5, 0.5, 0.7)) || panel(d, DVec3::new(-0.8, 0.3, -0.5)) {
+                [20.0 - room[0], 20.0 - room[1], 19.0 - room[2]]
+            } else {
+                [0.0; 3]
+            }
+        });
+        let suns = [
+            ("sun in front", DVec3::new(0.3, 0.45, 0.85)),
+            ("sun to the side", DVec3::new(-0.9, 0.4, 0.1)),
+            ("sun behind", DVec3::new(0.3, 0.4, -0.866)),
+            ("sun straight behind", DVec3::new(-0.15, 0.15, -0.98)),
+        ];
+        let mut probes: Vec<ProbePart> = suns
+            .iter()
+            .filter_map(|&(name, dir)| sun(dir).ok().map(|sparse| ProbePart { name, base: 0, sparse }))
+            .collect();
+        probes.push(ProbePart {
+            name: "studio",
+            base: 1,
+            sparse: panels,
+        });
+        Self {
+            bases: vec![sky, dark_room],
+            probes,
         }
-    };
-    let with_sun = |sun: DVec3| {
-        let mut env = EnvMap::from_fn(PROBE_MAP_ROWS, sky);
-        let (w, h) = (env.width(), env.height());
-        let (col, row) = crate::envmap::direction_to_texel(sun.normalize(), w, h);
-        let power: f64 = env.power().iter().sum::<f64>() / 3.0;
-        // Sun power 1.5× the sky's: 60 % of the total.
-        let l = (1.5 * power / texel_solid_angle(row, w, h)) as f32;
-        let mut texels = env.texels().to_vec();
-        texels[row * w + col] = [l, 0.95 * l, 0.85 * l];
-        if let Ok((e, _)) = EnvMap::from_texels(w, h, texels) {
-            env = e;
+    }
+}
+
+/// The fast path's images of the check's sphere under every [`probe_maps`] map, made once per
+/// material: the check of each finer grid compares against the same images.
+pub struct ProbeReference {
+    normals: Vec<[f32; 3]>,
+    mask: Vec<f32>,
+    pixels: PolarNormals,
+    probes: Vec<(&'static str, EnvMap, Vec<[f32; 3]>)>,
+}
+
+impl ProbeReference {
+    /// `None` for a measured BRDF (no fast path). Single-threaded, like the kernel build (see
+    /// [`ZonalKernel::with_tail`]).
+    pub fn new(brdf: &BrdfModel) -> Option<Self> {
+        let (normals, mask) = crate::camera::unit_sphere_normals(PROBE_RES);
+        let polar: Vec<(f32, f32)> = normals.iter().zip(&mask).map(|(n, &m)| polar(n, m)).collect();
+        let pixels = PolarNormals {
+            theta: polar.iter().map(|p| p.0).collect(),
+            phi: polar.iter().map(|p| p.1).collect(),
+        };
+        let image = |env: &EnvMap| -> Option<Vec<[f32; 3]>> {
+            let fast = super::fast::FastShader::new(brdf, env)?;
+            Some(
+                normals
+                    .iter()
+                    .zip(&mask)
+                    .map(|(n, &m)| {
+                        if m > 0.0 {
+                            super::Shader::shade(&fast, *n, None)
+                        } else {
+                            [0.0; 3]
+                        }
+                    })
+                    .collect(),
+            )
+        };
+        let parts = ProbeParts::new();
+        let bases: Vec<Vec<[f32; 3]>> = parts.bases.iter().map(image).collect::<Option<_>>()?;
+        let mut probes = Vec::with_capacity(parts.probes.len());
+        for (part, (name, env)) in parts.probes.iter().zip(probe_maps()) {
+            debug_assert_eq!(part.name, name);
+            let extra = image(&part.sparse)?;
+            let sum = bases[part.base]
+                .iter()
+                .zip(extra)
+                .map(|(b, e)| [0, 1, 2].map(|c| b[c] + e[c]))
+                .collect();
+            probes.push((name, env, sum));
         }
-        env
-    };
-    let panel = |d: DVec3, centre: DVec3| d.dot(centre.normalize()) > 0.97;
-    let studio = EnvMap::from_fn(PROBE_MAP_ROWS, |d| {
-        if panel(d, DVec3::new(0.5, 0.5, 0.7)) || panel(d, DVec3::new(-0.8, 0.3, -0.5)) {
-            [20.0, 20.0, 19.0]
-        } else {
-            [0.05, 0.05, 0.05]
-        }
-    });
-    vec![
-        ("sun in front", with_sun(DVec3::new(0.3, 0.45, 0.85))),
-        ("sun to the side", with_sun(DVec3::new(-0.9, 0.4, 0.1))),
-        ("sun behind", with_sun(DVec3::new(0.3, 0.4, -0.866))),
-        ("sun straight behind", with_sun(DVec3::new(-0.15, 0.15, -0.98))),
-        ("studio", studio),
-    ]
+        Some(Self {
+            normals,
+            mask,
+            pixels,
+            probes,
+        })
+    }
 }
 
 /// The kernel's largest relative RMSE against the fast path on a [`PROBE_RES`]² sphere under the
-/// [`probe_maps`], and the map that showed it. Single-threaded, like the kernel build (see
-/// [`ZonalKernel::with_tail`]).
-pub fn probe_error(kernel: &ZonalKernel, brdf: &BrdfModel) -> (f64, &'static str) {
-    let (normals, mask) = crate::camera::unit_sphere_normals(PROBE_RES);
-    let polar: Vec<(f32, f32)> = normals.iter().zip(&mask).map(|(n, &m)| polar(n, m)).collect();
-    let pixels = PolarNormals {
-        theta: polar.iter().map(|p| p.0).collect(),
-        phi: polar.iter().map(|p| p.1).collect(),
-    };
-    let need = pixels.rows_needed(&kernel.grid, &mask);
+/// [`probe_maps`], and the map that showed it.
+pub fn probe_error(kernel: &ZonalKernel, reference: &ProbeReference) -> (f64, &'static str) {
+    let ProbeReference {
+        normals,
+        mask,
+        pixels,
+        probes,
+    } = reference;
+    let need = pixels.rows_needed(&kernel.grid, mask);
     let mut worst = (0.0_f64, "none");
-    for (name, env) in probe_maps() {
-        let Some(fast) = super::fast::FastShader::new(brdf, &env) else {
-            continue;
-        };
-        let spectra = ZonalEnv::new(&env, kernel.grid);
-        let lit = lit_points(brdf, &spectra.points);
+    for (name, env, fast) in probes {
+        let spectra = ZonalEnv::new(env, kernel.grid);
+        let lit = lit_points(&kernel.brdf, &spectra.points);
         let table = Padded::new(&normal_table_with(kernel, &spectra, &need, false), &kernel.grid);
         let (mut err, mut norm) = (0.0_f64, 0.0_f64);
-        for (p, n) in normals.iter().enumerate() {
+        for p in 0..normals.len() {
             let (t, ph) = (pixels.theta[p], pixels.phi[p]);
             if mask[p] <= 0.0 || t.is_nan() {
                 continue;
             }
-            let z = pixel_radiance(&table, &kernel.grid, brdf, &lit, t, ph);
-            let f = super::Shader::shade(&fast, *n, None);
+            let z = pixel_radiance(&table, &kernel.grid, &kernel.brdf, &lit, t, ph);
+            let f = fast[p];
             for c in 0..3 {
                 err += ((z[c] - f[c]) as f64).powi(2);
                 norm += (f[c] as f64).powi(2);
@@ -1433,7 +1591,7 @@ pub fn probe_error(kernel: &ZonalKernel, brdf: &BrdfModel) -> (f64, &'static str
         // A non-finite error is a failed check.
         let e = if e.is_finite() { e } else { f64::INFINITY };
         if e > worst.0 {
-            worst = (e, name);
+            worst = (e, *name);
         }
     }
     worst
@@ -1658,7 +1816,7 @@ mod tests {
                 let theta = band_theta(&bands, &edges, x);
                 assert!(theta > prev, "not increasing at {x}");
                 prev = theta;
-                assert!((band_coord(&bands, &edges, theta) - x).abs() < 1e-9, "x {x}");
+                assert!((BandCoords::new(&bands, &edges).coord(theta) - x).abs() < 1e-9, "x {x}");
             }
             assert!((band_theta(&bands, &edges, 63.0) - edges[BANDS]).abs() < 1e-12);
         }
@@ -1683,6 +1841,52 @@ mod tests {
         assert!(g.normal_bands[4] >= 30 && g.env_bands[4] >= 30, "{g:?}");
         assert_eq!(g.phi, base.phi);
         assert_eq!(g.rows, g.normal_bands.iter().map(|&n| n as usize).sum::<usize>());
+    }
+
+    #[test]
+    fn the_probe_reference_from_bases_and_sparse_parts_is_the_fast_path_on_the_whole_maps() {
+        // The check's reference is summed from shared bases and sparse parts; it must be what
+        // the fast path gives on each composed map, for every kind of material.
+        let mut p = *Dsbrdf::isotropic_in_theta_d([[(0.3, 1e-3), (0.5, 300.0), (1e-5, 1e4)]; 3]).params();
+        for c in 0..3 {
+            p[crate::brdf::dsbrdf::param_index(c, 1, crate::brdf::dsbrdf::LobeParam::Kappa, KNOTS - 1)] = 6.0;
+        }
+        let materials = [
+            BrdfModel::Dsbrdf(Box::new(Dsbrdf::from_params(&p).unwrap())),
+            BrdfModel::Lambert(Lambert {
+                albedo: [0.7, 0.5, 0.2],
+            }),
+            BrdfModel::Ggx(crate::brdf::Ggx::new(
+                0.05,
+                crate::brdf::Fresnel::Schlick([0.9, 0.6, 0.3]),
+            )),
+        ];
+        for brdf in &materials {
+            let reference = ProbeReference::new(brdf).unwrap();
+            let maps = probe_maps();
+            assert_eq!(reference.probes.len(), maps.len());
+            assert_eq!(maps.len(), 5);
+            for ((name, env), (rname, renv, image)) in maps.iter().zip(&reference.probes) {
+                assert_eq!(name, rname);
+                assert_eq!(env.texels(), renv.texels());
+                let fast = super::super::fast::FastShader::new(brdf, env).unwrap();
+                let (mut err, mut norm) = (0.0_f64, 0.0_f64);
+                for (i, n) in reference.normals.iter().enumerate() {
+                    let f = if reference.mask[i] > 0.0 {
+                        super::super::Shader::shade(&fast, *n, None)
+                    } else {
+                        [0.0; 3]
+                    };
+                    for c in 0..3 {
+                        err += ((image[i][c] - f[c]) as f64).powi(2);
+                        norm += (f[c] as f64).powi(2);
+                    }
+                }
+                assert!(norm > 0.0, "{name}: black reference");
+                let e = (err / norm).sqrt();
+                assert!(e < 1e-5, "{name}: {e}");
+            }
+        }
     }
 
     #[test]
