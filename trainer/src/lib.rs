@@ -10,6 +10,7 @@
 pub mod alloc;
 pub mod bench;
 pub mod data;
+pub mod edit;
 pub mod eval;
 pub mod model;
 pub mod render;

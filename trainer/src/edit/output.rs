@@ -1,0 +1,330 @@
+//! What `matedit edit` writes, each file atomically, into the output folder:
+//!
+//! | file | what |
+//! |---|---|
+//! | `edited.png`, `edited.exr` | the photo at its own resolution with O' in the object (PNG as the photo was stored: 8- or 16-bit sRGB, linear photos tone-mapped at the edit's exposure; EXR linear) |
+//! | `relit.png`, `relit.exr` | the same with R(n', m', L_new) (`--relight`) |
+//! | `input`, `i_prime`, `o_prime`, `relit_prime` `.png/.exr` | I (the framed photo the network saw), I', O', the relit render, at the network's resolution and the training exposure |
+//! | `normals.exr`, `normals.png` | n' (camera space; PNG as (n + 1)/2) |
+//! | `env.exr`, `env.png` | L' (camera space, linear; PNG tone-mapped) |
+//! | `material.dsbrdf.json` (`material-K` per region) | m', which `datagen render --brdf dsbrdf:FILE` renders |
+//! | `sheet.png` | I, I', O', relit, n', L', and spheres of m' and m_t under L', labelled |
+//! | `report.json` | every setting, the framing and exposure, timings, the files |
+
+use super::photo::{Encoding, Photo};
+use super::{EditReport, Predicted, Prepared};
+use crate::render::{Batch, RenderingLayer};
+use anyhow::{Context, Result, bail};
+use matedit_datagen::io::{SheetLabels, normal_to_u8, write_atomically, write_exr_channels, write_labelled_contact_sheet};
+use matedit_physics::brdf::Dsbrdf;
+use matedit_physics::tonemap::{srgb_encode, tonemap_u8};
+use std::path::Path;
+
+/// Seconds per phase of an edit.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct Timings {
+    /// Reading the model, photo, mask, regions and materials.
+    pub load: f64,
+    /// The network and the rendering layer.
+    pub predict_and_render: f64,
+    /// Compositing at the photo's resolution.
+    pub composite: f64,
+    /// Writing the files.
+    pub write: f64,
+    /// All of it.
+    pub total: f64,
+}
+
+/// Refuses an output folder in which an output would replace one of the inputs.
+pub fn refuse_overwriting_inputs(out: &Path, inputs: &[Option<&std::path::PathBuf>]) -> Result<()> {
+    let out_dir = std::fs::canonicalize(out).ok();
+    for input in inputs.iter().flatten() {
+        let (Some(dir), Ok(file)) = (&out_dir, std::fs::canonicalize(input)) else {
+            continue;
+        };
+        if file.parent() == Some(dir.as_path()) {
+            let name = file.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+            let ours = name == "report.json"
+                || name == "sheet.png"
+                || name.ends_with(".dsbrdf.json")
+                || ["edited", "relit", "input", "i_prime", "o_prime", "relit_prime", "normals", "env"]
+                    .iter()
+                    .any(|stem| name == format!("{stem}.png") || name == format!("{stem}.exr"));
+            if ours {
+                bail!(
+                    "{}: the output folder {} would overwrite this input; choose another --out",
+                    input.display(),
+                    out.display()
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+fn planar(img: &[f32], c: usize, hw: usize) -> Vec<f32> {
+    img[c * hw..(c + 1) * hw].to_vec()
+}
+
+fn write_png_rgb(path: &Path, w: usize, h: usize, px: impl Fn(usize) -> [u8; 3]) -> Result<()> {
+    let mut img = image::RgbImage::new(w as u32, h as u32);
+    for (k, p) in img.pixels_mut().enumerate() {
+        *p = image::Rgb(px(k));
+    }
+    write_atomically(path, |tmp| {
+        img.save_with_format(tmp, image::ImageFormat::Png)
+            .with_context(|| format!("cannot write {}", path.display()))
+    })
+}
+
+/// Writes a photo-sized linear image as PNG (in the photo's encoding) and EXR.
+fn write_photo(out: &Path, stem: &str, p: &Photo, rgb: &[[f32; 3]], exposure: f64, files: &mut Vec<String>) -> Result<()> {
+    let (w, h) = (p.width, p.height);
+    let png = out.join(format!("{stem}.png"));
+    match p.encoding {
+        Encoding::Srgb16 => {
+            let mut img = image::ImageBuffer::<image::Rgb<u16>, Vec<u16>>::new(w as u32, h as u32);
+            for (k, px) in img.pixels_mut().enumerate() {
+                *px = image::Rgb(rgb[k].map(|v| {
+                    let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
+                    (srgb_encode(v) * 65535.0).round() as u16
+                }));
+            }
+            write_atomically(&png, |tmp| {
+                img.save_with_format(tmp, image::ImageFormat::Png)
+                    .with_context(|| format!("cannot write {}", png.display()))
+            })?;
+        }
+        Encoding::Srgb8 => write_png_rgb(&png, w, h, |k| rgb[k].map(|v| tonemap_u8(v, 1.0)))?,
+        Encoding::Linear => write_png_rgb(&png, w, h, |k| rgb[k].map(|v| tonemap_u8(v, exposure as f32)))?,
+    }
+    files.push(format!("{stem}.png"));
+    let ch = |c: usize| rgb.iter().map(|p| p[c]).collect::<Vec<f32>>();
+    write_exr_channels(
+        &out.join(format!("{stem}.exr")),
+        w,
+        h,
+        vec![("R", ch(0)), ("G", ch(1)), ("B", ch(2))],
+    )?;
+    files.push(format!("{stem}.exr"));
+    Ok(())
+}
+
+/// Writes a network-resolution `[3, S, S]` image as EXR and PNG (black off the object).
+fn write_net_image(out: &Path, stem: &str, img: &[f32], mask: &[f32], n: usize, files: &mut Vec<String>) -> Result<()> {
+    let hw = n * n;
+    write_exr_channels(
+        &out.join(format!("{stem}.exr")),
+        n,
+        n,
+        vec![("R", planar(img, 0, hw)), ("G", planar(img, 1, hw)), ("B", planar(img, 2, hw))],
+    )?;
+    write_png_rgb(&out.join(format!("{stem}.png")), n, n, |k| {
+        if mask[k] > 0.0 {
+            [0, 1, 2].map(|c| tonemap_u8(img[c * hw + k], 1.0))
+        } else {
+            [0; 3]
+        }
+    })?;
+    files.extend([format!("{stem}.exr"), format!("{stem}.png")]);
+    Ok(())
+}
+
+/// A sphere of each material under `env`, `[3, S, S]` each, for the sheet.
+fn spheres(materials: &[&[f32]], env: &[f32], env_height: usize, n: usize) -> Result<Vec<(Vec<f32>, Vec<f32>)>> {
+    let (normals, mask) = matedit_physics::camera::unit_sphere_normals(n);
+    let hw = n * n;
+    let mut planar_n = vec![0.0_f32; 3 * hw];
+    for (k, v) in normals.iter().enumerate() {
+        for c in 0..3 {
+            planar_n[c * hw + k] = v[c];
+        }
+    }
+    let region: Vec<u8> = mask.iter().map(|&m| u8::from(m > 0.0)).collect();
+    let layer = RenderingLayer::new(env_height);
+    materials
+        .iter()
+        .map(|m| {
+            let img = layer.forward(&Batch {
+                batch: 1,
+                size: (n, n),
+                regions: 1,
+                normals: &planar_n,
+                region_map: &region,
+                materials: m,
+                env,
+            })?;
+            Ok((img, mask.clone()))
+        })
+        .collect()
+}
+
+/// Writes every output of an edit but the report; returns the file names.
+pub fn write_all(
+    out: &Path,
+    p: &Photo,
+    prep: &Prepared,
+    pred: &Predicted,
+    composites: &[(&str, Vec<[f32; 3]>)],
+    targets: &[Dsbrdf],
+) -> Result<Vec<String>> {
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let mut files = Vec::new();
+    for (stem, rgb) in composites {
+        write_photo(out, stem, p, rgb, prep.exposure, &mut files)?;
+    }
+    let (n, hw) = (prep.size, prep.size * prep.size);
+    write_net_image(out, "input", &prep.input, &prep.mask, n, &mut files)?;
+    write_net_image(out, "i_prime", &pred.i_prime, &prep.mask, n, &mut files)?;
+    if let Some(o) = &pred.o_prime {
+        write_net_image(out, "o_prime", o, &prep.mask, n, &mut files)?;
+    }
+    if let Some(r) = &pred.relit {
+        write_net_image(out, "relit_prime", r, &prep.mask, n, &mut files)?;
+    }
+    let nrm = &pred.normals;
+    write_exr_channels(
+        &out.join("normals.exr"),
+        n,
+        n,
+        vec![("X", planar(nrm, 0, hw)), ("Y", planar(nrm, 1, hw)), ("Z", planar(nrm, 2, hw))],
+    )?;
+    write_png_rgb(&out.join("normals.png"), n, n, |k| {
+        if prep.mask[k] > 0.0 {
+            [0, 1, 2].map(|c| normal_to_u8(nrm[c * hw + k]))
+        } else {
+            [0; 3]
+        }
+    })?;
+    files.extend(["normals.exr".to_string(), "normals.png".to_string()]);
+    let (he, we) = (pred.env_height, 2 * pred.env_height);
+    let ehw = he * we;
+    write_exr_channels(
+        &out.join("env.exr"),
+        we,
+        he,
+        vec![("R", planar(&pred.env, 0, ehw)), ("G", planar(&pred.env, 1, ehw)), ("B", planar(&pred.env, 2, ehw))],
+    )?;
+    let all = vec![1.0_f32; ehw];
+    let env_exposure = crate::eval::metrics::metric_exposure(&pred.env, &all);
+    write_png_rgb(&out.join("env.png"), we, he, |k| {
+        [0, 1, 2].map(|c| tonemap_u8(pred.env[c * ehw + k], env_exposure))
+    })?;
+    files.extend(["env.exr".to_string(), "env.png".to_string()]);
+    let regions = prep.regions;
+    for r in 0..regions {
+        let m: Vec<f64> = pred.materials[r * 108..(r + 1) * 108].iter().map(|&v| v as f64).collect();
+        let d = Dsbrdf::from_normalised(&m).context("the predicted material")?;
+        let name = if regions == 1 {
+            "material.dsbrdf.json".to_string()
+        } else {
+            format!("material-{}.dsbrdf.json", r + 1)
+        };
+        write_atomically(&out.join(&name), |tmp| {
+            std::fs::write(tmp, d.to_json()).with_context(|| format!("cannot write {}", out.join(&name).display()))
+        })?;
+        files.push(name);
+    }
+    write_sheet(out, prep, pred, targets)?;
+    files.push("sheet.png".into());
+    Ok(files)
+}
+
+/// Tile side of the sheet.
+const TILE: usize = 128;
+
+fn write_sheet(out: &Path, prep: &Prepared, pred: &Predicted, targets: &[Dsbrdf]) -> Result<()> {
+    let n = prep.size;
+    let hw = n * n;
+    let scale_tile = |h: usize, w: usize, px: &dyn Fn(usize) -> [u8; 4]| -> Vec<[u8; 4]> {
+        let s = (TILE as f64 / h as f64).min(TILE as f64 / w as f64);
+        let (th, tw) = ((h as f64 * s) as usize, (w as f64 * s) as usize);
+        let (oy, ox) = ((TILE - th) / 2, (TILE - tw) / 2);
+        (0..TILE * TILE)
+            .map(|t| {
+                let (y, x) = (t / TILE, t % TILE);
+                if y < oy || y >= oy + th || x < ox || x >= ox + tw {
+                    return [0, 0, 0, 255];
+                }
+                let (sy, sx) = ((y - oy) * h / th.max(1), (x - ox) * w / tw.max(1));
+                px(sy.min(h - 1) * w + sx.min(w - 1))
+            })
+            .collect()
+    };
+    let image_tile = |img: &[f32], mask: &[f32]| {
+        scale_tile(n, n, &|k| {
+            if mask[k] > 0.0 {
+                let c = |ch: usize| tonemap_u8(img[ch * hw + k], 1.0);
+                [c(0), c(1), c(2), 255]
+            } else {
+                [0, 0, 0, 255]
+            }
+        })
+    };
+    let mut columns: Vec<&str> = vec!["I (photo)", "I' (re-rendered)"];
+    let mut tiles = vec![image_tile(&prep.input, &prep.mask), image_tile(&pred.i_prime, &prep.mask)];
+    if let Some(o) = &pred.o_prime {
+        columns.push("O' (edited)");
+        tiles.push(image_tile(o, &prep.mask));
+    }
+    if let Some(r) = &pred.relit {
+        columns.push("relit");
+        tiles.push(image_tile(r, &prep.mask));
+    }
+    columns.push("n'");
+    tiles.push(scale_tile(n, n, &|k| {
+        if prep.mask[k] > 0.0 {
+            let c = |ch: usize| normal_to_u8(pred.normals[ch * hw + k]);
+            [c(0), c(1), c(2), 255]
+        } else {
+            [0, 0, 0, 255]
+        }
+    }));
+    let (he, we) = (pred.env_height, 2 * pred.env_height);
+    let ehw = he * we;
+    let all = vec![1.0_f32; ehw];
+    let e = crate::eval::metrics::metric_exposure(&pred.env, &all);
+    columns.push("L'");
+    tiles.push(scale_tile(he, we, &|k| {
+        let c = |ch: usize| tonemap_u8(pred.env[ch * ehw + k], e);
+        [c(0), c(1), c(2), 255]
+    }));
+    let m_pred = &pred.materials[..108];
+    let target: Option<Vec<f32>> = targets.first().map(|t| t.to_normalised().map(|v| v as f32).to_vec());
+    let mut mats: Vec<&[f32]> = vec![m_pred];
+    if let Some(t) = &target {
+        mats.push(t);
+    }
+    let sph = spheres(&mats, &pred.env, pred.env_height, n)?;
+    let sphere_tile = |img: &[f32], mask: &[f32]| {
+        let e = crate::eval::metrics::metric_exposure(img, mask);
+        scale_tile(n, n, &|k| {
+            if mask[k] > 0.0 {
+                let c = |ch: usize| tonemap_u8(img[ch * hw + k], e);
+                [c(0), c(1), c(2), 255]
+            } else {
+                [0, 0, 0, 255]
+            }
+        })
+    };
+    columns.push("m' (under L')");
+    tiles.push(sphere_tile(&sph[0].0, &sph[0].1));
+    if sph.len() > 1 {
+        columns.push("m_t (under L')");
+        tiles.push(sphere_tile(&sph[1].0, &sph[1].1));
+    }
+    let labels = SheetLabels {
+        columns: &columns,
+        rows: &[],
+    };
+    write_labelled_contact_sheet(&out.join("sheet.png"), &tiles, TILE, TILE, columns.len(), &labels)
+}
+
+/// Writes `report.json`.
+pub fn write_report(out: &Path, report: &EditReport) -> Result<()> {
+    let p = out.join("report.json");
+    let text = serde_json::to_string_pretty(report)?;
+    write_atomically(&p, |tmp| {
+        std::fs::write(tmp, text).with_context(|| format!("cannot write {}", p.display()))
+    })
+}

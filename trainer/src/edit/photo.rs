@@ -1,0 +1,320 @@
+//! A photo and its object mask, read and framed the way the training images were made.
+//!
+//! * **Reading.** PNG (8/16-bit) and JPEG are sRGB and decoded to linear; EXR and Radiance HDR
+//!   are linear radiance already. The mask is a separate image (any non-zero pixel is object; its
+//!   value, or its alpha where it has one, is the soft coverage used when compositing) or, without
+//!   one, the photo's own alpha channel (what background removers such as rembg write).
+//! * **Framing** ([`Framing`]). The training images show the object with its larger side about
+//!   [`TRAINING_FILL`] of the image (the median over the quickstart training split), centred. The
+//!   photo is cropped to the square around the mask's bounding box that gives the same fill,
+//!   padded with background where that square leaves the photo, and area-averaged to the
+//!   network's input size.
+//! * **Exposure.** A photo's scale is arbitrary; the network saw object pixels whose mean
+//!   luminance was about [`TRAINING_MEAN_LUMINANCE`] (median over the same split). The input is
+//!   scaled to that, and every rendered image scaled back before it is composited.
+
+use anyhow::{Context, Result, bail};
+use std::path::Path;
+
+/// Median ratio of the object's larger bounding-box side to the image side in the quickstart
+/// training split (300 samples; 10–90 %: 0.53–0.97).
+pub const TRAINING_FILL: f64 = 0.875;
+
+/// Median of the mean object luminance (Rec. 709 weights) in the quickstart training split
+/// (400 samples; 10–90 %: 0.17–1.53).
+pub const TRAINING_MEAN_LUMINANCE: f64 = 0.48;
+
+/// The largest photo read, in pixels: a 40-megapixel photo is read (about 0.5 GB as linear
+/// `f32`), a larger one refused before it is decoded.
+pub const MAX_PIXELS: u64 = 100_000_000;
+
+/// How a photo's values were stored (the edited photo is written back the same way).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Encoding {
+    /// 8-bit sRGB (PNG, JPEG).
+    Srgb8,
+    /// 16-bit sRGB (PNG).
+    Srgb16,
+    /// Linear radiance (EXR, HDR).
+    Linear,
+}
+
+/// A photo in linear RGB.
+#[derive(Clone, Debug)]
+pub struct Photo {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// Linear RGB, row-major.
+    pub rgb: Vec<[f32; 3]>,
+    /// Alpha in [0, 1], where the file has it.
+    pub alpha: Option<Vec<f32>>,
+    /// How the file stored its values.
+    pub encoding: Encoding,
+}
+
+/// sRGB decoding of a value in [0, 1].
+pub fn srgb_decode(v: f32) -> f32 {
+    if v <= 0.040_45 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+fn extension(path: &Path) -> String {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default()
+}
+
+/// Reads a photo (PNG, JPEG, EXR or HDR). Non-finite or negative linear values are errors naming
+/// the file and the pixel.
+pub fn load_photo(path: &Path) -> Result<Photo> {
+    let what = path.display();
+    match extension(path).as_str() {
+        "exr" => {
+            let (w, h, ch) = matedit_datagen::io::read_exr_channels(path)?;
+            check_size(path, w as u64, h as u64)?;
+            let get = |n: &str| ch.get(n).with_context(|| format!("{what}: no {n} channel (an EXR photo needs R, G, B)"));
+            let (r, g, b) = (get("R")?, get("G")?, get("B")?);
+            let rgb: Vec<[f32; 3]> = (0..w * h).map(|k| [r[k], g[k], b[k]]).collect();
+            check_linear(path, &rgb)?;
+            let alpha = ch.get("A").map(|a| a.iter().map(|v| v.clamp(0.0, 1.0)).collect());
+            Ok(Photo {
+                width: w,
+                height: h,
+                rgb,
+                alpha,
+                encoding: Encoding::Linear,
+            })
+        }
+        "png" | "jpg" | "jpeg" | "hdr" => {
+            let img = decode(path)?;
+            let (w, h) = (img.width() as usize, img.height() as usize);
+            use image::DynamicImage as D;
+            let encoding = match &img {
+                D::ImageRgb32F(_) | D::ImageRgba32F(_) => Encoding::Linear,
+                D::ImageLuma16(_) | D::ImageLumaA16(_) | D::ImageRgb16(_) | D::ImageRgba16(_) => Encoding::Srgb16,
+                _ => Encoding::Srgb8,
+            };
+            let has_alpha = img.color().has_alpha();
+            let rgba = img.into_rgba32f();
+            let decode = |v: f32| {
+                if encoding == Encoding::Linear {
+                    v
+                } else {
+                    srgb_decode(v.clamp(0.0, 1.0))
+                }
+            };
+            let rgb: Vec<[f32; 3]> = rgba.pixels().map(|p| [decode(p[0]), decode(p[1]), decode(p[2])]).collect();
+            check_linear(path, &rgb)?;
+            let alpha = has_alpha.then(|| rgba.pixels().map(|p| p[3].clamp(0.0, 1.0)).collect());
+            Ok(Photo {
+                width: w,
+                height: h,
+                rgb,
+                alpha,
+                encoding,
+            })
+        }
+        other => bail!("{what}: cannot read .{other} photos (PNG, JPEG, EXR or HDR)"),
+    }
+}
+
+fn check_size(path: &Path, w: u64, h: u64) -> Result<()> {
+    if w == 0 || h == 0 {
+        bail!("{}: the image is empty ({w}×{h})", path.display());
+    }
+    if w * h > MAX_PIXELS {
+        bail!(
+            "{}: {w}×{h} is {:.0} megapixels, more than the {} this command reads; scale it down first",
+            path.display(),
+            (w * h) as f64 / 1e6,
+            MAX_PIXELS / 1_000_000
+        );
+    }
+    Ok(())
+}
+
+fn check_linear(path: &Path, rgb: &[[f32; 3]]) -> Result<()> {
+    if let Some(k) = rgb.iter().position(|p| p.iter().any(|v| !v.is_finite() || *v < 0.0)) {
+        bail!(
+            "{}: pixel {k} holds {:?}: photos must be finite and non-negative",
+            path.display(),
+            rgb[k]
+        );
+    }
+    Ok(())
+}
+
+/// Decodes an image with its size checked from the header first.
+fn decode(path: &Path) -> Result<image::DynamicImage> {
+    let what = path.display();
+    let reader = || -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
+        image::ImageReader::open(path)
+            .with_context(|| format!("cannot open {what}"))?
+            .with_guessed_format()
+            .with_context(|| format!("cannot read {what}"))
+    };
+    let (w, h) = reader()?
+        .into_dimensions()
+        .with_context(|| format!("{what}: not a readable image"))?;
+    check_size(path, w as u64, h as u64)?;
+    let mut r = reader()?;
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(2 << 30);
+    r.limits(limits);
+    r.decode()
+        .with_context(|| format!("{what}: cannot decode the image (truncated or corrupt?)"))
+}
+
+/// Reads a mask image of `width`×`height`: per pixel, the soft coverage in [0, 1] (alpha where
+/// the image has an alpha channel that is not all opaque, otherwise the largest channel
+/// relative to the format's maximum). Any coverage above 0 is object.
+pub fn load_mask(path: &Path, width: usize, height: usize) -> Result<Vec<f32>> {
+    let what = path.display();
+    let img = match extension(path).as_str() {
+        "png" | "jpg" | "jpeg" => decode(path)?,
+        other => bail!("{what}: masks must be PNG or JPEG images, not .{other}"),
+    };
+    if (img.width() as usize, img.height() as usize) != (width, height) {
+        bail!(
+            "{what}: the mask is {}×{}, the photo {width}×{height}; they must match pixel for pixel",
+            img.width(),
+            img.height()
+        );
+    }
+    let has_alpha = img.color().has_alpha();
+    let rgba = img.into_rgba32f();
+    let alpha_used = has_alpha && rgba.pixels().any(|p| p[3] < 1.0);
+    Ok(rgba
+        .pixels()
+        .map(|p| {
+            if alpha_used {
+                p[3]
+            } else {
+                p[0].max(p[1]).max(p[2])
+            }
+            .clamp(0.0, 1.0)
+        })
+        .collect())
+}
+
+/// Checks a coverage mask: some object, some background.
+pub fn check_mask(path: &Path, coverage: &[f32]) -> Result<()> {
+    let object = coverage.iter().filter(|&&c| c > 0.0).count();
+    if object == 0 {
+        bail!("{}: the mask is empty (no non-zero pixel)", path.display());
+    }
+    if object == coverage.len() {
+        bail!(
+            "{}: the mask covers the whole photo; it must mark the object only (any non-zero pixel is object)",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
+/// Where the network's square input lies in the photo.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Framing {
+    /// Left edge of the square crop in photo pixels (may be negative: padding).
+    pub x0: f64,
+    /// Top edge.
+    pub y0: f64,
+    /// Side of the square crop in photo pixels.
+    pub side: f64,
+    /// The network's input side.
+    pub size: usize,
+}
+
+impl Framing {
+    /// The square around the object's bounding box in which it fills [`TRAINING_FILL`].
+    pub fn around(coverage: &[f32], width: usize, height: usize, size: usize) -> Self {
+        let (mut x_lo, mut x_hi, mut y_lo, mut y_hi) = (usize::MAX, 0, usize::MAX, 0);
+        for (k, &c) in coverage.iter().enumerate() {
+            if c > 0.0 {
+                let (x, y) = (k % width, k / width);
+                x_lo = x_lo.min(x);
+                x_hi = x_hi.max(x);
+                y_lo = y_lo.min(y);
+                y_hi = y_hi.max(y);
+            }
+        }
+        if x_lo > x_hi {
+            (x_lo, x_hi, y_lo, y_hi) = (0, width - 1, 0, height - 1);
+        }
+        let (bw, bh) = ((x_hi - x_lo + 1) as f64, (y_hi - y_lo + 1) as f64);
+        let side = (bw.max(bh) / TRAINING_FILL).max(1.0);
+        let (cx, cy) = (x_lo as f64 + bw / 2.0, y_lo as f64 + bh / 2.0);
+        Self {
+            x0: cx - side / 2.0,
+            y0: cy - side / 2.0,
+            side,
+            size,
+        }
+    }
+
+    /// Network pixel coordinates (continuous, pixel centres at k + 0.5) of a photo point.
+    pub fn to_net(&self, x: f64, y: f64) -> (f64, f64) {
+        let s = self.size as f64 / self.side;
+        ((x - self.x0) * s, (y - self.y0) * s)
+    }
+
+    /// Area average over each network pixel of `value(photo pixel)` (pixels outside the photo
+    /// count as `T::default()`): every photo pixel whose centre falls in a network pixel adds to
+    /// it; a network pixel no photo pixel centre falls in (a crop smaller than the input) takes
+    /// the photo pixel under its centre.
+    pub fn area_average<const C: usize>(
+        &self,
+        width: usize,
+        height: usize,
+        value: impl Fn(usize) -> [f32; C],
+    ) -> Vec<[f32; C]> {
+        let n = self.size;
+        let mut sum = vec![[0.0_f64; C]; n * n];
+        let mut count = vec![0_u32; n * n];
+        // Every lattice point (photo pixel centre, real or padding) inside the crop.
+        let (xs, ys) = (self.x0.floor() as i64, self.y0.floor() as i64);
+        let (xe, ye) = ((self.x0 + self.side).ceil() as i64, (self.y0 + self.side).ceil() as i64);
+        for y in ys..ye {
+            for x in xs..xe {
+                let (u, v) = self.to_net(x as f64 + 0.5, y as f64 + 0.5);
+                if u < 0.0 || v < 0.0 || u >= n as f64 || v >= n as f64 {
+                    continue;
+                }
+                let k = v as usize * n + u as usize;
+                count[k] += 1;
+                if x >= 0 && y >= 0 && (x as usize) < width && (y as usize) < height {
+                    let val = value(y as usize * width + x as usize);
+                    for c in 0..C {
+                        sum[k][c] += val[c] as f64;
+                    }
+                }
+            }
+        }
+        let mut out = vec![[0.0_f32; C]; n * n];
+        let scale = self.side / n as f64;
+        for (k, o) in out.iter_mut().enumerate() {
+            if count[k] > 0 {
+                *o = sum[k].map(|s| (s / count[k] as f64) as f32);
+            } else {
+                let (u, v) = ((k % n) as f64 + 0.5, (k / n) as f64 + 0.5);
+                let (x, y) = (self.x0 + u * scale, self.y0 + v * scale);
+                if x >= 0.0 && y >= 0.0 && (x as usize) < width && (y as usize) < height {
+                    *o = value(y as usize * width + x as usize);
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Rec. 709 luminance.
+pub fn luminance(p: [f32; 3]) -> f64 {
+    0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64
+}
