@@ -261,10 +261,10 @@ fn write_sheet(out: &Path, prep: &Prepared, pred: &Predicted, targets: &[Dsbrdf]
             }
         })
     };
-    let mut columns: Vec<&str> = vec!["I (photo)", "I' (re-rendered)"];
+    let mut columns: Vec<&str> = vec!["I (photo)", "I'"];
     let mut tiles = vec![image_tile(&prep.input, &prep.mask), image_tile(&pred.i_prime, &prep.mask)];
     if let Some(o) = &pred.o_prime {
-        columns.push("O' (edited)");
+        columns.push("O' (edit)");
         tiles.push(image_tile(o, &prep.mask));
     }
     if let Some(r) = &pred.relit {
@@ -307,10 +307,10 @@ fn write_sheet(out: &Path, prep: &Prepared, pred: &Predicted, targets: &[Dsbrdf]
             }
         })
     };
-    columns.push("m' (under L')");
+    columns.push("m' under L'");
     tiles.push(sphere_tile(&sph[0].0, &sph[0].1));
     if sph.len() > 1 {
-        columns.push("m_t (under L')");
+        columns.push("m_t under L'");
         tiles.push(sphere_tile(&sph[1].0, &sph[1].1));
     }
     let labels = SheetLabels {
