@@ -71,6 +71,16 @@ enum Command {
         /// Samples in the contact sheet written next to --out as .png (0: none).
         #[arg(long, default_value_t = 8)]
         sheet: usize,
+        /// Also score each checkpoint after the post-optimisation of every sample (Eq. 6, a = 1,
+        /// b = 10; slow: seconds per sample), as Table 3's "+ Eq. 6" column.
+        #[arg(long)]
+        eq6: bool,
+        /// Eq. 6's rounds of (normals, material, light).
+        #[arg(long, default_value_t = 1)]
+        eq6_rounds: usize,
+        /// Eq. 6's L-BFGS iterations per property and round.
+        #[arg(long, default_value_t = 4)]
+        eq6_iterations: usize,
         /// No progress bar.
         #[arg(long)]
         quiet: bool,
@@ -160,6 +170,7 @@ fn run(cli: Cli) -> Result<()> {
                 categories: e.categories.clone(),
                 progress: !quiet,
                 sheet: Some((out.join("eval.png"), 8)),
+                eq6: None,
             };
             eval_to(&checkpoints, &opts, &out.join("eval.json"))?;
         }
@@ -173,6 +184,9 @@ fn run(cli: Cli) -> Result<()> {
             max_samples,
             categories,
             sheet,
+            eq6,
+            eq6_rounds,
+            eq6_iterations,
             quiet,
         } => {
             let opts = EvalOptions {
@@ -184,6 +198,11 @@ fn run(cli: Cli) -> Result<()> {
                 categories,
                 progress: !quiet,
                 sheet: Some((out.with_extension("png"), sheet)),
+                eq6: eq6.then(|| matedit_trainer::edit::optimize::Eq6Config {
+                    rounds: eq6_rounds,
+                    iterations: eq6_iterations,
+                    ..Default::default()
+                }),
             };
             eval_to(&checkpoint, &opts, &out)?;
         }

@@ -2,13 +2,18 @@
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
+use matedit_trainer::edit::optimize::Eq6Config;
 use matedit_trainer::edit::target::parse_material_arg;
-use matedit_trainer::edit::{Composite, EditRequest, edit};
+use matedit_trainer::edit::{Composite, EditRequest, edit, swap, transfer};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "matedit", version, about = "Material editing of photos with a trained network")]
+#[command(
+    name = "matedit",
+    version,
+    about = "Material editing of photos with a trained network"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -24,6 +29,7 @@ enum Command {
   matedit edit --model M --image car.out.png --material 1=library:oak --material 2=library:rubber-black \\
       --regions parts.png --out out/edit-parts/
   matedit edit --model M --image car.jpg --mask car-mask.png --relight sunset.hdr --out out/relit/
+  matedit edit ... --optimize          # refine with Eq. 6 (a = 1, b = 10) first
 
 Outputs (written only when every input is good): edited.png/.exr at the photo's resolution,
 I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and report.json.")]
@@ -53,6 +59,82 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// How the render goes back into the photo.
         #[arg(long, value_enum, default_value_t = Composite::Render)]
         composite: Composite,
+        /// Refine n', m', L' with the paper's post-optimisation (Eq. 6) first.
+        #[arg(long)]
+        optimize: bool,
+        /// Eq. 6's weight a of the normal prior.
+        #[arg(long, default_value_t = 1.0)]
+        eq6_a: f64,
+        /// Eq. 6's weight b of the light prior.
+        #[arg(long, default_value_t = 10.0)]
+        eq6_b: f64,
+        /// Rounds of (normals, material, light).
+        #[arg(long, default_value_t = 1)]
+        eq6_rounds: usize,
+        /// L-BFGS iterations per property and round.
+        #[arg(long, default_value_t = 4)]
+        eq6_iterations: usize,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Material transfer (Fig. 4): the material predicted from one photo's object rendered on
+    /// another photo's object, under that photo's predicted light.
+    #[command(after_help = "Example:
+  matedit transfer --model out/train/quickstart --from a.jpg --from-mask a-mask.png \
+      --to b.jpg --to-mask b-mask.png --out out/transfer/")]
+    Transfer {
+        /// A run folder (its latest checkpoint) or a checkpoint folder.
+        #[arg(long)]
+        model: PathBuf,
+        /// The photo whose material is taken.
+        #[arg(long)]
+        from: PathBuf,
+        /// Its mask (default: its alpha channel).
+        #[arg(long)]
+        from_mask: Option<PathBuf>,
+        /// The photo whose object receives it.
+        #[arg(long)]
+        to: PathBuf,
+        /// Its mask (default: its alpha channel).
+        #[arg(long)]
+        to_mask: Option<PathBuf>,
+        /// Refine both photos' predictions with Eq. 6 first.
+        #[arg(long)]
+        optimize: bool,
+        /// How the render goes back into the photo.
+        #[arg(long, value_enum, default_value_t = Composite::Render)]
+        composite: Composite,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Material swap (Fig. 10): each photo's object with the other's predicted material, into
+    /// OUT/a and OUT/b.
+    #[command(after_help = "Example:
+  matedit swap --model out/train/quickstart --a a.jpg --a-mask a-mask.png --b b.jpg --b-mask b-mask.png --out out/swap/")]
+    Swap {
+        /// A run folder (its latest checkpoint) or a checkpoint folder.
+        #[arg(long)]
+        model: PathBuf,
+        /// The first photo.
+        #[arg(long)]
+        a: PathBuf,
+        /// Its mask (default: its alpha channel).
+        #[arg(long)]
+        a_mask: Option<PathBuf>,
+        /// The second photo.
+        #[arg(long)]
+        b: PathBuf,
+        /// Its mask (default: its alpha channel).
+        #[arg(long)]
+        b_mask: Option<PathBuf>,
+        /// Refine both photos' predictions with Eq. 6 first.
+        #[arg(long)]
+        optimize: bool,
+        /// How the render goes back into the photo.
+        #[arg(long, value_enum, default_value_t = Composite::Render)]
+        composite: Composite,
         /// Output folder.
         #[arg(long)]
         out: PathBuf,
@@ -69,6 +151,11 @@ fn run(cli: Cli) -> Result<()> {
             materials,
             relight,
             composite,
+            optimize,
+            eq6_a,
+            eq6_b,
+            eq6_rounds,
+            eq6_iterations,
             out,
         } => {
             let req = EditRequest {
@@ -78,14 +165,84 @@ fn run(cli: Cli) -> Result<()> {
                 materials,
                 relight,
                 composite,
+                optimize: optimize.then(|| Eq6Config {
+                    a: eq6_a,
+                    b: eq6_b,
+                    rounds: eq6_rounds,
+                    iterations: eq6_iterations,
+                    ..Eq6Config::default()
+                }),
             };
             let report = edit(&model, &req, &out)?;
+            if let Some(e) = &report.eq6 {
+                println!(
+                    "Eq. 6: E {:.4e} → {:.4e} ({:.0} % lower) in {:.2} s, {} L-BFGS iterations (energy.png)",
+                    e.start.total,
+                    e.end.total,
+                    100.0 * (1.0 - e.end.total / e.start.total.max(1e-300)),
+                    e.seconds,
+                    e.steps.len()
+                );
+            }
             println!(
-                "{}: edited in {:.2} s (network and layer {:.2} s); {} files, report.json",
+                "{}: edited in {:.2} s (network {:.2} s, rendering layer {:.2} s); {} files, report.json",
                 out.display(),
                 report.seconds.total,
-                report.seconds.predict_and_render,
+                report.seconds.network,
+                report.seconds.render,
                 report.files.len() + 1
+            );
+            Ok(())
+        }
+        Command::Transfer {
+            model,
+            from,
+            from_mask,
+            to,
+            to_mask,
+            optimize,
+            composite,
+            out,
+        } => {
+            let cfg = optimize.then(Eq6Config::default);
+            let r = transfer(
+                &model,
+                (&from, from_mask.as_deref()),
+                (&to, to_mask.as_deref()),
+                cfg.as_ref(),
+                composite,
+                &out,
+            )?;
+            println!(
+                "{}: transferred in {:.2} s; report.json",
+                out.display(),
+                r.seconds.total
+            );
+            Ok(())
+        }
+        Command::Swap {
+            model,
+            a,
+            a_mask,
+            b,
+            b_mask,
+            optimize,
+            composite,
+            out,
+        } => {
+            let cfg = optimize.then(Eq6Config::default);
+            let [_, rb] = swap(
+                &model,
+                (&a, a_mask.as_deref()),
+                (&b, b_mask.as_deref()),
+                cfg.as_ref(),
+                composite,
+                &out,
+            )?;
+            println!(
+                "{}: swapped in {:.2} s; a/ and b/ with report.json each",
+                out.display(),
+                rb.seconds.total
             );
             Ok(())
         }

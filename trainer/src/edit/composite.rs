@@ -67,7 +67,11 @@ pub fn composite(
                     continue;
                 };
                 std::array::from_fn(|ch| {
-                    let ratio = if i[ch] > 1e-6 { (r[ch] / i[ch]).min(MAX_RATIO) } else { 1.0 };
+                    let ratio = if i[ch] > 1e-6 {
+                        (r[ch] / i[ch]).min(MAX_RATIO)
+                    } else {
+                        1.0
+                    };
                     p.rgb[k][ch] * ratio
                 })
             }

@@ -8,6 +8,7 @@
 //! writing every output ([`output`]) after all of them succeeded, so a bad input writes nothing.
 
 pub mod composite;
+pub mod optimize;
 pub mod output;
 pub mod photo;
 pub mod target;
@@ -55,6 +56,8 @@ pub struct EditRequest {
     pub relight: Option<String>,
     /// How to composite.
     pub composite: Composite,
+    /// Refine n', m', L' with Eq. 6 before rendering.
+    pub optimize: Option<optimize::Eq6Config>,
 }
 
 /// The framed network input of one photo.
@@ -157,16 +160,8 @@ pub struct Predicted {
     pub relit: Option<Vec<f32>>,
 }
 
-/// Runs the network on `prep` and renders I', O' (with `targets`, normalised, `[R, 108]`) and the
-/// relit image (with `relight`, `[3, He, 2He]` camera-space radiance, scaled to L's mean radiance:
-/// a photo's exposure is arbitrary, so the other light takes the predicted light's level).
-pub fn predict_and_render(
-    net: &Net,
-    env_height: usize,
-    prep: &Prepared,
-    targets: Option<&[f32]>,
-    relight: Option<&[f32]>,
-) -> Result<Predicted> {
+/// n', m', L': the network's prediction for `prep` (normals zero off the object).
+pub fn network_prediction(net: &Net, env_height: usize, prep: &Prepared) -> Result<optimize::Point> {
     let device = Device::flex();
     let (s, r) = (prep.size, prep.regions);
     let hb = HostBatch {
@@ -193,39 +188,74 @@ pub fn predict_and_render(
             }
         }
     }
-    let materials = host(&p.materials);
-    let env = p.env.as_ref().map(host).context("the network predicted no illumination")?;
-    let layer = RenderingLayer::new(env_height);
+    Ok(optimize::Point {
+        normals,
+        materials: host(&p.materials),
+        env: p
+            .env
+            .as_ref()
+            .map(host)
+            .context("the network predicted no illumination")?,
+    })
+}
+
+/// Renders I' from `x`, O' with `targets` (normalised, `[R, 108]`) and the relit image with
+/// `relight` (`[3, He, 2He]` camera-space radiance, scaled to L's mean radiance: a photo's
+/// exposure is arbitrary, so the other light takes the predicted light's level).
+pub fn render_all(
+    layer: &RenderingLayer,
+    prep: &Prepared,
+    x: optimize::Point,
+    env_height: usize,
+    targets: Option<&[f32]>,
+    relight: Option<&[f32]>,
+) -> Result<Predicted> {
+    let (s, r) = (prep.size, prep.regions);
     let render = |m: &[f32], l: &[f32]| -> Result<Vec<f32>> {
         Ok(layer.forward(&Batch {
             batch: 1,
             size: (s, s),
             regions: r,
-            normals: &normals,
+            normals: &x.normals,
             region_map: &prep.region_map,
             materials: m,
             env: l,
         })?)
     };
-    let i_prime = render(&materials, &env)?;
-    let o_prime = targets.map(|t| render(t, &env)).transpose()?;
+    let i_prime = render(&x.materials, &x.env)?;
+    let o_prime = targets.map(|t| render(t, &x.env)).transpose()?;
     let mean = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>() / v.len().max(1) as f64;
     let relit = relight
         .map(|l| {
-            let k = (mean(&env) / mean(l).max(1e-30)) as f32;
+            let k = (mean(&x.env) / mean(l).max(1e-30)) as f32;
             let l: Vec<f32> = l.iter().map(|v| v * k).collect();
-            render(&materials, &l)
+            render(&x.materials, &l)
         })
         .transpose()?;
     Ok(Predicted {
-        normals,
-        materials,
-        env,
+        normals: x.normals,
+        materials: x.materials,
+        env: x.env,
         env_height,
         i_prime,
         o_prime,
         relit,
     })
+}
+
+/// What Eq. 6 did, for `report.json` and `energy.png`.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Eq6Report {
+    /// Weights and lengths.
+    pub config: optimize::Eq6Config,
+    /// E at the network's prediction.
+    pub start: optimize::Energy,
+    /// E at the end.
+    pub end: optimize::Energy,
+    /// E after every L-BFGS iteration.
+    pub steps: Vec<optimize::Step>,
+    /// Seconds.
+    pub seconds: f64,
 }
 
 /// The network of a checkpoint folder, or of a run folder's latest checkpoint.
@@ -280,10 +310,247 @@ pub struct EditReport {
     pub relight: Option<String>,
     /// How O' went back into the photo.
     pub composite: Composite,
+    /// Eq. 6, when asked for.
+    pub eq6: Option<Eq6Report>,
     /// Seconds per phase.
     pub seconds: output::Timings,
     /// Files written, relative to the output folder.
     pub files: Vec<String>,
+}
+
+/// A photo read, framed and understood: n', m', L' (refined by Eq. 6 when asked).
+pub struct Understood {
+    /// The photo.
+    pub photo: Photo,
+    /// Its path.
+    pub path: PathBuf,
+    /// Soft object coverage per photo pixel.
+    pub coverage: Vec<f32>,
+    /// What the report calls the mask.
+    pub mask_name: String,
+    /// The network input.
+    pub prep: Prepared,
+    /// n*, m*, L* (the network's, or after Eq. 6).
+    pub point: optimize::Point,
+    /// Eq. 6, when asked for.
+    pub eq6: Option<Eq6Report>,
+    /// Seconds the network took.
+    pub network_seconds: f64,
+}
+
+/// A loaded network and what it was trained for.
+pub struct Model {
+    /// The network.
+    pub net: Net,
+    /// Its checkpoint's state (shape).
+    pub state: checkpoint::State,
+    /// The checkpoint folder.
+    pub dir: PathBuf,
+    /// A rendering layer for its environment size.
+    pub layer: RenderingLayer,
+}
+
+impl Model {
+    /// [`load_model`] and its layer.
+    pub fn load(path: &Path) -> Result<Self> {
+        let (net, state, dir) = load_model(path)?;
+        let layer = RenderingLayer::new(state.net.env_height);
+        Ok(Self { net, state, dir, layer })
+    }
+}
+
+/// A photo with its mask and region labels, read and checked.
+pub struct ReadPhoto {
+    /// The photo.
+    pub photo: Photo,
+    /// Soft object coverage per photo pixel.
+    pub coverage: Vec<f32>,
+    /// What the report calls the mask.
+    pub mask_name: String,
+    /// Region label per photo pixel and the number of regions.
+    pub labels: Option<(Vec<u8>, usize)>,
+}
+
+/// Reads a photo, its mask (or alpha) and region labels, checking everything before the
+/// network runs.
+pub fn read_photo(photo_path: &Path, mask: Option<&Path>, regions: Option<&Path>) -> Result<ReadPhoto> {
+    let p = photo::load_photo(photo_path)?;
+    let (coverage, mask_name) = match mask {
+        Some(m) => (photo::load_mask(m, p.width, p.height)?, m.display().to_string()),
+        None => (
+            p.alpha.clone().with_context(|| {
+                format!(
+                    "{}: no mask given and the photo has no alpha channel; give the object's mask",
+                    photo_path.display()
+                )
+            })?,
+            "alpha of the photo".to_string(),
+        ),
+    };
+    photo::check_mask(mask.unwrap_or(photo_path), &coverage)?;
+    let labels = regions
+        .map(|r| target::load_regions(r, p.width, p.height, &coverage))
+        .transpose()?;
+    Ok(ReadPhoto {
+        photo: p,
+        coverage,
+        mask_name,
+        labels,
+    })
+}
+
+/// Frames a read photo and runs the network (and Eq. 6 with `optimize`).
+pub fn understand(
+    model: &Model,
+    read: ReadPhoto,
+    path: &Path,
+    optimize: Option<&optimize::Eq6Config>,
+) -> Result<Understood> {
+    let ReadPhoto {
+        photo: p,
+        coverage,
+        mask_name,
+        labels,
+    } = read;
+    let prep = prepare(
+        &p,
+        &coverage,
+        labels.as_ref().map(|(l, n)| (l.as_slice(), *n)),
+        model.state.net.input_size,
+    )?;
+    let t = Instant::now();
+    let mut x = network_prediction(&model.net, model.state.net.env_height, &prep)?;
+    let network_seconds = t.elapsed().as_secs_f64();
+    let eq6 = match optimize {
+        None => None,
+        Some(cfg) => {
+            let t = Instant::now();
+            let prior = x.clone();
+            let problem = optimize::Problem {
+                layer: &model.layer,
+                size: prep.size,
+                regions: prep.regions,
+                image: &prep.input,
+                region_map: &prep.region_map,
+                normals: &prior.normals,
+                env: &prior.env,
+                a: cfg.a,
+                b: cfg.b,
+            };
+            let r = optimize::post_optimise(&problem, prior.clone(), cfg)?;
+            x = r.point;
+            Some(Eq6Report {
+                config: cfg.clone(),
+                start: r.start,
+                end: r.end,
+                steps: r.steps,
+                seconds: t.elapsed().as_secs_f64(),
+            })
+        }
+    };
+    Ok(Understood {
+        photo: p,
+        path: path.to_path_buf(),
+        coverage,
+        mask_name,
+        prep,
+        point: x,
+        eq6,
+        network_seconds,
+    })
+}
+
+/// Renders an understood photo with `targets` (and `relight`), composites, and writes every
+/// output into `out`.
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    model: &Model,
+    u: Understood,
+    targets: &[(Dsbrdf, target::RegionTarget)],
+    relight: Option<(&str, Vec<f32>)>,
+    how: Composite,
+    out: &Path,
+    t0: Instant,
+    t_load: f64,
+) -> Result<EditReport> {
+    let t1 = Instant::now();
+    let target_params: Option<Vec<f32>> = (!targets.is_empty()).then(|| {
+        targets
+            .iter()
+            .flat_map(|(m, _)| m.to_normalised().map(|v| v as f32))
+            .collect()
+    });
+    let env_height = model.state.net.env_height;
+    let Understood {
+        photo: p,
+        path,
+        coverage,
+        mask_name,
+        prep,
+        point,
+        eq6,
+        network_seconds,
+    } = u;
+    let pred = render_all(
+        &model.layer,
+        &prep,
+        point,
+        env_height,
+        target_params.as_deref(),
+        relight.as_ref().map(|(_, l)| l.as_slice()),
+    )?;
+    let t_render = t1.elapsed().as_secs_f64();
+    let t_eq6 = eq6.as_ref().map_or(0.0, |e| e.seconds);
+    let t2 = Instant::now();
+    let mut composites = Vec::new();
+    for (name, img) in [("edited", &pred.o_prime), ("relit", &pred.relit)] {
+        if let Some(img) = img {
+            composites.push((
+                name,
+                composite::composite(&p, &coverage, &prep, img, &pred.i_prime, how),
+            ));
+        }
+    }
+    let t_composite = t2.elapsed().as_secs_f64();
+    let mut report = EditReport {
+        photo: path.display().to_string(),
+        photo_size: [p.width, p.height],
+        encoding: p.encoding,
+        mask: mask_name,
+        object_pixels: coverage.iter().filter(|&&c| c > 0.0).count(),
+        checkpoint: model.dir.display().to_string(),
+        stage: model.state.stage_name.clone(),
+        input_size: model.state.net.input_size,
+        env_height,
+        framing: prep.framing,
+        exposure: prep.exposure,
+        training_mean_luminance: TRAINING_MEAN_LUMINANCE,
+        regions: targets.iter().map(|(_, r)| r.clone()).collect(),
+        relight: relight.map(|(spec, _)| spec.to_string()),
+        composite: how,
+        eq6,
+        seconds: output::Timings {
+            load: t_load,
+            network: network_seconds,
+            eq6: t_eq6,
+            render: t_render,
+            composite: t_composite,
+            write: 0.0,
+            total: 0.0,
+        },
+        files: Vec::new(),
+    };
+    let t3 = Instant::now();
+    let mats: Vec<Dsbrdf> = targets.iter().map(|(m, _)| m.clone()).collect();
+    report.files = output::write_all(out, &p, &prep, &pred, &composites, &mats)?;
+    if let Some(e) = &report.eq6 {
+        output::energy_plot(&out.join("energy.png"), e)?;
+        report.files.push("energy.png".into());
+    }
+    report.seconds.write = t3.elapsed().as_secs_f64();
+    report.seconds.total = t0.elapsed().as_secs_f64();
+    output::write_report(out, &report)?;
+    Ok(report)
 }
 
 /// Reads the inputs, edits, and writes every output into `out` (see [`output`]). Nothing is
@@ -294,96 +561,111 @@ pub fn edit(model: &Path, req: &EditRequest, out: &Path) -> Result<EditReport> {
         bail!("nothing to do: give --material (the edit) and/or --relight (another illumination)");
     }
     output::refuse_overwriting_inputs(out, &[Some(&req.photo), req.mask.as_ref(), req.regions.as_ref()])?;
-    let (net, state, ckpt) = load_model(model)?;
-    let p = photo::load_photo(&req.photo)?;
-    let (coverage, mask_name) = match &req.mask {
-        Some(m) => (photo::load_mask(m, p.width, p.height)?, m.display().to_string()),
-        None => (
-            p.alpha.clone().with_context(|| {
-                format!(
-                    "{}: no --mask and the photo has no alpha channel; give the object's mask",
-                    req.photo.display()
-                )
-            })?,
-            "alpha of the photo".to_string(),
-        ),
-    };
-    photo::check_mask(req.mask.as_deref().unwrap_or(&req.photo), &coverage)?;
-    let labels = req
-        .regions
-        .as_ref()
-        .map(|r| target::load_regions(r, p.width, p.height, &coverage))
-        .transpose()?;
-    let regions = labels.as_ref().map_or(1, |l| l.1);
-    let targets = target::resolve_targets(&req.materials, regions, req.regions.as_deref())?;
+    let model = Model::load(model)?;
+    let read = read_photo(&req.photo, req.mask.as_deref(), req.regions.as_deref())?;
+    let regions = read.labels.as_ref().map_or(1, |l| l.1);
+    let targets: Vec<(Dsbrdf, target::RegionTarget)> =
+        target::resolve_targets(&req.materials, regions, req.regions.as_deref())?
+            .into_iter()
+            .map(|t| (t.material, t.record))
+            .collect();
     let relight = req
         .relight
         .as_ref()
-        .map(|spec| target::relight_env(spec, state.net.env_height))
+        .map(|spec| Ok::<_, anyhow::Error>((spec.as_str(), target::relight_env(spec, model.state.net.env_height)?)))
         .transpose()?;
     let t_load = t0.elapsed().as_secs_f64();
+    let u = understand(&model, read, &req.photo, req.optimize.as_ref())?;
+    finish(&model, u, &targets, relight, req.composite, out, t0, t_load)
+}
 
-    let t1 = Instant::now();
-    let prep = prepare(
-        &p,
-        &coverage,
-        labels.as_ref().map(|(l, n)| (l.as_slice(), *n)),
-        state.net.input_size,
+/// Material transfer (Fig. 4): the material predicted from photo `from` (its first region)
+/// rendered on the object of photo `to`, under `to`'s predicted light; outputs as [`edit`]'s.
+#[allow(clippy::too_many_arguments)]
+pub fn transfer(
+    model: &Path,
+    from: (&Path, Option<&Path>),
+    to: (&Path, Option<&Path>),
+    optimize: Option<&optimize::Eq6Config>,
+    how: Composite,
+    out: &Path,
+) -> Result<EditReport> {
+    let t0 = Instant::now();
+    output::refuse_overwriting_inputs(
+        out,
+        &[
+            Some(&from.0.to_path_buf()),
+            from.1.map(Path::to_path_buf).as_ref(),
+            Some(&to.0.to_path_buf()),
+            to.1.map(Path::to_path_buf).as_ref(),
+        ],
     )?;
-    let target_params: Option<Vec<f32>> = (!targets.is_empty()).then(|| {
-        targets
-            .iter()
-            .flat_map(|t| t.material.to_normalised().map(|v| v as f32))
-            .collect()
-    });
-    let pred = predict_and_render(
-        &net,
-        state.net.env_height,
-        &prep,
-        target_params.as_deref(),
-        relight.as_deref(),
-    )?;
-    let t_predict = t1.elapsed().as_secs_f64();
-
-    let t2 = Instant::now();
-    let mut composites = Vec::new();
-    for (name, img) in [("edited", &pred.o_prime), ("relit", &pred.relit)] {
-        if let Some(img) = img {
-            composites.push((name, composite::composite(&p, &coverage, &prep, img, &pred.i_prime, req.composite)));
+    let model = Model::load(model)?;
+    let read_from = read_photo(from.0, from.1, None)?;
+    let read_to = read_photo(to.0, to.1, None)?;
+    let t_load = t0.elapsed().as_secs_f64();
+    let source = understand(&model, read_from, from.0, optimize)?;
+    let m = source_material(&source)?;
+    let u = understand(&model, read_to, to.0, optimize)?;
+    let record = target::RegionTarget {
+        region: 1,
+        spec: format!("m' of {}", from.0.display()),
+        source: if optimize.is_some() {
+            "predicted, Eq. 6"
+        } else {
+            "predicted"
         }
-    }
-    let t_composite = t2.elapsed().as_secs_f64();
-
-    let mut report = EditReport {
-        photo: req.photo.display().to_string(),
-        photo_size: [p.width, p.height],
-        encoding: p.encoding,
-        mask: mask_name,
-        object_pixels: coverage.iter().filter(|&&c| c > 0.0).count(),
-        checkpoint: ckpt.display().to_string(),
-        stage: state.stage_name.clone(),
-        input_size: state.net.input_size,
-        env_height: state.net.env_height,
-        framing: prep.framing,
-        exposure: prep.exposure,
-        training_mean_luminance: TRAINING_MEAN_LUMINANCE,
-        regions: targets.iter().map(|t| t.record.clone()).collect(),
-        relight: req.relight.clone(),
-        composite: req.composite,
-        seconds: output::Timings {
-            load: t_load,
-            predict_and_render: t_predict,
-            composite: t_composite,
-            write: 0.0,
-            total: 0.0,
-        },
-        files: Vec::new(),
+        .into(),
     };
-    let t3 = Instant::now();
-    let targets_dsbrdf: Vec<Dsbrdf> = targets.iter().map(|t| t.material.clone()).collect();
-    report.files = output::write_all(out, &p, &prep, &pred, &composites, &targets_dsbrdf)?;
-    report.seconds.write = t3.elapsed().as_secs_f64();
-    report.seconds.total = t0.elapsed().as_secs_f64();
-    output::write_report(out, &report)?;
-    Ok(report)
+    finish(&model, u, &[(m, record)], None, how, out, t0, t_load)
+}
+
+/// The DSBRDF predicted for a photo's first region.
+fn source_material(u: &Understood) -> Result<Dsbrdf> {
+    let m: Vec<f64> = u.point.materials[..PARAMS].iter().map(|&v| v as f64).collect();
+    Dsbrdf::from_normalised(&m).with_context(|| format!("the material predicted from {}", u.path.display()))
+}
+
+/// Material swap (Fig. 10): each photo's object with the other's predicted material, into
+/// `out/a` and `out/b`.
+pub fn swap(
+    model: &Path,
+    a: (&Path, Option<&Path>),
+    b: (&Path, Option<&Path>),
+    optimize: Option<&optimize::Eq6Config>,
+    how: Composite,
+    out: &Path,
+) -> Result<[EditReport; 2]> {
+    let t0 = Instant::now();
+    let (out_a, out_b) = (out.join("a"), out.join("b"));
+    for o in [&out_a, &out_b] {
+        output::refuse_overwriting_inputs(
+            o,
+            &[
+                Some(&a.0.to_path_buf()),
+                a.1.map(Path::to_path_buf).as_ref(),
+                Some(&b.0.to_path_buf()),
+                b.1.map(Path::to_path_buf).as_ref(),
+            ],
+        )?;
+    }
+    let model = Model::load(model)?;
+    let (read_a, read_b) = (read_photo(a.0, a.1, None)?, read_photo(b.0, b.1, None)?);
+    let t_load = t0.elapsed().as_secs_f64();
+    let ua = understand(&model, read_a, a.0, optimize)?;
+    let ub = understand(&model, read_b, b.0, optimize)?;
+    let (ma, mb) = (source_material(&ua)?, source_material(&ub)?);
+    let rec = |from: &Path| target::RegionTarget {
+        region: 1,
+        spec: format!("m' of {}", from.display()),
+        source: if optimize.is_some() {
+            "predicted, Eq. 6"
+        } else {
+            "predicted"
+        }
+        .into(),
+    };
+    let ra = finish(&model, ua, &[(mb, rec(b.0))], None, how, &out_a, t0, t_load)?;
+    let rb = finish(&model, ub, &[(ma, rec(a.0))], None, how, &out_b, t0, t_load)?;
+    Ok([ra, rb])
 }

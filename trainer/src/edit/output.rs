@@ -8,6 +8,7 @@
 //! | `normals.exr`, `normals.png` | n' (camera space; PNG as (n + 1)/2) |
 //! | `env.exr`, `env.png` | L' (camera space, linear; PNG tone-mapped) |
 //! | `material.dsbrdf.json` (`material-K` per region) | m', which `datagen render --brdf dsbrdf:FILE` renders |
+//! | `target.dsbrdf.json` (`target-K` per region) | m_t as rendered (a fitted DSBRDF where the spec was not one) |
 //! | `sheet.png` | I, I', O', relit, n', L', and spheres of m' and m_t under L', labelled |
 //! | `report.json` | every setting, the framing and exposure, timings, the files |
 
@@ -15,7 +16,9 @@ use super::photo::{Encoding, Photo};
 use super::{EditReport, Predicted, Prepared};
 use crate::render::{Batch, RenderingLayer};
 use anyhow::{Context, Result, bail};
-use matedit_datagen::io::{SheetLabels, normal_to_u8, write_atomically, write_exr_channels, write_labelled_contact_sheet};
+use matedit_datagen::io::{
+    SheetLabels, normal_to_u8, write_atomically, write_exr_channels, write_labelled_contact_sheet,
+};
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::tonemap::{srgb_encode, tonemap_u8};
 use std::path::Path;
@@ -25,8 +28,12 @@ use std::path::Path;
 pub struct Timings {
     /// Reading the model, photo, mask, regions and materials.
     pub load: f64,
-    /// The network and the rendering layer.
-    pub predict_and_render: f64,
+    /// The network (n', m', L').
+    pub network: f64,
+    /// Eq. 6, when asked for.
+    pub eq6: f64,
+    /// The rendering layer (I', O', relit).
+    pub render: f64,
     /// Compositing at the photo's resolution.
     pub composite: f64,
     /// Writing the files.
@@ -47,9 +54,18 @@ pub fn refuse_overwriting_inputs(out: &Path, inputs: &[Option<&std::path::PathBu
             let ours = name == "report.json"
                 || name == "sheet.png"
                 || name.ends_with(".dsbrdf.json")
-                || ["edited", "relit", "input", "i_prime", "o_prime", "relit_prime", "normals", "env"]
-                    .iter()
-                    .any(|stem| name == format!("{stem}.png") || name == format!("{stem}.exr"));
+                || [
+                    "edited",
+                    "relit",
+                    "input",
+                    "i_prime",
+                    "o_prime",
+                    "relit_prime",
+                    "normals",
+                    "env",
+                ]
+                .iter()
+                .any(|stem| name == format!("{stem}.png") || name == format!("{stem}.exr"));
             if ours {
                 bail!(
                     "{}: the output folder {} would overwrite this input; choose another --out",
@@ -78,7 +94,14 @@ fn write_png_rgb(path: &Path, w: usize, h: usize, px: impl Fn(usize) -> [u8; 3])
 }
 
 /// Writes a photo-sized linear image as PNG (in the photo's encoding) and EXR.
-fn write_photo(out: &Path, stem: &str, p: &Photo, rgb: &[[f32; 3]], exposure: f64, files: &mut Vec<String>) -> Result<()> {
+fn write_photo(
+    out: &Path,
+    stem: &str,
+    p: &Photo,
+    rgb: &[[f32; 3]],
+    exposure: f64,
+    files: &mut Vec<String>,
+) -> Result<()> {
     let (w, h) = (p.width, p.height);
     let png = out.join(format!("{stem}.png"));
     match p.encoding {
@@ -117,7 +140,11 @@ fn write_net_image(out: &Path, stem: &str, img: &[f32], mask: &[f32], n: usize, 
         &out.join(format!("{stem}.exr")),
         n,
         n,
-        vec![("R", planar(img, 0, hw)), ("G", planar(img, 1, hw)), ("B", planar(img, 2, hw))],
+        vec![
+            ("R", planar(img, 0, hw)),
+            ("G", planar(img, 1, hw)),
+            ("B", planar(img, 2, hw)),
+        ],
     )?;
     write_png_rgb(&out.join(format!("{stem}.png")), n, n, |k| {
         if mask[k] > 0.0 {
@@ -187,7 +214,11 @@ pub fn write_all(
         &out.join("normals.exr"),
         n,
         n,
-        vec![("X", planar(nrm, 0, hw)), ("Y", planar(nrm, 1, hw)), ("Z", planar(nrm, 2, hw))],
+        vec![
+            ("X", planar(nrm, 0, hw)),
+            ("Y", planar(nrm, 1, hw)),
+            ("Z", planar(nrm, 2, hw)),
+        ],
     )?;
     write_png_rgb(&out.join("normals.png"), n, n, |k| {
         if prep.mask[k] > 0.0 {
@@ -203,7 +234,11 @@ pub fn write_all(
         &out.join("env.exr"),
         we,
         he,
-        vec![("R", planar(&pred.env, 0, ehw)), ("G", planar(&pred.env, 1, ehw)), ("B", planar(&pred.env, 2, ehw))],
+        vec![
+            ("R", planar(&pred.env, 0, ehw)),
+            ("G", planar(&pred.env, 1, ehw)),
+            ("B", planar(&pred.env, 2, ehw)),
+        ],
     )?;
     let all = vec![1.0_f32; ehw];
     let env_exposure = crate::eval::metrics::metric_exposure(&pred.env, &all);
@@ -213,7 +248,10 @@ pub fn write_all(
     files.extend(["env.exr".to_string(), "env.png".to_string()]);
     let regions = prep.regions;
     for r in 0..regions {
-        let m: Vec<f64> = pred.materials[r * 108..(r + 1) * 108].iter().map(|&v| v as f64).collect();
+        let m: Vec<f64> = pred.materials[r * 108..(r + 1) * 108]
+            .iter()
+            .map(|&v| v as f64)
+            .collect();
         let d = Dsbrdf::from_normalised(&m).context("the predicted material")?;
         let name = if regions == 1 {
             "material.dsbrdf.json".to_string()
@@ -222,6 +260,17 @@ pub fn write_all(
         };
         write_atomically(&out.join(&name), |tmp| {
             std::fs::write(tmp, d.to_json()).with_context(|| format!("cannot write {}", out.join(&name).display()))
+        })?;
+        files.push(name);
+    }
+    for (k, t) in targets.iter().enumerate() {
+        let name = if targets.len() == 1 {
+            "target.dsbrdf.json".to_string()
+        } else {
+            format!("target-{}.dsbrdf.json", k + 1)
+        };
+        write_atomically(&out.join(&name), |tmp| {
+            std::fs::write(tmp, t.to_json()).with_context(|| format!("cannot write {}", out.join(&name).display()))
         })?;
         files.push(name);
     }
@@ -262,7 +311,10 @@ fn write_sheet(out: &Path, prep: &Prepared, pred: &Predicted, targets: &[Dsbrdf]
         })
     };
     let mut columns: Vec<&str> = vec!["I (photo)", "I'"];
-    let mut tiles = vec![image_tile(&prep.input, &prep.mask), image_tile(&pred.i_prime, &prep.mask)];
+    let mut tiles = vec![
+        image_tile(&prep.input, &prep.mask),
+        image_tile(&pred.i_prime, &prep.mask),
+    ];
     if let Some(o) = &pred.o_prime {
         columns.push("O' (edit)");
         tiles.push(image_tile(o, &prep.mask));
@@ -295,12 +347,14 @@ fn write_sheet(out: &Path, prep: &Prepared, pred: &Predicted, targets: &[Dsbrdf]
     if let Some(t) = &target {
         mats.push(t);
     }
-    let sph = spheres(&mats, &pred.env, pred.env_height, n)?;
+    // Previews only: at most 64² (a 256² sphere costs the layer seconds).
+    let ns = n.min(64);
+    let sph = spheres(&mats, &pred.env, pred.env_height, ns)?;
     let sphere_tile = |img: &[f32], mask: &[f32]| {
         let e = crate::eval::metrics::metric_exposure(img, mask);
-        scale_tile(n, n, &|k| {
+        scale_tile(ns, ns, &|k| {
             if mask[k] > 0.0 {
-                let c = |ch: usize| tonemap_u8(img[ch * hw + k], e);
+                let c = |ch: usize| tonemap_u8(img[ch * ns * ns + k], e);
                 [c(0), c(1), c(2), 255]
             } else {
                 [0, 0, 0, 255]
@@ -327,4 +381,70 @@ pub fn write_report(out: &Path, report: &EditReport) -> Result<()> {
     write_atomically(&p, |tmp| {
         std::fs::write(tmp, text).with_context(|| format!("cannot write {}", p.display()))
     })
+}
+
+/// `energy.png`: E after every L-BFGS iteration of Eq. 6 (log scale), coloured by the property
+/// that moved.
+pub fn energy_plot(path: &Path, eq6: &super::Eq6Report) -> Result<()> {
+    use plotters::prelude::*;
+    let values: Vec<f64> = eq6.steps.iter().map(|s| s.energy.max(1e-30)).collect();
+    if values.is_empty() {
+        return Ok(());
+    }
+    let (lo, hi) = values
+        .iter()
+        .fold((f64::INFINITY, 0.0_f64), |(a, b), &v| (a.min(v), b.max(v)));
+    let (lo, hi) = (lo * 0.9, (hi * 1.1).max(lo * 1.01));
+    let e = |e: DrawingAreaErrorKind<_>| anyhow::anyhow!("{}: {e}", path.display());
+    let tmp = path.with_extension("tmp.png");
+    {
+        let root = BitMapBackend::new(&tmp, (800, 450)).into_drawing_area();
+        root.fill(&WHITE).map_err(e)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(
+                "Eq. 6: E = |R(n, m, L) - I|^2 + a|n - n'|^2 + b|L - L'|^2",
+                ("sans-serif", 18),
+            )
+            .margin(12)
+            .x_label_area_size(36)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0..values.len(), (lo..hi).log_scale())
+            .map_err(e)?;
+        chart
+            .configure_mesh()
+            .x_desc("L-BFGS iteration (all runs in order)")
+            .y_desc("E")
+            .draw()
+            .map_err(e)?;
+        use super::optimize::Property;
+        for (prop, colour, name) in [
+            (Property::Normals, RGBColor(31, 119, 180), "normals"),
+            (Property::Material, RGBColor(255, 127, 14), "material"),
+            (Property::Light, RGBColor(44, 160, 44), "light"),
+        ] {
+            let pts: Vec<(usize, f64)> = eq6
+                .steps
+                .iter()
+                .enumerate()
+                .filter(|(_, s)| s.property == prop)
+                .map(|(i, s)| (i, s.energy.max(1e-30)))
+                .collect();
+            chart
+                .draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour.filled())))
+                .map_err(e)?
+                .label(name)
+                .legend(move |(x, y)| Circle::new((x, y), 4, colour.filled()));
+        }
+        chart
+            .draw_series(LineSeries::new(values.iter().enumerate().map(|(i, &v)| (i, v)), &BLACK))
+            .map_err(e)?;
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(e)?;
+        root.present().map_err(e)?;
+    }
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot move {} to {}", tmp.display(), path.display()))
 }

@@ -79,7 +79,10 @@ pub fn load_photo(path: &Path) -> Result<Photo> {
         "exr" => {
             let (w, h, ch) = matedit_datagen::io::read_exr_channels(path)?;
             check_size(path, w as u64, h as u64)?;
-            let get = |n: &str| ch.get(n).with_context(|| format!("{what}: no {n} channel (an EXR photo needs R, G, B)"));
+            let get = |n: &str| {
+                ch.get(n)
+                    .with_context(|| format!("{what}: no {n} channel (an EXR photo needs R, G, B)"))
+            };
             let (r, g, b) = (get("R")?, get("G")?, get("B")?);
             let rgb: Vec<[f32; 3]> = (0..w * h).map(|k| [r[k], g[k], b[k]]).collect();
             check_linear(path, &rgb)?;
@@ -110,7 +113,10 @@ pub fn load_photo(path: &Path) -> Result<Photo> {
                     srgb_decode(v.clamp(0.0, 1.0))
                 }
             };
-            let rgb: Vec<[f32; 3]> = rgba.pixels().map(|p| [decode(p[0]), decode(p[1]), decode(p[2])]).collect();
+            let rgb: Vec<[f32; 3]> = rgba
+                .pixels()
+                .map(|p| [decode(p[0]), decode(p[1]), decode(p[2])])
+                .collect();
             check_linear(path, &rgb)?;
             let alpha = has_alpha.then(|| rgba.pixels().map(|p| p[3].clamp(0.0, 1.0)).collect());
             Ok(Photo {
@@ -193,14 +199,7 @@ pub fn load_mask(path: &Path, width: usize, height: usize) -> Result<Vec<f32>> {
     let alpha_used = has_alpha && rgba.pixels().any(|p| p[3] < 1.0);
     Ok(rgba
         .pixels()
-        .map(|p| {
-            if alpha_used {
-                p[3]
-            } else {
-                p[0].max(p[1]).max(p[2])
-            }
-            .clamp(0.0, 1.0)
-        })
+        .map(|p| if alpha_used { p[3] } else { p[0].max(p[1]).max(p[2]) }.clamp(0.0, 1.0))
         .collect())
 }
 

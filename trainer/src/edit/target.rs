@@ -34,9 +34,7 @@ pub fn parse_material_arg(s: &str) -> Result<(Option<u8>, String), String> {
         && !k.is_empty()
         && k.chars().all(|c| c.is_ascii_digit())
     {
-        let k: u8 = k
-            .parse()
-            .map_err(|_| format!("{s}: region {k} is not in 1..=255"))?;
+        let k: u8 = k.parse().map_err(|_| format!("{s}: region {k} is not in 1..=255"))?;
         if k == 0 {
             return Err(format!("{s}: regions are numbered from 1 (0 is the background)"));
         }
@@ -67,13 +65,20 @@ pub fn dsbrdf_of(spec: &str) -> Result<(Dsbrdf, String)> {
 }
 
 /// One target per region 1..=`regions`; a region with no material is an error naming it.
-pub fn resolve_targets(args: &[(Option<u8>, String)], regions: usize, regions_file: Option<&Path>) -> Result<Vec<Target>> {
+pub fn resolve_targets(
+    args: &[(Option<u8>, String)],
+    regions: usize,
+    regions_file: Option<&Path>,
+) -> Result<Vec<Target>> {
     if args.is_empty() {
         return Ok(Vec::new());
     }
     let default: Vec<&String> = args.iter().filter(|(k, _)| k.is_none()).map(|(_, s)| s).collect();
     if default.len() > 1 {
-        bail!("--material without a region is given {} times; give it once, or as K=SPEC per region", default.len());
+        bail!(
+            "--material without a region is given {} times; give it once, or as K=SPEC per region",
+            default.len()
+        );
     }
     for (k, spec) in args {
         if let Some(k) = k

@@ -1,3 +1,5 @@
+#![allow(clippy::needless_range_loop)] // pixel indices shared by several buffers
+
 use super::photo::{Framing, TRAINING_FILL, load_photo, srgb_decode};
 use super::*;
 use crate::model::Widths;
@@ -89,7 +91,11 @@ fn framing_fills_like_the_training_images_and_area_averages_exactly() {
     let cov: Vec<f32> = (0..w * h)
         .map(|k| {
             let (x, y) = (k % w, k / w);
-            if (20..50).contains(&x) && (30..40).contains(&y) { 1.0 } else { 0.0 }
+            if (20..50).contains(&x) && (30..40).contains(&y) {
+                1.0
+            } else {
+                0.0
+            }
         })
         .collect();
     for size in [8, 16, 64] {
@@ -99,8 +105,14 @@ fn framing_fills_like_the_training_images_and_area_averages_exactly() {
         // Against a brute-force average (lattice points per cell, padding as zero), for a
         // constant, a ramp and the mask; the crop leaves the photo at the bottom.
         for (name, value) in [
-            ("constant", Box::new(|_: usize| [2.0_f32]) as Box<dyn Fn(usize) -> [f32; 1]>),
-            ("ramp", Box::new(move |k: usize| [(k % w) as f32 + 0.5 * (k / w) as f32])),
+            (
+                "constant",
+                Box::new(|_: usize| [2.0_f32]) as Box<dyn Fn(usize) -> [f32; 1]>,
+            ),
+            (
+                "ramp",
+                Box::new(move |k: usize| [(k % w) as f32 + 0.5 * (k / w) as f32]),
+            ),
             ("mask", Box::new(|k: usize| [cov[k]])),
         ] {
             let got = f.area_average(w, h, &value);
@@ -120,7 +132,10 @@ fn framing_fills_like_the_training_images_and_area_averages_exactly() {
                 }
                 if n > 0 {
                     let want = s / n as f64;
-                    assert!((got[cell][0] as f64 - want).abs() < 1e-4 * want.abs().max(1.0), "{name} {size} {cell}");
+                    assert!(
+                        (got[cell][0] as f64 - want).abs() < 1e-4 * want.abs().max(1.0),
+                        "{name} {size} {cell}"
+                    );
                 }
             }
         }
@@ -134,15 +149,26 @@ fn a_photo_is_edited_and_only_the_object_changes() {
     let out = d.join("out");
     let report = edit(model(), &request(&p, &m, "lambert:0.1,0.2,0.9"), &out).unwrap();
     for f in [
-        "edited.png", "edited.exr", "input.png", "i_prime.exr", "o_prime.png", "normals.exr", "env.exr",
-        "material.dsbrdf.json", "sheet.png", "report.json",
+        "edited.png",
+        "edited.exr",
+        "input.png",
+        "i_prime.exr",
+        "o_prime.png",
+        "normals.exr",
+        "env.exr",
+        "material.dsbrdf.json",
+        "sheet.png",
+        "report.json",
     ] {
         assert!(out.join(f).is_file(), "{f}");
     }
     assert_eq!(report.photo_size, [60, 40]);
     assert!((report.exposure - 0.0).abs() > 0.0);
     // Outside the mask, the very bytes of the photo; inside, a change.
-    let (a, b) = (image::open(&p).unwrap().to_rgb8(), image::open(out.join("edited.png")).unwrap().to_rgb8());
+    let (a, b) = (
+        image::open(&p).unwrap().to_rgb8(),
+        image::open(out.join("edited.png")).unwrap().to_rgb8(),
+    );
     let mask = image::open(&m).unwrap().to_luma8();
     let mut changed = 0;
     for ((pa, pb), pm) in a.pixels().zip(b.pixels()).zip(mask.pixels()) {
@@ -156,7 +182,8 @@ fn a_photo_is_edited_and_only_the_object_changes() {
     // m' is a material file that loads.
     matedit_physics::brdf::Dsbrdf::load(&out.join("material.dsbrdf.json")).unwrap();
     // The report is JSON with the settings.
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(v["regions"][0]["spec"], "lambert:0.1,0.2,0.9");
     assert_eq!(v["input_size"], 16);
 
@@ -164,7 +191,10 @@ fn a_photo_is_edited_and_only_the_object_changes() {
     let out2 = d.join("out2");
     let req = EditRequest {
         regions: Some(r),
-        materials: vec![(Some(1), "lambert:0.9,0.05,0.05".into()), (Some(2), "lambert:0.05,0.05,0.9".into())],
+        materials: vec![
+            (Some(1), "lambert:0.9,0.05,0.05".into()),
+            (Some(2), "lambert:0.05,0.05,0.9".into()),
+        ],
         ..request(&p, &m, "unused")
     };
     let rep = edit(model(), &req, &out2).unwrap();
@@ -177,7 +207,10 @@ fn a_photo_is_edited_and_only_the_object_changes() {
         side[0] += ch["R"][k] as f64;
         side[1] += ch["B"][k] as f64;
     }
-    assert!(left[0] > left[1] && right[1] > right[0], "left {left:?} right {right:?}");
+    assert!(
+        left[0] > left[1] && right[1] > right[0],
+        "left {left:?} right {right:?}"
+    );
 
     // Relit under a builtin map, with the ratio composite.
     let out3 = d.join("out3");
@@ -203,15 +236,29 @@ fn bad_inputs_name_the_file_and_write_nothing() {
     };
     // Photo and mask of different sizes.
     let small = d.join("small.png");
-    image::GrayImage::from_pixel(30, 20, image::Luma([255])).save(&small).unwrap();
+    image::GrayImage::from_pixel(30, 20, image::Luma([255]))
+        .save(&small)
+        .unwrap();
     check(request(&p, &small, "library:rubber-red"), model(), "must match");
     // Empty mask, and one covering everything.
     let empty = d.join("empty.png");
-    image::GrayImage::from_pixel(60, 40, image::Luma([0])).save(&empty).unwrap();
-    check(request(&p, &empty, "library:rubber-red"), model(), "empty.png: the mask is empty");
+    image::GrayImage::from_pixel(60, 40, image::Luma([0]))
+        .save(&empty)
+        .unwrap();
+    check(
+        request(&p, &empty, "library:rubber-red"),
+        model(),
+        "empty.png: the mask is empty",
+    );
     let full = d.join("full.png");
-    image::GrayImage::from_pixel(60, 40, image::Luma([9])).save(&full).unwrap();
-    check(request(&p, &full, "library:rubber-red"), model(), "covers the whole photo");
+    image::GrayImage::from_pixel(60, 40, image::Luma([9]))
+        .save(&full)
+        .unwrap();
+    check(
+        request(&p, &full, "library:rubber-red"),
+        model(),
+        "covers the whole photo",
+    );
     // A truncated photo, a file that is no image, a format we do not read.
     let bytes = std::fs::read(&p).unwrap();
     let cut = d.join("cut.png");
@@ -220,7 +267,11 @@ fn bad_inputs_name_the_file_and_write_nothing() {
     let junk = d.join("junk.jpg");
     std::fs::write(&junk, b"not a jpeg at all").unwrap();
     check(request(&junk, &m, "library:rubber-red"), model(), "junk.jpg");
-    check(request(&d.join("photo.gif"), &m, "library:rubber-red"), model(), "photo.gif");
+    check(
+        request(&d.join("photo.gif"), &m, "library:rubber-red"),
+        model(),
+        "photo.gif",
+    );
     // No mask and no alpha.
     let no_mask = EditRequest {
         mask: None,
@@ -255,13 +306,22 @@ fn bad_inputs_name_the_file_and_write_nothing() {
         std::fs::copy(model().join(f), other.join(f)).unwrap();
     }
     let device = Device::flex();
-    let wide = NetConfig::new(16, Widths::new(8, 16, 32, 8)).with_env_height(4).init(&device);
-    burn::module::Module::into_record(wide).save(&other.join("model.bpk")).unwrap();
+    let wide = NetConfig::new(16, Widths::new(8, 16, 32, 8))
+        .with_env_height(4)
+        .init(&device);
+    burn::module::Module::into_record(wide)
+        .save(other.join("model.bpk"))
+        .unwrap();
     check(request(&p, &m, "library:rubber-red"), &other, "model.bpk");
     // An output folder where an output would replace the photo.
     let clash = dir("clash");
     std::fs::copy(&p, clash.join("edited.png")).unwrap();
-    let e = edit(model(), &request(&clash.join("edited.png"), &m, "library:rubber-red"), &clash).unwrap_err();
+    let e = edit(
+        model(),
+        &request(&clash.join("edited.png"), &m, "library:rubber-red"),
+        &clash,
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("would overwrite"), "{e}");
 }
 
@@ -280,4 +340,59 @@ fn a_photo_over_the_pixel_limit_is_refused_before_decoding() {
     image::ImageEncoder::write_image(enc, &img, 12000, 9000, image::ExtendedColorType::L8).unwrap();
     let e = format!("{:#}", load_photo(&path).unwrap_err());
     assert!(e.contains("108 megapixels"), "{e}");
+}
+
+#[test]
+fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
+    let d = dir("transfer");
+    let (p, m, _) = write_photo(&d);
+    // A second photo: the same ellipse, blue, on another background.
+    let q = d.join("other.png");
+    let photo = image::open(&p).unwrap().to_rgb8();
+    let mask = image::open(&m).unwrap().to_luma8();
+    let other = image::RgbImage::from_fn(60, 40, |x, y| {
+        if mask.get_pixel(x, y)[0] > 0 {
+            image::Rgb([30, 60, 210])
+        } else {
+            image::Rgb([photo.get_pixel(x, y)[1], 40, 90])
+        }
+    });
+    other.save(&q).unwrap();
+    let out = d.join("t");
+    let r = transfer(model(), (&p, Some(&m)), (&q, Some(&m)), None, Composite::Render, &out).unwrap();
+    assert!(r.regions[0].spec.contains("photo.png"), "{:?}", r.regions);
+    assert!(r.photo.ends_with("other.png"));
+    assert!(out.join("edited.png").is_file() && out.join("report.json").is_file());
+    // The material rendered on the target is the source's m', as an edit of the source writes it.
+    let src = d.join("src");
+    edit(model(), &request(&p, &m, "lambert:0.5,0.5,0.5"), &src).unwrap();
+    assert_eq!(
+        std::fs::read_to_string(src.join("material.dsbrdf.json")).unwrap(),
+        std::fs::read_to_string(out.join("target.dsbrdf.json")).unwrap()
+    );
+    let swapped = d.join("s");
+    let [a, b] = swap(
+        model(),
+        (&p, Some(&m)),
+        (&q, Some(&m)),
+        None,
+        Composite::Ratio,
+        &swapped,
+    )
+    .unwrap();
+    assert!(a.regions[0].spec.contains("other.png") && b.regions[0].spec.contains("photo.png"));
+    assert!(swapped.join("a/edited.png").is_file() && swapped.join("b/edited.png").is_file());
+    // A bad second photo writes nothing for either.
+    let never = d.join("never");
+    let e = swap(
+        model(),
+        (&p, Some(&m)),
+        (&d.join("missing.png"), Some(&m)),
+        None,
+        Composite::Render,
+        &never,
+    )
+    .unwrap_err();
+    assert!(format!("{e:#}").contains("missing.png"));
+    assert!(!never.exists());
 }

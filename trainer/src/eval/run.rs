@@ -46,6 +46,8 @@ pub struct EvalOptions {
     /// Write a contact sheet of this many samples (spread over the split) to this PNG: I, I',
     /// O, O', n, n', L, L' of the last checkpoint.
     pub sheet: Option<(PathBuf, usize)>,
+    /// Also score every checkpoint after the post-optimisation (Eq. 6) of each sample.
+    pub eq6: Option<crate::edit::optimize::Eq6Config>,
 }
 
 /// One checkpoint's scores.
@@ -63,6 +65,13 @@ pub struct CheckpointEval {
     pub normal_protocol: Metrics,
     /// O' = R(n', m̄, L') against O (trivial baseline).
     pub mean_material: Metrics,
+    /// n*, m*, L* after the post-optimisation (Eq. 6) from n', m', L': I*, O*, normal cosine,
+    /// material L2 (`--eq6`).
+    #[serde(default)]
+    pub eq6: Option<Metrics>,
+    /// Eq. 6's energy at the prediction and at the end, summed over the samples, and its seconds.
+    #[serde(default)]
+    pub eq6_energy: Option<[f64; 3]>,
 }
 
 /// `METRICS.json`.
@@ -253,6 +262,22 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
                 .merge(&score_batch(&hb, &[(I_PRIME, &i_given_m_l, i)], Some(&n_p), None));
             row.mean_material
                 .merge(&score_batch(&hb, &[(O_PRIME, &o_mean, o)], None, None));
+            if let Some(cfg) = &opts.eq6 {
+                let (star, energy) = eq6_batch(&layer, &hb, &n_p, &m_p, &l_p, cfg)?;
+                let (n_s, m_s, l_s) = (&star.normals, &star.materials, &star.env);
+                let i_s = render(n_s, m_s, l_s)?;
+                let o_s = render(n_s, m_t, l_s)?;
+                row.eq6.get_or_insert_with(Metrics::default).merge(&score_batch(
+                    &hb,
+                    &[(I_PRIME, &i_s, i), (O_PRIME, &o_s, o)],
+                    Some(n_s),
+                    Some(m_s),
+                ));
+                let e = row.eq6_energy.get_or_insert([0.0; 3]);
+                for (a, b) in e.iter_mut().zip(energy) {
+                    *a += b;
+                }
+            }
             if c == last {
                 let (p, t) = (hb.size * hb.size, 2 * hb.env_height * hb.env_height);
                 for k in (0..hb.batch).filter(|k| picks.contains(&(seen + k))) {
@@ -287,6 +312,54 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
         );
     }
     Ok(report)
+}
+
+/// Eq. 6 on every sample of a batch from the predictions `n_p`, `m_p`, `l_p` (also its priors):
+/// the optimised n*, m*, L* in the batch layouts, and [E at the prediction, E at the end,
+/// seconds] summed over the samples.
+fn eq6_batch(
+    layer: &RenderingLayer,
+    hb: &HostBatch,
+    n_p: &[f32],
+    m_p: &[f32],
+    l_p: &[f32],
+    cfg: &crate::edit::optimize::Eq6Config,
+) -> Result<(crate::edit::optimize::Point, [f64; 3])> {
+    use crate::edit::optimize::{Point, Problem, post_optimise};
+    let (p, t, r) = (hb.size * hb.size, 6 * hb.env_height * hb.env_height, hb.regions);
+    let mut out = Point {
+        normals: Vec::with_capacity(n_p.len()),
+        materials: Vec::with_capacity(m_p.len()),
+        env: Vec::with_capacity(l_p.len()),
+    };
+    let mut energy = [0.0; 3];
+    for k in 0..hb.batch {
+        let t0 = std::time::Instant::now();
+        let start = Point {
+            normals: n_p[k * 3 * p..(k + 1) * 3 * p].to_vec(),
+            materials: m_p[k * r * PARAMS..(k + 1) * r * PARAMS].to_vec(),
+            env: l_p[k * t..(k + 1) * t].to_vec(),
+        };
+        let problem = Problem {
+            layer,
+            size: hb.size,
+            regions: r,
+            image: &hb.input[k * 3 * p..(k + 1) * 3 * p],
+            region_map: &hb.region_map[k * p..(k + 1) * p],
+            normals: &start.normals,
+            env: &start.env,
+            a: cfg.a,
+            b: cfg.b,
+        };
+        let res = post_optimise(&problem, start.clone(), cfg)?;
+        energy[0] += res.start.total;
+        energy[1] += res.end.total;
+        energy[2] += t0.elapsed().as_secs_f64();
+        out.normals.extend(res.point.normals);
+        out.materials.extend(res.point.materials);
+        out.env.extend(res.point.env);
+    }
+    Ok((out, energy))
 }
 
 /// Keeps the first `keep` samples of a batch.
@@ -383,6 +456,14 @@ impl EvalReport {
             });
         }
         t3.extend(rows(&|c| c.network.clone()));
+        for c in &self.checkpoints {
+            if let Some(m) = &c.eq6 {
+                t3.push(TableRow {
+                    name: format!("{} + Eq. 6", c.name),
+                    metrics: m.clone(),
+                });
+            }
+        }
         let of = if self.categories.is_empty() {
             String::new()
         } else {

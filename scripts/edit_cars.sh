@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# The README's figure of real photos edited: each car photo of the evaluation assets (with the
+# alpha matte rembg wrote as its mask) edited to a diffuse, a glossy paint and a metal, and the
+# metal again with the post-optimisation (Eq. 6).
+#   scripts/edit_cars.sh MODEL [ASSETS] [OUT]
+# MODEL: a `trainer run` output folder (e.g. out/train/quickstart) or a checkpoint folder;
+# ASSETS: the folder holding photos/rembg_cars/ (default ../shared/eval-assets, or $MATEDIT_EVAL_ASSETS);
+# OUT: default out/edit-cars. Writes OUT/car-N/MATERIAL/ (every output of `matedit edit`) and
+# OUT/cars.png and a smaller OUT/cars.jpg (rows: cars; columns: photo, the three edits, the metal
+# with Eq. 6).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+model=${1:?usage: scripts/edit_cars.sh MODEL [ASSETS] [OUT]}
+assets=${2:-${MATEDIT_EVAL_ASSETS:-../shared/eval-assets}}
+out=${3:-out/edit-cars}
+cargo build --release -p matedit-trainer --bin matedit --example edit_figure --quiet
+bin=target/release/matedit
+materials="fabric-felt-green carpaint-red-gloss gold-polished"
+rows=()
+for n in 1 2 3; do
+    photo="$assets/photos/rembg_cars/car-$n.jpg"
+    mask="$assets/photos/rembg_cars/car-$n.out.png"
+    row="$photo"
+    for m in $materials; do
+        "$bin" edit --model "$model" --image "$photo" --mask "$mask" --material "library:$m" --out "$out/car-$n/$m"
+        row="$row,$out/car-$n/$m/edited.png"
+    done
+    "$bin" edit --model "$model" --image "$photo" --mask "$mask" --material library:gold-polished --optimize \
+        --out "$out/car-$n/gold-polished-eq6"
+    rows+=("$row,$out/car-$n/gold-polished-eq6/edited.png")
+done
+for fig in "$out/cars.png" "$out/cars.jpg"; do
+    target/release/examples/edit_figure "$fig" \
+        "photo,fabric-felt-green,carpaint-red-gloss,gold-polished,gold-polished + Eq. 6" "${rows[@]}"
+done

@@ -1,0 +1,653 @@
+//! The post-optimisation of Sec. 3.5 (Eq. 6): from the network's n', m', L', minimise
+//!
+//! ```text
+//! E(n*, m*, L*) = ‖R(n*, m*, L*) − I‖² + a‖n* − n'‖² + b‖L* − L'‖²      (a = 1, b = 10)
+//! ```
+//!
+//! over the object's pixels, alternating as the paper does: each round optimises the normals,
+//! then the material, then the light, the other two held, each by L-BFGS (argmin, More–Thuente
+//! line search) through the fused rendering layer's forward pass and analytic VJP.
+//!
+//! The constraints hold by construction of the parameters the optimiser moves: a normal is
+//! v/|v| (unit), a material is tanh(u) (inside the normalised range the layer and the DSBRDF
+//! files accept), a texel is exp(w) (non-negative light; a black texel starts at w = ln 1e-6).
+//! Pixels of I that are not finite take no part. Each L-BFGS run starts where the previous
+//! ended and keeps its best point, so E never increases from one logged iteration to the next.
+
+use crate::render::{Batch, RenderingLayer};
+use anyhow::{Result, anyhow};
+use argmin::core::observers::{Observe, ObserverMode};
+use argmin::core::{CostFunction, Executor, Gradient, IterState, KV, State};
+use argmin::solver::linesearch::MoreThuenteLineSearch;
+use argmin::solver::quasinewton::LBFGS;
+use std::cell::RefCell;
+use std::sync::{Arc, Mutex};
+
+/// Eq. 6's weights and the alternation's length.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Eq6Config {
+    /// Weight a of the normal prior (the paper: 1).
+    pub a: f64,
+    /// Weight b of the light prior (the paper: 10).
+    pub b: f64,
+    /// Rounds of (normals, material, light).
+    pub rounds: usize,
+    /// L-BFGS iterations per property and round.
+    pub iterations: usize,
+    /// L-BFGS history.
+    pub history: usize,
+}
+
+impl Default for Eq6Config {
+    fn default() -> Self {
+        Self {
+            a: 1.0,
+            b: 10.0,
+            rounds: 1,
+            iterations: 4,
+            history: 7,
+        }
+    }
+}
+
+/// Which property an L-BFGS run moves.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Property {
+    /// n*.
+    Normals,
+    /// m*.
+    Material,
+    /// L*.
+    Light,
+}
+
+/// Eq. 6's terms at one point.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Energy {
+    /// The whole of E.
+    pub total: f64,
+    /// ‖R − I‖².
+    pub image: f64,
+    /// a‖n* − n'‖².
+    pub normals: f64,
+    /// b‖L* − L'‖².
+    pub light: f64,
+}
+
+/// One logged step: E after an L-BFGS iteration (iteration 0: the run's start).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Step {
+    /// Round (0-based).
+    pub round: usize,
+    /// What moved.
+    pub property: Property,
+    /// Iteration within the run.
+    pub iteration: u64,
+    /// E at the run's best point so far.
+    pub energy: f64,
+}
+
+/// The problem: image, mask, regions and the network's prediction (the priors and the start).
+pub struct Problem<'a> {
+    /// The rendering layer.
+    pub layer: &'a RenderingLayer,
+    /// Image side.
+    pub size: usize,
+    /// Regions.
+    pub regions: usize,
+    /// I `[3, S, S]`.
+    pub image: &'a [f32],
+    /// `[S, S]`.
+    pub region_map: &'a [u8],
+    /// n' `[3, S, S]`.
+    pub normals: &'a [f32],
+    /// L' `[3, He, 2He]`.
+    pub env: &'a [f32],
+    /// Weights.
+    pub a: f64,
+    /// Weights.
+    pub b: f64,
+}
+
+/// A point: n*, m*, L* in the layer's layouts.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Point {
+    /// `[3, S, S]`.
+    pub normals: Vec<f32>,
+    /// `[R, 108]`.
+    pub materials: Vec<f32>,
+    /// `[3, He, 2He]`.
+    pub env: Vec<f32>,
+}
+
+/// ∂E/∂(n*, m*, L*).
+pub struct PointGradient {
+    /// `[3, S, S]`.
+    pub normals: Vec<f64>,
+    /// `[R, 108]`.
+    pub materials: Vec<f64>,
+    /// `[3, He, 2He]`.
+    pub env: Vec<f64>,
+}
+
+impl Problem<'_> {
+    fn pixels(&self) -> usize {
+        self.size * self.size
+    }
+
+    /// Whether pixel k takes part (on the object, with a finite I).
+    fn on(&self, k: usize) -> bool {
+        let p = self.pixels();
+        self.region_map[k] > 0 && (0..3).all(|c| self.image[c * p + k].is_finite())
+    }
+
+    fn batch<'b>(&'b self, x: &'b Point) -> Batch<'b> {
+        Batch {
+            batch: 1,
+            size: (self.size, self.size),
+            regions: self.regions,
+            normals: &x.normals,
+            region_map: self.region_map,
+            materials: &x.materials,
+            env: &x.env,
+        }
+    }
+
+    /// E at `x`, and its gradient when `grad`.
+    pub fn energy(&self, x: &Point, grad: bool) -> Result<(Energy, Option<PointGradient>)> {
+        let p = self.pixels();
+        let rendered = self.layer.forward(&self.batch(x))?;
+        let mut upstream = vec![0.0_f32; 3 * p];
+        let (mut image, mut normals) = (0.0_f64, 0.0_f64);
+        for k in (0..p).filter(|&k| self.on(k)) {
+            for c in 0..3 {
+                let i = c * p + k;
+                let d = rendered[i] as f64 - self.image[i] as f64;
+                image += d * d;
+                upstream[i] = (2.0 * d) as f32;
+                let dn = x.normals[i] as f64 - self.normals[i] as f64;
+                normals += dn * dn;
+            }
+        }
+        let light: f64 = x
+            .env
+            .iter()
+            .zip(self.env)
+            .map(|(&l, &l0)| (l as f64 - l0 as f64).powi(2))
+            .sum();
+        let e = Energy {
+            total: image + self.a * normals + self.b * light,
+            image,
+            normals: self.a * normals,
+            light: self.b * light,
+        };
+        if !grad {
+            return Ok((e, None));
+        }
+        let g = self.layer.backward(&self.batch(x), &upstream)?;
+        let mut gn: Vec<f64> = g.normals.iter().map(|&v| v as f64).collect();
+        for k in 0..p {
+            for c in 0..3 {
+                let i = c * p + k;
+                gn[i] = if self.on(k) {
+                    gn[i] + 2.0 * self.a * (x.normals[i] as f64 - self.normals[i] as f64)
+                } else {
+                    0.0
+                };
+            }
+        }
+        let gl = g
+            .env
+            .iter()
+            .zip(&x.env)
+            .zip(self.env)
+            .map(|((&g, &l), &l0)| g as f64 + 2.0 * self.b * (l as f64 - l0 as f64))
+            .collect();
+        Ok((
+            e,
+            Some(PointGradient {
+                normals: gn,
+                materials: g.materials.iter().map(|&v| v as f64).collect(),
+                env: gl,
+            }),
+        ))
+    }
+}
+
+/// Darkest texel the light's parameters start from (exp(w) cannot reach 0).
+const MIN_LIGHT: f64 = 1e-6;
+/// The normalised material's parameters stay inside ±(1 − this) (tanh's range, open).
+const MATERIAL_EDGE: f64 = 1e-6;
+
+/// Parameters, energy and gradient of one evaluation.
+type Evaluated = (Vec<f64>, Energy, Vec<f64>);
+
+/// The unconstrained parameters of one property and the map to the point.
+pub struct Parametrised<'a> {
+    problem: &'a Problem<'a>,
+    property: Property,
+    /// The point, of which `property` is replaced.
+    base: Point,
+    /// (param, energy, gradient) of the last evaluation: L-BFGS asks for cost and gradient
+    /// separately, one forward and backward gives both.
+    cache: RefCell<Option<Evaluated>>,
+}
+
+impl<'a> Parametrised<'a> {
+    /// Parameters of `property` at `x`.
+    pub fn new(problem: &'a Problem<'a>, property: Property, x: Point) -> Self {
+        Self {
+            problem,
+            property,
+            base: x,
+            cache: RefCell::new(None),
+        }
+    }
+
+    /// The parameters of the current point.
+    pub fn start(&self) -> Vec<f64> {
+        let x = &self.base;
+        match self.property {
+            Property::Normals => x.normals.iter().map(|&v| v as f64).collect(),
+            Property::Material => x
+                .materials
+                .iter()
+                .map(|&v| (v as f64).clamp(-1.0 + MATERIAL_EDGE, 1.0 - MATERIAL_EDGE).atanh())
+                .collect(),
+            Property::Light => x.env.iter().map(|&v| (v as f64).max(MIN_LIGHT).ln()).collect(),
+        }
+    }
+
+    /// The point at parameters `q`.
+    pub fn point(&self, q: &[f64]) -> Point {
+        let mut x = self.base.clone();
+        match self.property {
+            Property::Normals => {
+                let p = self.problem.pixels();
+                for k in 0..p {
+                    let v = [q[k], q[p + k], q[2 * p + k]];
+                    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                    for (c, vc) in v.iter().enumerate() {
+                        x.normals[c * p + k] = if len > 1e-12 { (vc / len) as f32 } else { 0.0 };
+                    }
+                }
+            }
+            Property::Material => x.materials = q.iter().map(|&u| u.tanh() as f32).collect(),
+            Property::Light => x.env = q.iter().map(|&w| w.clamp(-80.0, 80.0).exp() as f32).collect(),
+        }
+        x
+    }
+
+    /// E and ∂E/∂q.
+    pub fn evaluate(&self, q: &[f64]) -> Result<(Energy, Vec<f64>)> {
+        if let Some((cq, e, g)) = self.cache.borrow().as_ref()
+            && cq.as_slice() == q
+        {
+            return Ok((*e, g.clone()));
+        }
+        let x = self.point(q);
+        let (e, g) = self.problem.energy(&x, true)?;
+        let g = g.ok_or_else(|| anyhow!("no gradient"))?;
+        let gq: Vec<f64> = match self.property {
+            Property::Normals => {
+                // n = v/|v|: ∂E/∂v = (g − (g·n) n)/|v|.
+                let p = self.problem.pixels();
+                let mut out = vec![0.0; 3 * p];
+                for k in 0..p {
+                    let v = [q[k], q[p + k], q[2 * p + k]];
+                    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                    if len <= 1e-12 {
+                        continue;
+                    }
+                    let n = v.map(|c| c / len);
+                    let gk = [g.normals[k], g.normals[p + k], g.normals[2 * p + k]];
+                    let dot = gk[0] * n[0] + gk[1] * n[1] + gk[2] * n[2];
+                    for c in 0..3 {
+                        out[c * p + k] = (gk[c] - dot * n[c]) / len;
+                    }
+                }
+                out
+            }
+            Property::Material => g
+                .materials
+                .iter()
+                .zip(q)
+                .map(|(&gm, &u)| gm * (1.0 - u.tanh().powi(2)))
+                .collect(),
+            Property::Light => g
+                .env
+                .iter()
+                .zip(q)
+                .map(|(&gl, &w)| gl * w.clamp(-80.0, 80.0).exp())
+                .collect(),
+        };
+        let gq: Vec<f64> = gq.into_iter().map(|v| if v.is_finite() { v } else { 0.0 }).collect();
+        *self.cache.borrow_mut() = Some((q.to_vec(), e, gq.clone()));
+        Ok((e, gq))
+    }
+}
+
+/// What argmin's executor owns: a borrow of the parametrised problem (kept by the caller, which
+/// maps the best parameters back to a point).
+struct Lent<'p, 'a>(&'p Parametrised<'a>);
+
+impl CostFunction for Lent<'_, '_> {
+    type Param = Vec<f64>;
+    type Output = f64;
+    fn cost(&self, q: &Self::Param) -> Result<f64, argmin::core::Error> {
+        let (e, _) = self
+            .0
+            .evaluate(q)
+            .map_err(|e| argmin::core::Error::msg(e.to_string()))?;
+        // A non-finite energy is a point the line search must step back from.
+        Ok(if e.total.is_finite() { e.total } else { f64::INFINITY })
+    }
+}
+
+impl Gradient for Lent<'_, '_> {
+    type Param = Vec<f64>;
+    type Gradient = Vec<f64>;
+    fn gradient(&self, q: &Self::Param) -> Result<Vec<f64>, argmin::core::Error> {
+        Ok(self
+            .0
+            .evaluate(q)
+            .map_err(|e| argmin::core::Error::msg(e.to_string()))?
+            .1)
+    }
+}
+
+/// Records the best cost after each iteration.
+struct Recorder(Arc<Mutex<Vec<(u64, f64)>>>);
+
+impl Observe<IterState<Vec<f64>, Vec<f64>, (), (), (), f64>> for Recorder {
+    fn observe_iter(
+        &mut self,
+        state: &IterState<Vec<f64>, Vec<f64>, (), (), (), f64>,
+        _kv: &KV,
+    ) -> Result<(), argmin::core::Error> {
+        if let Ok(mut v) = self.0.lock() {
+            v.push((state.get_iter(), state.get_best_cost()));
+        }
+        Ok(())
+    }
+}
+
+/// The result of [`post_optimise`].
+pub struct Optimised {
+    /// The final n*, m*, L*.
+    pub point: Point,
+    /// E at the start (the network's prediction).
+    pub start: Energy,
+    /// E at the end.
+    pub end: Energy,
+    /// E after every L-BFGS iteration, in order.
+    pub steps: Vec<Step>,
+}
+
+/// Eq. 6 from `start` (the network's prediction, whose n' and L' are also `problem`'s priors).
+pub fn post_optimise(problem: &Problem, start: Point, cfg: &Eq6Config) -> Result<Optimised> {
+    let (e0, _) = problem.energy(&start, false)?;
+    let mut x = start;
+    let mut current = e0;
+    let mut steps = Vec::new();
+    for round in 0..cfg.rounds {
+        for property in [Property::Normals, Property::Material, Property::Light] {
+            let par = Parametrised::new(problem, property, x.clone());
+            let q0 = par.start();
+            let log = Arc::new(Mutex::new(Vec::new()));
+            let line = MoreThuenteLineSearch::new()
+                .with_c(1e-4, 0.9)
+                .map_err(|e| anyhow!("line search: {e}"))?;
+            let solver = LBFGS::new(line, cfg.history.max(1));
+            let run = Executor::new(Lent(&par), solver)
+                .configure(|s| s.param(q0.clone()).max_iters(cfg.iterations as u64))
+                .add_observer(Recorder(log.clone()), ObserverMode::Always)
+                .run();
+            steps.push(Step {
+                round,
+                property,
+                iteration: 0,
+                energy: current.total,
+            });
+            let logged = log.lock().map(|v| v.clone()).unwrap_or_default();
+            for (iteration, best) in logged.into_iter().filter(|(i, b)| *i > 0 && b.is_finite()) {
+                steps.push(Step {
+                    round,
+                    property,
+                    iteration,
+                    energy: best.min(current.total),
+                });
+            }
+            // A failed run (a line search that found no decrease) keeps the point it started from.
+            let best = match run {
+                Ok(r) => r.state().get_best_param().map(|q: &Vec<f64>| q.to_vec()),
+                Err(_) => None,
+            };
+            if let Some(q) = best {
+                let candidate = par.point(&q);
+                let (e, _) = problem.energy(&candidate, false)?;
+                if e.total.is_finite() && e.total <= current.total {
+                    x = candidate;
+                    current = e;
+                }
+            }
+        }
+    }
+    Ok(Optimised {
+        point: x,
+        start: e0,
+        end: current,
+        steps,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::train::synthetic::sphere_batch;
+
+    /// Directional derivative of E along `d` by central differences against the analytic one.
+    fn check_gradient(par: &Parametrised, q: &[f64], seed: u64, what: &str) {
+        let (_, g) = par.evaluate(q).unwrap();
+        let mut s = seed;
+        let mut rnd = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+        };
+        // A direction along the gradient's largest entries and a random one.
+        let mut idx: Vec<usize> = (0..g.len()).collect();
+        idx.sort_by(|&a, &b| g[b].abs().total_cmp(&g[a].abs()));
+        let mut along = vec![0.0; g.len()];
+        for &i in idx.iter().take(12) {
+            along[i] = g[i].signum();
+        }
+        let random: Vec<f64> = (0..g.len()).map(|_| rnd()).collect();
+        for (name, d) in [("gradient's largest", along), ("random", random)] {
+            let norm = d.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
+            let d: Vec<f64> = d.iter().map(|v| v / norm).collect();
+            let analytic: f64 = g.iter().zip(&d).map(|(a, b)| a * b).sum();
+            let e = |h: f64| {
+                let qh: Vec<f64> = q.iter().zip(&d).map(|(a, b)| a + h * b).collect();
+                par.problem.energy(&par.point(&qh), false).unwrap().0.total
+            };
+            let h = 1e-3;
+            let fd = (e(h) - e(-h)) / (2.0 * h);
+            let scale = analytic.abs().max(fd.abs()).max(1e-3 * e(0.0).abs());
+            assert!(
+                (fd - analytic).abs() <= 0.03 * scale,
+                "{what}, {name}: finite differences {fd} against the analytic {analytic}"
+            );
+        }
+    }
+
+    struct Scene {
+        layer: RenderingLayer,
+        image: Vec<f32>,
+        region_map: Vec<u8>,
+        truth: Point,
+        size: usize,
+    }
+
+    fn scene(seed: u64) -> Scene {
+        let layer = RenderingLayer::new(4);
+        let hb = sphere_batch(1, 12, 4, seed, &layer);
+        Scene {
+            image: hb.input.clone(),
+            region_map: hb.region_map.clone(),
+            truth: Point {
+                normals: hb.normals.clone(),
+                materials: hb.materials.clone(),
+                env: hb.env.clone(),
+            },
+            size: 12,
+            layer,
+        }
+    }
+
+    fn problem<'a>(s: &'a Scene, image: &'a [f32], prior: &'a Point) -> Problem<'a> {
+        Problem {
+            layer: &s.layer,
+            size: s.size,
+            regions: 1,
+            image,
+            region_map: &s.region_map,
+            normals: &prior.normals,
+            env: &prior.env,
+            a: 1.0,
+            b: 10.0,
+        }
+    }
+
+    #[test]
+    fn eq6_gradients_match_finite_differences_on_hard_cases() {
+        let s = scene(5);
+        let p = s.size * s.size;
+        // Off the truth, so that every term has a gradient.
+        let mut start = s.truth.clone();
+        for (k, v) in start.materials.iter_mut().enumerate() {
+            *v = (*v + 0.2 * ((k % 5) as f32 - 2.0) / 2.0).clamp(-0.95, 0.95);
+        }
+        for v in start.env.iter_mut() {
+            *v *= 1.3;
+        }
+        let prior = s.truth.clone();
+        let pr = problem(&s, &s.image, &prior);
+        for property in [Property::Normals, Property::Material, Property::Light] {
+            let par = Parametrised::new(&pr, property, start.clone());
+            check_gradient(&par, &par.start(), 1, &format!("{property:?}"));
+        }
+        // Grazing normals: tilt every normal to n_z ≈ 0.05.
+        let mut grazing = start.clone();
+        for k in 0..p {
+            if s.region_map[k] == 0 {
+                continue;
+            }
+            let (x, y) = (grazing.normals[k], grazing.normals[p + k]);
+            let r = (x * x + y * y).sqrt().max(1e-6);
+            let (sx, sy) = (x / r, y / r);
+            let z: f32 = 0.05;
+            let t = (1.0 - z * z).sqrt();
+            grazing.normals[k] = sx * t;
+            grazing.normals[p + k] = sy * t;
+            grazing.normals[2 * p + k] = z;
+        }
+        let par = Parametrised::new(&pr, Property::Normals, grazing.clone());
+        check_gradient(&par, &par.start(), 2, "grazing normals");
+        // Sharp lobes: every parameter near the normalised range's edge.
+        let mut sharp = start.clone();
+        for (k, v) in sharp.materials.iter_mut().enumerate() {
+            *v = if k % 2 == 0 { 0.97 } else { -0.9 };
+        }
+        let par = Parametrised::new(&pr, Property::Material, sharp);
+        check_gradient(&par, &par.start(), 3, "sharp lobes");
+        // A black environment (the light starts at exp(ln 1e-6)).
+        let mut black = start.clone();
+        black.env.iter_mut().for_each(|v| *v = 0.0);
+        for property in [Property::Light, Property::Material] {
+            let par = Parametrised::new(&pr, property, black.clone());
+            let (e, g) = par.evaluate(&par.start()).unwrap();
+            assert!(e.total.is_finite() && g.iter().all(|v| v.is_finite()));
+            if property == Property::Light {
+                check_gradient(&par, &par.start(), 4, "black environment");
+            }
+        }
+        // NaN pixels in the photo take no part: E and its gradient stay finite and equal those
+        // of the image without those pixels.
+        let mut holed = s.image.clone();
+        let on: Vec<usize> = (0..p).filter(|&k| s.region_map[k] > 0).collect();
+        for &k in on.iter().step_by(7) {
+            holed[k] = f32::NAN;
+        }
+        let hp = problem(&s, &holed, &prior);
+        for property in [Property::Normals, Property::Material, Property::Light] {
+            let par = Parametrised::new(&hp, property, start.clone());
+            let (e, g) = par.evaluate(&par.start()).unwrap();
+            assert!(e.total.is_finite() && g.iter().all(|v| v.is_finite()), "{property:?}");
+            check_gradient(&par, &par.start(), 5, &format!("NaN pixels, {property:?}"));
+        }
+    }
+
+    #[test]
+    fn eq6_stays_at_the_truth_and_moves_back_towards_it_from_a_perturbed_material() {
+        let s = scene(9);
+        let cfg = Eq6Config {
+            rounds: 2,
+            iterations: 10,
+            ..Eq6Config::default()
+        };
+        // From the truth (the priors too), E is ~0 and stays there.
+        let pr = problem(&s, &s.image, &s.truth);
+        let r = post_optimise(&pr, s.truth.clone(), &cfg).unwrap();
+        assert!(r.start.total < 1e-6 * s.image.iter().map(|v| (*v as f64).powi(2)).sum::<f64>());
+        assert!(r.end.total <= r.start.total);
+        let moved = r
+            .point
+            .materials
+            .iter()
+            .zip(&s.truth.materials)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0_f32, f32::max);
+        assert!(moved < 0.05, "moved {moved} from the truth");
+        // From a perturbed material (normals and light true): the energy falls at every logged
+        // step, and the material error falls.
+        let mut start = s.truth.clone();
+        for (k, v) in start.materials.iter_mut().enumerate() {
+            *v = (*v + if k % 3 == 0 { 0.3 } else { -0.2 }).clamp(-0.95, 0.95);
+        }
+        let r = post_optimise(&pr, start.clone(), &cfg).unwrap();
+        for w in r.steps.windows(2) {
+            assert!(
+                w[1].energy <= w[0].energy * (1.0 + 1e-12),
+                "energy rose: {:?} → {:?}",
+                w[0],
+                w[1]
+            );
+        }
+        assert!(r.end.total < 0.5 * r.start.total, "{:?} → {:?}", r.start, r.end);
+        let err = |m: &[f32]| -> f64 {
+            m.iter()
+                .zip(&s.truth.materials)
+                .map(|(a, b)| ((a - b) as f64).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        };
+        // The rendered image, not the 108 parameters, is what Eq. 6 sees; its error falls.
+        let img = |x: &Point| pr.energy(x, false).unwrap().0.image;
+        assert!(img(&r.point) < 0.5 * img(&start));
+        assert!(
+            err(&r.point.materials) <= err(&start.materials),
+            "{} → {}",
+            err(&start.materials),
+            err(&r.point.materials)
+        );
+        // Every point keeps the constraints: unit normals, materials inside the range, light ≥ 0.
+        let p = s.size * s.size;
+        for k in (0..p).filter(|&k| s.region_map[k] > 0) {
+            let n = (0..3).map(|c| (r.point.normals[c * p + k] as f64).powi(2)).sum::<f64>();
+            assert!((n - 1.0).abs() < 1e-4);
+        }
+        assert!(r.point.materials.iter().all(|v| v.abs() < 1.0));
+        assert!(r.point.env.iter().all(|v| *v >= 0.0 && v.is_finite()));
+    }
+}
