@@ -6,7 +6,7 @@ use anyhow::{Result, bail};
 use burn::optim::AdamConfig;
 use burn::tensor::Device;
 use matedit_trainer::model::Widths;
-use matedit_trainer::train::checkpoint::{State, VERSION, save};
+use matedit_trainer::train::checkpoint::{State, save};
 use matedit_trainer::train::network::NetConfig;
 
 fn main() -> Result<()> {
@@ -22,19 +22,7 @@ fn main() -> Result<()> {
     let device = Device::flex();
     let cfg = NetConfig::new(size, widths).with_env_height(64);
     let net = cfg.init(&device);
-    let state = State {
-        version: VERSION,
-        manifest_hash: String::new(),
-        stage: 0,
-        stage_name: "untrained".into(),
-        step: 0,
-        global_step: 0,
-        data_position: 0,
-        stage_done: true,
-        net: cfg,
-        model_checksum: String::new(),
-        optimizer_checksum: String::new(),
-    };
+    let state = State::untrained(cfg, "untrained");
     let dir = save(
         std::path::Path::new(out),
         "untrained",

@@ -1415,22 +1415,7 @@ impl Padded {
 /// fitted lobes switch on between the last two knots), and a studio of two sharp-edged panels
 /// over a dark room. Camera space: +z towards the viewer.
 pub fn probe_maps() -> Vec<(&'static str, EnvMap)> {
-    let parts = ProbeParts::new();
-    parts
-        .probes
-        .iter()
-        .map(|p| {
-            let base = parts.bases[p.base].texels();
-            let texels = base
-                .iter()
-                .zip(p.sparse.texels())
-                .map(|(b, s)| [0, 1, 2].map(|c| b[c] + s[c]))
-                .collect();
-            let env = EnvMap::from_texels(p.sparse.width(), p.sparse.height(), texels)
-                .map_or_else(|_| parts.bases[p.base].clone(), |(e, _)| e);
-            (p.name, env)
-        })
-        .collect()
+    ProbeParts::new().composed()
 }
 
 /// The [`probe_maps`] as smooth bases shared by several probes plus a sparse part each (a sun,
@@ -1449,6 +1434,24 @@ struct ProbePart {
 }
 
 impl ProbeParts {
+    /// Each probe's whole map: its base plus its sparse part.
+    fn composed(&self) -> Vec<(&'static str, EnvMap)> {
+        self.probes
+            .iter()
+            .map(|p| {
+                let base = self.bases[p.base].texels();
+                let texels = base
+                    .iter()
+                    .zip(p.sparse.texels())
+                    .map(|(b, s)| [0, 1, 2].map(|c| b[c] + s[c]))
+                    .collect();
+                let env = EnvMap::from_texels(p.sparse.width(), p.sparse.height(), texels)
+                    .map_or_else(|_| self.bases[p.base].clone(), |(e, _)| e);
+                (p.name, env)
+            })
+            .collect()
+    }
+
     fn new() -> Self {
         let sky = EnvMap::from_fn(PROBE_MAP_ROWS, |d| {
             if d.y >= 0.0 {
@@ -1540,8 +1543,7 @@ impl ProbeReference {
         let parts = ProbeParts::new();
         let bases: Vec<Vec<[f32; 3]>> = parts.bases.iter().map(image).collect::<Option<_>>()?;
         let mut probes = Vec::with_capacity(parts.probes.len());
-        for (part, (name, env)) in parts.probes.iter().zip(probe_maps()) {
-            debug_assert_eq!(part.name, name);
+        for (part, (name, env)) in parts.probes.iter().zip(parts.composed()) {
             let extra = image(&part.sparse)?;
             let sum = bases[part.base]
                 .iter()

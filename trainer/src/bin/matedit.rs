@@ -99,15 +99,8 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// Its mask (default: its alpha channel).
         #[arg(long)]
         to_mask: Option<PathBuf>,
-        /// Refine both photos' predictions with Eq. 6 first.
-        #[arg(long)]
-        optimize: bool,
-        /// How the render goes back into the photo.
-        #[arg(long, value_enum, default_value_t = Composite::Render)]
-        composite: Composite,
-        /// Output folder.
-        #[arg(long)]
-        out: PathBuf,
+        #[command(flatten)]
+        finish: Finish,
     },
     /// Material swap (Fig. 10): each photo's object with the other's predicted material, into
     /// OUT/a and OUT/b.
@@ -129,16 +122,23 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// Its mask (default: its alpha channel).
         #[arg(long)]
         b_mask: Option<PathBuf>,
-        /// Refine both photos' predictions with Eq. 6 first.
-        #[arg(long)]
-        optimize: bool,
-        /// How the render goes back into the photo.
-        #[arg(long, value_enum, default_value_t = Composite::Render)]
-        composite: Composite,
-        /// Output folder.
-        #[arg(long)]
-        out: PathBuf,
+        #[command(flatten)]
+        finish: Finish,
     },
+}
+
+/// What `transfer` and `swap` take after their two photos.
+#[derive(clap::Args)]
+struct Finish {
+    /// Refine both photos' predictions with Eq. 6 first.
+    #[arg(long)]
+    optimize: bool,
+    /// How the render goes back into the photo.
+    #[arg(long, value_enum, default_value_t = Composite::Render)]
+    composite: Composite,
+    /// Output folder.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -200,9 +200,11 @@ fn run(cli: Cli) -> Result<()> {
             from_mask,
             to,
             to_mask,
-            optimize,
-            composite,
-            out,
+            finish: Finish {
+                optimize,
+                composite,
+                out,
+            },
         } => {
             let cfg = optimize.then(Eq6Config::default);
             let r = transfer(
@@ -226,9 +228,11 @@ fn run(cli: Cli) -> Result<()> {
             a_mask,
             b,
             b_mask,
-            optimize,
-            composite,
-            out,
+            finish: Finish {
+                optimize,
+                composite,
+                out,
+            },
         } => {
             let cfg = optimize.then(Eq6Config::default);
             let [_, rb] = swap(

@@ -560,7 +560,7 @@ pub fn edit(model: &Path, req: &EditRequest, out: &Path) -> Result<EditReport> {
     if req.materials.is_empty() && req.relight.is_none() {
         bail!("nothing to do: give --material (the edit) and/or --relight (another illumination)");
     }
-    output::refuse_overwriting_inputs(out, &[Some(&req.photo), req.mask.as_ref(), req.regions.as_ref()])?;
+    output::refuse_overwriting_inputs(out, &[Some(&req.photo), req.mask.as_deref(), req.regions.as_deref()])?;
     let model = Model::load(model)?;
     let read = read_photo(&req.photo, req.mask.as_deref(), req.regions.as_deref())?;
     let regions = read.labels.as_ref().map_or(1, |l| l.1);
@@ -581,7 +581,6 @@ pub fn edit(model: &Path, req: &EditRequest, out: &Path) -> Result<EditReport> {
 
 /// Material transfer (Fig. 4): the material predicted from photo `from` (its first region)
 /// rendered on the object of photo `to`, under `to`'s predicted light; outputs as [`edit`]'s.
-#[allow(clippy::too_many_arguments)]
 pub fn transfer(
     model: &Path,
     from: (&Path, Option<&Path>),
@@ -591,39 +590,33 @@ pub fn transfer(
     out: &Path,
 ) -> Result<EditReport> {
     let t0 = Instant::now();
-    output::refuse_overwriting_inputs(
-        out,
-        &[
-            Some(&from.0.to_path_buf()),
-            from.1.map(Path::to_path_buf).as_ref(),
-            Some(&to.0.to_path_buf()),
-            to.1.map(Path::to_path_buf).as_ref(),
-        ],
-    )?;
+    output::refuse_overwriting_inputs(out, &[Some(from.0), from.1, Some(to.0), to.1])?;
     let model = Model::load(model)?;
     let read_from = read_photo(from.0, from.1, None)?;
     let read_to = read_photo(to.0, to.1, None)?;
     let t_load = t0.elapsed().as_secs_f64();
     let source = understand(&model, read_from, from.0, optimize)?;
-    let m = source_material(&source)?;
+    let target = source_material(&source)?;
     let u = understand(&model, read_to, to.0, optimize)?;
+    finish(&model, u, &[target], None, how, out, t0, t_load)
+}
+
+/// The DSBRDF predicted for a photo's first region, as a target for another photo.
+fn source_material(u: &Understood) -> Result<(Dsbrdf, target::RegionTarget)> {
+    let m: Vec<f64> = u.point.materials[..PARAMS].iter().map(|&v| v as f64).collect();
+    let material =
+        Dsbrdf::from_normalised(&m).with_context(|| format!("the material predicted from {}", u.path.display()))?;
     let record = target::RegionTarget {
         region: 1,
-        spec: format!("m' of {}", from.0.display()),
-        source: if optimize.is_some() {
+        spec: format!("m' of {}", u.path.display()),
+        source: if u.eq6.is_some() {
             "predicted, Eq. 6"
         } else {
             "predicted"
         }
         .into(),
     };
-    finish(&model, u, &[(m, record)], None, how, out, t0, t_load)
-}
-
-/// The DSBRDF predicted for a photo's first region.
-fn source_material(u: &Understood) -> Result<Dsbrdf> {
-    let m: Vec<f64> = u.point.materials[..PARAMS].iter().map(|&v| v as f64).collect();
-    Dsbrdf::from_normalised(&m).with_context(|| format!("the material predicted from {}", u.path.display()))
+    Ok((material, record))
 }
 
 /// Material swap (Fig. 10): each photo's object with the other's predicted material, into
@@ -639,33 +632,15 @@ pub fn swap(
     let t0 = Instant::now();
     let (out_a, out_b) = (out.join("a"), out.join("b"));
     for o in [&out_a, &out_b] {
-        output::refuse_overwriting_inputs(
-            o,
-            &[
-                Some(&a.0.to_path_buf()),
-                a.1.map(Path::to_path_buf).as_ref(),
-                Some(&b.0.to_path_buf()),
-                b.1.map(Path::to_path_buf).as_ref(),
-            ],
-        )?;
+        output::refuse_overwriting_inputs(o, &[Some(a.0), a.1, Some(b.0), b.1])?;
     }
     let model = Model::load(model)?;
     let (read_a, read_b) = (read_photo(a.0, a.1, None)?, read_photo(b.0, b.1, None)?);
     let t_load = t0.elapsed().as_secs_f64();
     let ua = understand(&model, read_a, a.0, optimize)?;
     let ub = understand(&model, read_b, b.0, optimize)?;
-    let (ma, mb) = (source_material(&ua)?, source_material(&ub)?);
-    let rec = |from: &Path| target::RegionTarget {
-        region: 1,
-        spec: format!("m' of {}", from.display()),
-        source: if optimize.is_some() {
-            "predicted, Eq. 6"
-        } else {
-            "predicted"
-        }
-        .into(),
-    };
-    let ra = finish(&model, ua, &[(mb, rec(b.0))], None, how, &out_a, t0, t_load)?;
-    let rb = finish(&model, ub, &[(ma, rec(a.0))], None, how, &out_b, t0, t_load)?;
+    let (ta, tb) = (source_material(&ua)?, source_material(&ub)?);
+    let ra = finish(&model, ua, &[tb], None, how, &out_a, t0, t_load)?;
+    let rb = finish(&model, ub, &[ta], None, how, &out_b, t0, t_load)?;
     Ok([ra, rb])
 }

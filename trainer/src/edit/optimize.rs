@@ -279,6 +279,15 @@ impl<'a> Parametrised<'a> {
         x
     }
 
+    /// E at `q` if it was the last point evaluated.
+    fn known(&self, q: &[f64]) -> Option<Energy> {
+        self.cache
+            .borrow()
+            .as_ref()
+            .filter(|(cq, _, _)| cq.as_slice() == q)
+            .map(|(_, e, _)| *e)
+    }
+
     /// E and ∂E/∂q.
     pub fn evaluate(&self, q: &[f64]) -> Result<(Energy, Vec<f64>)> {
         if let Some((cq, e, g)) = self.cache.borrow().as_ref()
@@ -426,7 +435,11 @@ pub fn post_optimise(problem: &Problem, start: Point, cfg: &Eq6Config) -> Result
             };
             if let Some(q) = best {
                 let candidate = par.point(&q);
-                let (e, _) = problem.energy(&candidate, false)?;
+                // The line search usually ended on the best point: its energy is cached.
+                let e = match par.known(&q) {
+                    Some(e) => e,
+                    None => problem.energy(&candidate, false)?.0,
+                };
                 if e.total.is_finite() && e.total <= current.total {
                     x = candidate;
                     current = e;

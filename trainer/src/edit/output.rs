@@ -43,7 +43,7 @@ pub struct Timings {
 }
 
 /// Refuses an output folder in which an output would replace one of the inputs.
-pub fn refuse_overwriting_inputs(out: &Path, inputs: &[Option<&std::path::PathBuf>]) -> Result<()> {
+pub fn refuse_overwriting_inputs(out: &Path, inputs: &[Option<&Path>]) -> Result<()> {
     let out_dir = std::fs::canonicalize(out).ok();
     for input in inputs.iter().flatten() {
         let (Some(dir), Ok(file)) = (&out_dir, std::fs::canonicalize(input)) else {
@@ -285,20 +285,8 @@ const TILE: usize = 128;
 fn write_sheet(out: &Path, prep: &Prepared, pred: &Predicted, targets: &[Dsbrdf]) -> Result<()> {
     let n = prep.size;
     let hw = n * n;
-    let scale_tile = |h: usize, w: usize, px: &dyn Fn(usize) -> [u8; 4]| -> Vec<[u8; 4]> {
-        let s = (TILE as f64 / h as f64).min(TILE as f64 / w as f64);
-        let (th, tw) = ((h as f64 * s) as usize, (w as f64 * s) as usize);
-        let (oy, ox) = ((TILE - th) / 2, (TILE - tw) / 2);
-        (0..TILE * TILE)
-            .map(|t| {
-                let (y, x) = (t / TILE, t % TILE);
-                if y < oy || y >= oy + th || x < ox || x >= ox + tw {
-                    return [0, 0, 0, 255];
-                }
-                let (sy, sx) = ((y - oy) * h / th.max(1), (x - ox) * w / tw.max(1));
-                px(sy.min(h - 1) * w + sx.min(w - 1))
-            })
-            .collect()
+    let scale_tile = |h: usize, w: usize, px: &dyn Fn(usize) -> [u8; 4]| {
+        crate::eval::sheet::letterboxed(TILE, h, w, [0, 0, 0, 255], px)
     };
     let image_tile = |img: &[f32], mask: &[f32]| {
         scale_tile(n, n, &|k| {

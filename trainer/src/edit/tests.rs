@@ -3,7 +3,7 @@
 use super::photo::{Framing, TRAINING_FILL, load_photo, srgb_decode};
 use super::*;
 use crate::model::Widths;
-use crate::train::checkpoint::{State, VERSION, save};
+use crate::train::checkpoint::{State, save};
 use crate::train::network::NetConfig;
 use burn::optim::AdamConfig;
 use matedit_physics::tonemap::tonemap_u8;
@@ -25,19 +25,7 @@ fn model() -> &'static Path {
         device.seed(3);
         let cfg = NetConfig::new(16, Widths::new(4, 16, 32, 8)).with_env_height(4);
         let net = cfg.init(&device);
-        let state = State {
-            version: VERSION,
-            manifest_hash: String::new(),
-            stage: 0,
-            stage_name: "untrained".into(),
-            step: 0,
-            global_step: 0,
-            data_position: 0,
-            stage_done: true,
-            net: cfg,
-            model_checksum: String::new(),
-            optimizer_checksum: String::new(),
-        };
+        let state = State::untrained(cfg, "untrained");
         save(&root, "untrained", &net, &AdamConfig::new().init(), state).unwrap()
     })
 }

@@ -46,14 +46,20 @@ type Tile = Vec<[u8; 4]>;
 
 /// A `[3, H, W]` image scaled into a tile (nearest), letterboxed to keep its aspect.
 fn tile(h: usize, w: usize, px: impl Fn(usize) -> [u8; 4]) -> Tile {
-    let scale = (TILE as f64 / h as f64).min(TILE as f64 / w as f64);
+    letterboxed(TILE, h, w, [0; 4], px)
+}
+
+/// An `h × w` image (pixel `k` from `px(k)`) scaled into a `side`² tile (nearest), letterboxed
+/// with `background` to keep its aspect.
+pub(crate) fn letterboxed(side: usize, h: usize, w: usize, background: [u8; 4], px: impl Fn(usize) -> [u8; 4]) -> Tile {
+    let scale = (side as f64 / h as f64).min(side as f64 / w as f64);
     let (th, tw) = ((h as f64 * scale) as usize, (w as f64 * scale) as usize);
-    let (oy, ox) = ((TILE - th) / 2, (TILE - tw) / 2);
-    (0..TILE * TILE)
+    let (oy, ox) = ((side - th) / 2, (side - tw) / 2);
+    (0..side * side)
         .map(|t| {
-            let (y, x) = (t / TILE, t % TILE);
+            let (y, x) = (t / side, t % side);
             if y < oy || y >= oy + th || x < ox || x >= ox + tw {
-                return [0; 4];
+                return background;
             }
             let (sy, sx) = ((y - oy) * h / th.max(1), (x - ox) * w / tw.max(1));
             px(sy.min(h - 1) * w + sx.min(w - 1))

@@ -44,6 +44,26 @@ pub struct State {
     pub optimizer_checksum: String,
 }
 
+impl State {
+    /// The state of a network no run trained (tools and tests write such checkpoints): one
+    /// finished stage named `stage_name`, no manifest, no steps.
+    pub fn untrained(net: NetConfig, stage_name: &str) -> Self {
+        Self {
+            version: VERSION,
+            manifest_hash: String::new(),
+            stage: 0,
+            stage_name: stage_name.into(),
+            step: 0,
+            global_step: 0,
+            data_position: 0,
+            stage_done: true,
+            net,
+            model_checksum: String::new(),
+            optimizer_checksum: String::new(),
+        }
+    }
+}
+
 fn checksum(path: &Path) -> Result<String> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
     Ok(format!("blake3:{}", blake3::hash(&bytes).to_hex()))
