@@ -88,7 +88,8 @@ pub fn seconds_per_sample(quality: Quality, pixels: f64) -> f64 {
     match quality {
         // Part of a zonal sample's time does not grow with the image (environment spectra,
         // per-material tables, the environment file): interpolate between the two measured
-        // rates, 170 samples/s at 64² and 37 at 256² (2026-11-24, afternoon, docs/PERFORMANCE.md).
+        // rates, 170 samples/s at 64² and 37 at 256² (2026-11-24, afternoon, docs/PERFORMANCE.md; 42 at
+        // 256² since the libdeflate EXR writer, kept at 37 as the cautious figure).
         Quality::Zonal => {
             let (t64, t256) = (1.0 / 170.0, 1.0 / 37.0);
             t64 + (t256 - t64) * (pixels - 4096.0) / (at_256 - 4096.0)
