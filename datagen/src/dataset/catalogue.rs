@@ -225,6 +225,40 @@ fn required<'a, T>(
     value.ok_or_else(|| mf.invalid(span.clone(), &format!("{field}.{name}"), message))
 }
 
+/// The most procedural shapes or environments one manifest entry may generate: far beyond any
+/// dataset's need (the paper's has 520 shapes), and small enough that a mistyped count is an
+/// error rather than an attempt to allocate the machine's memory.
+pub const MAX_GENERATED: usize = 1_000_000;
+
+/// A `count`-like field of generated items, starting at seed `first`: 1..=[`MAX_GENERATED`], and
+/// the seeds must not run past 2⁶⁴.
+fn generated_count(
+    mf: &ManifestFile,
+    span: &std::ops::Range<usize>,
+    field: &str,
+    name: &str,
+    value: Option<&usize>,
+    first: u64,
+    message: &str,
+) -> Result<usize, ManifestError> {
+    let n = *required(mf, span, field, name, value, message)?;
+    if n == 0 || n > MAX_GENERATED {
+        return Err(mf.invalid(
+            span.clone(),
+            &format!("{field}.{name}"),
+            format!("{n}: must be 1 to {MAX_GENERATED}"),
+        ));
+    }
+    if first.checked_add(n as u64).is_none() {
+        return Err(mf.invalid(
+            span.clone(),
+            &format!("{field}.first_seed"),
+            format!("{first} + {n} seeds run past 2^64"),
+        ));
+    }
+    Ok(n)
+}
+
 fn category(
     mf: &ManifestFile,
     span: std::ops::Range<usize>,
@@ -278,8 +312,9 @@ fn shapes_of(
             )?;
             let name = required(mf, &span, &field, "category", s.category.as_ref(), "required")?;
             let c = category(mf, span.clone(), &format!("{field}.category"), name)?;
-            let count = *required(mf, &span, &field, "count", s.count.as_ref(), "required")?;
-            procedural(cat, c, s.first_seed.unwrap_or(0), count);
+            let first = s.first_seed.unwrap_or(0);
+            let count = generated_count(mf, &span, &field, "count", s.count.as_ref(), first, "required")?;
+            procedural(cat, c, first, count);
         }
         "folder" | "shapenet" => {
             not_for(
@@ -339,12 +374,13 @@ fn shapes_of(
                     }
                 }
                 None => {
-                    let n = *required(
+                    let n = generated_count(
                         mf,
                         &span,
                         &field,
                         "fallback_count",
                         s.fallback_count.as_ref(),
+                        0,
                         "required with if_missing = \"procedural\"",
                     )?;
                     for c in &cats {
@@ -593,8 +629,9 @@ fn envs_of(
                 ],
             )?;
             let family = required(mf, &span, &field, "family", s.family.as_ref(), "required")?;
-            let count = *required(mf, &span, &field, "count", s.count.as_ref(), "required")?;
-            let items = procedural_envs(family, s.first_seed.unwrap_or(0), count)
+            let first = s.first_seed.unwrap_or(0);
+            let count = generated_count(mf, &span, &field, "count", s.count.as_ref(), first, "required")?;
+            let items = procedural_envs(family, first, count)
                 .map_err(|e| mf.invalid(span.clone(), &format!("{field}.family"), e))?;
             cat.envs.extend(items);
         }
@@ -670,12 +707,13 @@ fn envs_of(
                     }
                 }
                 None => {
-                    let n = *required(
+                    let n = generated_count(
                         mf,
                         &span,
                         &field,
                         "fallback_count",
                         s.fallback_count.as_ref(),
+                        0,
                         "required with if_missing = \"procedural\"",
                     )?;
                     let items = procedural_envs("all", 0, n).map_err(|e| mf.invalid(span.clone(), &field, e))?;

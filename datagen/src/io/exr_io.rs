@@ -159,8 +159,39 @@ fn env_channels(env: &EnvMap) -> Vec<(&'static str, Vec<f32>)> {
     vec![("R", ch(0)), ("G", ch(1)), ("B", ch(2))]
 }
 
+/// The most decoded bytes an EXR may hold per byte of file. Deflate cannot expand beyond
+/// 1032:1 (ZIP, ZIPS, PXR24, DWA's inner streams); RLE 64:1; B44 about 11:1; PIZ's Huffman runs
+/// stay within a few hundred. A header claiming more than this is corrupt, and is refused
+/// before the reader allocates for it (the exr crate sizes its buffers from the header).
+pub const EXR_MAX_EXPANSION: u64 = 4096;
+
+/// Refuses a file whose headers declare more pixel data than [`EXR_MAX_EXPANSION`] allows.
+fn check_exr_size(path: &Path) -> Result<()> {
+    let file = std::fs::metadata(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let meta =
+        exr::meta::MetaData::read_from_file(path, false).with_context(|| format!("cannot read {}", path.display()))?;
+    let declared: u128 = meta
+        .headers
+        .iter()
+        .map(|h| h.layer_size.area() as u128 * h.channels.bytes_per_pixel as u128)
+        .sum();
+    let allowed = (file.len() as u128 + 1024) * EXR_MAX_EXPANSION as u128;
+    if declared > allowed {
+        let size = meta.headers.first().map(|h| h.layer_size).unwrap_or_default();
+        bail!(
+            "{}: its header declares {}×{} pixels ({declared} bytes of samples), more than a {}-byte EXR can hold: the file is corrupt or truncated",
+            path.display(),
+            size.width(),
+            size.height(),
+            file.len()
+        );
+    }
+    Ok(())
+}
+
 /// Reads every channel of the first layer as `f32`, keyed by name, with the image size.
 pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, Vec<f32>>)> {
+    check_exr_size(path)?;
     let image = read_first_flat_layer_from_file(path).with_context(|| format!("cannot read {}", path.display()))?;
     let size = image.layer_data.size;
     let mut out = BTreeMap::new();

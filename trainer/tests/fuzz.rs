@@ -1,0 +1,374 @@
+//! No input can crash the trainer's readers: property-based fuzzing of training manifests,
+//! checkpoints (state and weights), photos, masks, region labels, and a dataset as the trainer
+//! loads it (the properties and the mutations: `tests/common/fuzz.rs` at the workspace root).
+//!
+//! CI: `cargo test --release -p matedit-trainer --test fuzz`. The long run:
+//! `MATEDIT_FUZZ_SCALE=K` (K times each reader's CI cases) (and `MATEDIT_FUZZ_SEED`), `scripts/fuzz_long.sh`.
+
+#[path = "../../tests/common/fuzz.rs"]
+mod fuzz;
+
+use burn::optim::AdamConfig;
+use burn::tensor::Device;
+use fuzz::{Counting, Reader, Verdict, fuzz, seed_file};
+use matedit_datagen::dataset::run::{RunOptions, Worker, load as load_manifest, run};
+use matedit_physics::brdf::Dsbrdf;
+use matedit_trainer::data::Dataset;
+use matedit_trainer::edit::load_model;
+use matedit_trainer::edit::photo::{load_mask, load_photo};
+use matedit_trainer::edit::target::load_regions;
+use matedit_trainer::model::Widths;
+use matedit_trainer::train::checkpoint::{State, save};
+use matedit_trainer::train::manifest;
+use matedit_trainer::train::network::NetConfig;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+#[global_allocator]
+static ALLOCATOR: Counting = Counting;
+
+const MB: usize = 1 << 20;
+
+fn err(e: impl std::fmt::Display) -> String {
+    format!("{e:#}")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("matedit-trainer-fuzz-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn eval_assets() -> Option<PathBuf> {
+    let p = std::env::var_os("MATEDIT_EVAL_ASSETS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/eval-assets"));
+    p.is_dir().then_some(p)
+}
+
+fn copy_tree(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let p = e.unwrap().path();
+        let dest = to.join(p.file_name().unwrap());
+        if p.is_dir() {
+            copy_tree(&p, &dest);
+        } else {
+            std::fs::copy(&p, &dest).unwrap();
+        }
+    }
+}
+
+#[test]
+fn training_manifests() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../manifests/train");
+    let mut seeds: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .filter_map(|p| seed_file(&p))
+        .collect();
+    seeds.sort();
+    assert!(!seeds.is_empty(), "the shipped training manifests");
+    let read = |p: &Path| -> Result<Verdict, String> {
+        let plan = manifest::load(p).map_err(err)?;
+        Ok(if plan.manifest.stages.is_empty() {
+            Err("a plan without stages".into())
+        } else {
+            Ok(())
+        })
+    };
+    fuzz(&Reader {
+        name: "train-manifest",
+        file_name: "train.toml",
+        seeds,
+        cases: 300,
+        floor_bytes: 8 * MB,
+        per_input_byte: None,
+        prepare: None,
+        read: &read,
+    });
+}
+
+/// A checkpoint of an untrained small network (16² input), written once per process.
+fn checkpoint() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let root = scratch("checkpoint");
+        let cfg = NetConfig::new(16, Widths::cpu_small()).with_env_height(4);
+        let net = cfg.init(&Device::flex());
+        let state = State::untrained(cfg, "untrained");
+        save(&root, "untrained", &net, &AdamConfig::new().init(), state).unwrap()
+    })
+}
+
+/// `matedit`'s model loader on a checkpoint folder with one file mutated.
+fn checkpoint_file(name: &'static str, file: &'static str, cases: u32) {
+    let dir = checkpoint();
+    let original = std::fs::read(dir.join(file)).unwrap();
+    let prepare = move |case: &Path| copy_tree(dir, case);
+    let read = |p: &Path| -> Result<Verdict, String> {
+        let folder = p.parent().unwrap_or(p);
+        let (_, state, _) = load_model(folder).map_err(err)?;
+        let changed = std::fs::read(p).map(|b| b != original).unwrap_or(true);
+        // The weights are checksummed in state.json: a changed weights file never loads.
+        Ok(if changed && file == "model.bpk" {
+            Err("a changed weights file loaded".into())
+        } else if state.net.input_size == 0 {
+            Err("a network of size 0".into())
+        } else {
+            Ok(())
+        })
+    };
+    fuzz(&Reader {
+        name,
+        file_name: file,
+        seeds: vec![(file.to_string(), std::fs::read(dir.join(file)).unwrap())],
+        cases,
+        floor_bytes: 256 * MB,
+        per_input_byte: None,
+        prepare: Some(&prepare),
+        read: &read,
+    });
+}
+
+#[test]
+fn checkpoint_state() {
+    checkpoint_file("checkpoint-state", "state.json", 150);
+}
+
+#[test]
+fn checkpoint_weights() {
+    checkpoint_file("checkpoint-weights", "model.bpk", 60);
+}
+
+fn png(w: u32, h: u32, sixteen: bool, alpha: bool) -> Vec<u8> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    let img: image::DynamicImage = match (sixteen, alpha) {
+        (false, false) => image::RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 9) as u8, (y * 13) as u8, 90])).into(),
+        (false, true) => image::RgbaImage::from_fn(w, h, |x, y| {
+            image::Rgba([(x * 9) as u8, 40, 90, if x > 3 && y > 3 { 255 } else { 0 }])
+        })
+        .into(),
+        (true, _) => image::ImageBuffer::<image::Rgb<u16>, _>::from_fn(w, h, |x, y| {
+            image::Rgb([(x * 900) as u16, (y * 1300) as u16, 9000])
+        })
+        .into(),
+    };
+    img.write_to(&mut out, image::ImageFormat::Png).unwrap();
+    out.into_inner()
+}
+
+fn jpeg(w: u32, h: u32) -> Vec<u8> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    let img: image::DynamicImage =
+        image::RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 9) as u8, (y * 13) as u8, 90])).into();
+    img.write_to(&mut out, image::ImageFormat::Jpeg).unwrap();
+    out.into_inner()
+}
+
+fn photo_valid(p: &matedit_trainer::edit::photo::Photo) -> Verdict {
+    if p.width == 0 || p.height == 0 || p.rgb.len() != p.width * p.height {
+        Err(format!("{}×{} with {} pixels", p.width, p.height, p.rgb.len()))
+    } else if p.rgb.iter().flatten().any(|v| !v.is_finite() || *v < 0.0) {
+        Err("a non-finite or negative value".into())
+    } else if p
+        .alpha
+        .as_ref()
+        .is_some_and(|a| a.len() != p.rgb.len() || a.iter().any(|v| !(0.0..=1.0).contains(v)))
+    {
+        Err("alpha of the wrong length or outside [0, 1]".into())
+    } else {
+        Ok(())
+    }
+}
+
+fn photos(name: &'static str, file_name: &'static str, seeds: Vec<(String, Vec<u8>)>, cases: u32) {
+    let read = |p: &Path| -> Result<Verdict, String> {
+        let photo = load_photo(p).map_err(err)?;
+        Ok(photo_valid(&photo))
+    };
+    fuzz(&Reader {
+        name,
+        file_name,
+        seeds,
+        cases,
+        floor_bytes: 48 * MB,
+        per_input_byte: None,
+        prepare: None,
+        read: &read,
+    });
+}
+
+#[test]
+fn photos_png() {
+    let mut seeds = vec![
+        ("rgb8 24×16".to_string(), png(24, 16, false, false)),
+        ("rgba8 24×16".to_string(), png(24, 16, false, true)),
+        ("rgb16 24×16".to_string(), png(24, 16, true, false)),
+    ];
+    if let Some(a) = eval_assets() {
+        seeds.extend(seed_file(&a.join("photos/rembg_cars/car-1.out.png")));
+    }
+    photos("photo-png", "photo.png", seeds, 200);
+}
+
+#[test]
+fn photos_jpeg() {
+    let mut seeds = vec![("jpeg 24×16".to_string(), jpeg(24, 16))];
+    if let Some(a) = eval_assets() {
+        seeds.extend(seed_file(&a.join("photos/rembg_cars/car-2.jpg")));
+    }
+    photos("photo-jpeg", "photo.jpg", seeds, 200);
+}
+
+#[test]
+fn photos_exr() {
+    let n = 24 * 16;
+    let ch = |k: f32| (0..n).map(|i| (i as f32 * k).sin().abs()).collect::<Vec<f32>>();
+    let bytes = matedit_datagen::io::encode_exr_channels(
+        24,
+        16,
+        vec![("R", ch(0.1)), ("G", ch(0.2)), ("B", ch(0.3)), ("A", ch(0.05))],
+    )
+    .unwrap();
+    photos(
+        "photo-exr",
+        "photo.exr",
+        vec![("exr rgba 24×16".to_string(), bytes)],
+        200,
+    );
+}
+
+#[test]
+fn masks_and_region_labels() {
+    let mut seeds = vec![
+        ("rgba8 24×16".to_string(), png(24, 16, false, true)),
+        ("rgb16 24×16".to_string(), png(24, 16, true, false)),
+    ];
+    // Labels 0..=2 in grey.
+    let mut labels = std::io::Cursor::new(Vec::new());
+    image::DynamicImage::from(image::GrayImage::from_fn(24, 16, |x, _| image::Luma([(x / 8) as u8])))
+        .write_to(&mut labels, image::ImageFormat::Png)
+        .unwrap();
+    seeds.push(("labels 24×16".to_string(), labels.into_inner()));
+    let read = |p: &Path| -> Result<Verdict, String> {
+        // The photo these belong to is 24×16; a mask of another size is an error naming the file.
+        let coverage = load_mask(p, 24, 16).map_err(err)?;
+        if coverage.len() != 24 * 16 || coverage.iter().any(|v| !(0.0..=1.0).contains(v)) {
+            return Ok(Err("coverage of the wrong length or outside [0, 1]".into()));
+        }
+        let all = vec![1.0; 24 * 16];
+        let (labels, n) = load_regions(p, 24, 16, &all).map_err(err)?;
+        Ok(if labels.len() != 24 * 16 || labels.iter().any(|&l| l as usize > n) {
+            Err("labels of the wrong length or beyond the region count".into())
+        } else {
+            Ok(())
+        })
+    };
+    fuzz(&Reader {
+        name: "mask",
+        file_name: "mask.png",
+        seeds,
+        cases: 300,
+        floor_bytes: 32 * MB,
+        per_input_byte: None,
+        prepare: None,
+        read: &read,
+    });
+}
+
+/// A tiny dataset (16² images, DSBRDF files), rendered once per process.
+fn dataset() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let root = scratch("dataset");
+        std::fs::create_dir_all(root.join("src/mats")).unwrap();
+        let mats = [[0.8, 0.2, 0.1], [0.1, 0.5, 0.7], [0.4, 0.4, 0.4], [0.9, 0.9, 0.2]].map(Dsbrdf::near_lambertian);
+        for (i, m) in mats.iter().enumerate() {
+            std::fs::write(root.join(format!("src/mats/m{i}.dsbrdf.json")), m.to_json()).unwrap();
+        }
+        let manifest = "[dataset]\nname = \"fuzz\"\nseed = 3\noutput = \"unused\"\nshard_size = 2\n\
+            [render]\nresolution = 16\nenv_resolution = \"4x8\"\nquality = \"fast\"\n\
+            [views]\nazimuths = 4\nelevation_deg = 20.0\nper_combination = 1\n\
+            [[shapes]]\nsource = \"procedural\"\ncategory = \"car\"\ncount = 2\n\
+            [[materials]]\nsource = \"dsbrdf\"\npath = \"mats\"\n\
+            [[environments]]\nsource = \"procedural\"\nfamily = \"overcast\"\ncount = 1\n\
+            [[splits]]\nname = \"train\"\nshapes = { car = 1 }\nmaterials = 2\n\
+            [[splits]]\nname = \"test\"\nshapes = { car = 1 }\nmaterials = 2\n";
+        std::fs::write(root.join("src/m.toml"), manifest).unwrap();
+        let out = root.join("dataset");
+        let l = load_manifest(&root.join("src/m.toml")).unwrap();
+        run(
+            &l,
+            &RunOptions {
+                out: Some(out.clone()),
+                worker: Worker::ALL,
+                progress: false,
+            },
+        )
+        .unwrap();
+        out
+    })
+}
+
+/// The trainer's dataset reader (open, then every sample with its checksum verified) on the
+/// tiny dataset with one file mutated: a changed sample file never loads.
+fn dataset_file(name: &'static str, rel: &'static str, cases: u32) {
+    let dir = dataset();
+    let original = std::fs::read(dir.join(rel)).unwrap();
+    let prepare = move |case: &Path| copy_tree(dir, case);
+    let read = |p: &Path| -> Result<Verdict, String> {
+        let root = p.ancestors().find(|a| a.join("dataset.json").is_file()).unwrap_or(p);
+        let ds = Dataset::open(root).map_err(err)?;
+        let mut loaded = true;
+        for split in ds.split_names() {
+            for r in ds.records(split) {
+                if let Err(e) = ds.load(r, true) {
+                    let m = err(e);
+                    if !m.contains(&*root.to_string_lossy()) && !m.contains(&r.id) {
+                        return Err(m);
+                    }
+                    loaded = false;
+                }
+            }
+        }
+        let changed = std::fs::read(p).map(|b| b != original).unwrap_or(true);
+        Ok(if loaded && changed && rel.ends_with(".exr") {
+            Err("a changed sample file loaded".into())
+        } else {
+            Ok(())
+        })
+    };
+    fuzz(&Reader {
+        name,
+        file_name: rel,
+        seeds: vec![(rel.to_string(), std::fs::read(dir.join(rel)).unwrap())],
+        cases,
+        floor_bytes: 32 * MB,
+        per_input_byte: None,
+        prepare: Some(&prepare),
+        read: &read,
+    });
+}
+
+#[test]
+fn dataset_index_as_the_trainer_reads_it() {
+    dataset_file("trainer-dataset-index", "index.jsonl", 150);
+}
+
+#[test]
+fn dataset_metadata_as_the_trainer_reads_it() {
+    dataset_file("trainer-dataset-json", "dataset.json", 150);
+}
+
+#[test]
+fn dataset_samples_as_the_trainer_reads_them() {
+    dataset_file("trainer-dataset-sample", "shards/test-00000/test-0000000.exr", 100);
+}
+
+#[test]
+fn dataset_material_files_as_the_trainer_reads_them() {
+    dataset_file("trainer-dataset-material", "materials/dsbrdf_m0.dsbrdf.json", 150);
+}
