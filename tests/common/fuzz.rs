@@ -468,7 +468,12 @@ pub fn fuzz(reader: &Reader<'_>) -> Summary {
     let seed = env_u64("MATEDIT_FUZZ_SEED").unwrap_or(2017);
     let root = std::env::temp_dir().join(format!("matedit-fuzz-{}-{}", reader.name, std::process::id()));
     let case_dir = root.join("case");
-    let failures = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/fuzz-failures");
+    let manifest_dir = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let workspace = manifest_dir
+        .ancestors()
+        .find(|a| a.join("Cargo.lock").is_file())
+        .unwrap_or(manifest_dir);
+    let failures = workspace.join("target/fuzz-failures");
     // Watchdog: the start of the running case (ms since `epoch`, 0: none) and its bytes.
     let epoch = Instant::now();
     let started = Arc::new(AtomicU64::new(0));

@@ -368,7 +368,43 @@ fn dataset_samples_as_the_trainer_reads_them() {
     dataset_file("trainer-dataset-sample", "shards/test-00000/test-0000000.exr", 100);
 }
 
+/// Found by this fuzzer: an EXR photo whose alpha channel holds NaN was accepted with a NaN
+/// alpha (the clamp to [0, 1] passes NaN through), which would reach the composite.
 #[test]
-fn dataset_material_files_as_the_trainer_reads_them() {
-    dataset_file("trainer-dataset-material", "materials/dsbrdf_m0.dsbrdf.json", 150);
+fn regression_exr_photo_with_nan_alpha() {
+    use exr::prelude::{
+        AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes, SmallVec, WritableImage,
+    };
+    let n = 24 * 16;
+    let mut alpha = vec![1.0_f32; n];
+    alpha[17] = f32::NAN;
+    let channels: Vec<AnyChannel<FlatSamples>> = [
+        ("A", alpha),
+        ("B", vec![0.2; n]),
+        ("G", vec![0.3; n]),
+        ("R", vec![0.4; n]),
+    ]
+    .into_iter()
+    .map(|(name, v)| AnyChannel::new(name, FlatSamples::F32(v)))
+    .collect();
+    let layer = Layer::new(
+        (24, 16),
+        LayerAttributes::default(),
+        Encoding::SMALL_LOSSLESS,
+        AnyChannels::sort(SmallVec::from_vec(channels)),
+    );
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    Image::from_layer(layer).write().to_buffered(&mut bytes).unwrap();
+    let read = |p: &Path| -> Result<Verdict, String> { Ok(photo_valid(&load_photo(p).map_err(err)?)) };
+    let reader = Reader {
+        name: "photo-exr",
+        file_name: "photo.exr",
+        seeds: Vec::new(),
+        cases: 0,
+        floor_bytes: 48 * MB,
+        per_input_byte: None,
+        prepare: None,
+        read: &read,
+    };
+    assert!(!fuzz::regression(&reader, &bytes.into_inner()));
 }

@@ -86,6 +86,9 @@ pub fn load_photo(path: &Path) -> Result<Photo> {
             let (r, g, b) = (get("R")?, get("G")?, get("B")?);
             let rgb: Vec<[f32; 3]> = (0..w * h).map(|k| [r[k], g[k], b[k]]).collect();
             check_linear(path, &rgb)?;
+            if let Some(k) = ch.get("A").and_then(|a| a.iter().position(|v| v.is_nan())) {
+                bail!("{what}: alpha is NaN at pixel ({}, {})", k % w, k / w);
+            }
             let alpha = ch.get("A").map(|a| a.iter().map(|v| v.clamp(0.0, 1.0)).collect());
             Ok(Photo {
                 width: w,
