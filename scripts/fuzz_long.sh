@@ -16,9 +16,13 @@ mkdir -p "$(dirname "$log")"
 echo "# $(date -u +%FT%TZ) $(git rev-parse --short HEAD 2>/dev/null || echo '?') scale=$scale seed=$seed" >> "$log"
 status=0
 for target in "-p matedit --test fuzz" "-p matedit-trainer --test fuzz"; do
+    out=$(mktemp)
     # shellcheck disable=SC2086
-    MATEDIT_FUZZ_SCALE=$scale MATEDIT_FUZZ_SEED=$seed cargo test --release $target -- --nocapture --skip harness 2>&1 \
-        | tee /dev/stderr | grep -E '^fuzz ' >> "$log" || status=1
+    MATEDIT_FUZZ_SCALE=$scale MATEDIT_FUZZ_SEED=$seed cargo test --release $target -- --nocapture --skip harness \
+        >"$out" 2>&1 || status=1
+    cat "$out"
+    grep -E '^fuzz ' "$out" >> "$log" || true
+    rm -f "$out"
 done
 echo "wrote $log"
 exit $status

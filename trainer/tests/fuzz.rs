@@ -103,6 +103,41 @@ fn checkpoint() -> &'static Path {
     })
 }
 
+/// Found by this fuzzer: a checkpoint whose state.json gives a dropout of −1 (or widths of 0, or
+/// sizes beyond reason) made Burn panic, or the loader allocate without bound, while building
+/// the network; the state is now validated first, naming the file.
+#[test]
+fn regression_checkpoint_state_with_impossible_network() {
+    let dir = checkpoint();
+    let state = std::fs::read_to_string(dir.join("state.json")).unwrap();
+    let prepare = move |case: &Path| copy_tree(dir, case);
+    let read = |p: &Path| -> Result<Verdict, String> {
+        load_model(p.parent().unwrap_or(p)).map_err(err)?;
+        Ok(Ok(()))
+    };
+    let reader = Reader {
+        name: "checkpoint-state",
+        file_name: "state.json",
+        seeds: Vec::new(),
+        cases: 0,
+        floor_bytes: 256 * MB,
+        per_input_byte: None,
+        prepare: Some(&prepare),
+        read: &read,
+    };
+    for (from, to) in [
+        ("\"dropout\": 0.5", "\"dropout\": -1"),
+        ("\"dropout\": 0.5", "\"dropout\": 1.0"),
+        ("\"hidden\": 128", "\"hidden\": 0"),
+        ("\"input_size\": 16", "\"input_size\": 1099511627776"),
+        ("\"env_height\": 4", "\"env_height\": 65536"),
+        ("\"max_channels\": 64", "\"max_channels\": 1000000"),
+    ] {
+        assert!(state.contains(from), "{from}");
+        assert!(!fuzz::regression(&reader, state.replace(from, to).as_bytes()), "{to}");
+    }
+}
+
 /// `matedit`'s model loader on a checkpoint folder with one file mutated.
 fn checkpoint_file(name: &'static str, file: &'static str, cases: u32) {
     let dir = checkpoint();

@@ -140,6 +140,9 @@ pub fn read_state(dir: &Path) -> Result<State> {
     if s.version != VERSION {
         bail!("{}: version {} (this trainer reads {VERSION})", p.display(), s.version);
     }
+    s.net
+        .validate()
+        .map_err(|e| anyhow::anyhow!("{}: net: {e}", p.display()))?;
     for (f, want) in [
         ("model.bpk", &s.model_checksum),
         ("optimizer.bpk", &s.optimizer_checksum),

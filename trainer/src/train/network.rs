@@ -36,15 +36,44 @@ pub struct Net {
 }
 
 impl NetConfig {
-    /// Checks what the modules need of the sizes.
+    /// The largest input side accepted (the paper: 256).
+    pub const MAX_INPUT_SIZE: usize = 1024;
+    /// The largest environment height accepted (the paper: 64).
+    pub const MAX_ENV_HEIGHT: usize = 256;
+    /// The largest layer width accepted (the paper's widths: at most 1024).
+    pub const MAX_WIDTH: usize = 4096;
+
+    /// Checks what the modules need of the sizes, and bounds them: a configuration read from a
+    /// file (a manifest, a checkpoint's state) must not make `init` ask for unbounded memory or
+    /// Burn panic.
     pub fn validate(&self) -> Result<(), String> {
         let s = self.input_size;
-        if !(s.is_power_of_two() && s >= 16) {
-            return Err(format!("input_size must be a power of two ≥ 16, got {s}"));
+        if !(s.is_power_of_two() && (16..=Self::MAX_INPUT_SIZE).contains(&s)) {
+            return Err(format!(
+                "input_size must be a power of two from 16 to {}, got {s}",
+                Self::MAX_INPUT_SIZE
+            ));
         }
         let h = self.env_height;
-        if !(h.is_power_of_two() && h >= 4) {
-            return Err(format!("env_height must be a power of two ≥ 4, got {h}"));
+        if !(h.is_power_of_two() && (4..=Self::MAX_ENV_HEIGHT).contains(&h)) {
+            return Err(format!(
+                "env_height must be a power of two from 4 to {}, got {h}",
+                Self::MAX_ENV_HEIGHT
+            ));
+        }
+        let w = &self.widths;
+        for (name, v) in [
+            ("base_channels", w.base_channels),
+            ("max_channels", w.max_channels),
+            ("hidden", w.hidden),
+            ("normal_channels", w.normal_channels),
+        ] {
+            if !(1..=Self::MAX_WIDTH).contains(&v) {
+                return Err(format!("widths.{name} must be 1 to {}, got {v}", Self::MAX_WIDTH));
+            }
+        }
+        if !(0.0..1.0).contains(&w.dropout) {
+            return Err(format!("widths.dropout must be in [0, 1), got {}", w.dropout));
         }
         Ok(())
     }
