@@ -464,6 +464,16 @@ fn dataset_sample_files() {
     dataset_file("dataset-sample", "shards/train-00000/train-0000000.exr", 150);
 }
 
+/// Found by this fuzzer: an unclosed inline table repeated 1,900 times (TOML 1.1 lets inline
+/// tables run over lines) nested deeper than the toml crate's recursion guard covers, and
+/// overflowed the 2 MB stack of the thread that parsed it.
+#[test]
+fn regression_manifest_nested_beyond_the_stack() {
+    let bench = std::fs::read_to_string(repo("manifests/bench-256.toml")).unwrap();
+    let text = bench + &"\n[[splits]]\nname = \"test\"\nshapes = { car = 1, chamaterials = 6\n".repeat(1900);
+    assert!(!fuzz::regression(&manifest_reader(Vec::new()), text.as_bytes()));
+}
+
 /// Found by this fuzzer: a 756-byte EXR environment map whose header claims a huge data window
 /// made the map reader allocate 457 MB before reading a block (the exr crate's RGBA reader takes
 /// a buffer of the header's size up front).

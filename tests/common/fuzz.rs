@@ -19,7 +19,9 @@
 //! A failing case is shrunk to a minimal mutation list, written to `target/fuzz-failures/`, and
 //! reported; it then becomes a regression test. Cases per reader: the reader's CI count, times
 //! `MATEDIT_FUZZ_SCALE` (the long run, docs/PERFORMANCE.md); the RNG seed is fixed unless
-//! `MATEDIT_FUZZ_SEED` says otherwise, so CI runs the same cases every time.
+//! `MATEDIT_FUZZ_SEED` says otherwise, so CI runs the same cases every time. With
+//! `MATEDIT_FUZZ_TRACE` set, every case's input is first written to
+//! `target/fuzz-failures/NAME-last.bin`, for crashes that kill the process (stack overflows).
 #![allow(dead_code)]
 
 use proptest::prelude::*;
@@ -466,6 +468,7 @@ pub fn fuzz(reader: &Reader<'_>) -> Summary {
     let scale = env_u64("MATEDIT_FUZZ_SCALE").unwrap_or(1).max(1);
     let cases = (reader.cases as u64 * scale).min(u32::MAX as u64) as u32;
     let seed = env_u64("MATEDIT_FUZZ_SEED").unwrap_or(2017);
+    let trace = std::env::var_os("MATEDIT_FUZZ_TRACE").is_some();
     let root = std::env::temp_dir().join(format!("matedit-fuzz-{}-{}", reader.name, std::process::id()));
     let case_dir = root.join("case");
     let manifest_dir = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -522,6 +525,11 @@ pub fn fuzz(reader: &Reader<'_>) -> Summary {
         let bytes = apply(&reader.seeds[s].1, &mutations);
         if let Ok(mut c) = current.lock() {
             c.clone_from(&bytes);
+        }
+        if trace {
+            // A crash that kills the process (a stack overflow) leaves its input here.
+            let _ = std::fs::create_dir_all(&failures);
+            let _ = std::fs::write(failures.join(format!("{}-last.bin", reader.name)), &bytes);
         }
         let watch = || started.store(epoch.elapsed().as_millis() as u64 + 1, Ordering::Relaxed);
         let accepted_case = check(reader, &case_dir, &bytes, &watch);

@@ -258,6 +258,24 @@ fn photos_jpeg() {
     photos("photo-jpeg", "photo.jpg", seeds, 200);
 }
 
+/// A Radiance file of `w × h` flat RGBE pixels, by hand.
+fn radiance(w: usize, h: usize) -> Vec<u8> {
+    let mut b = format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {h} +X {w}\n").into_bytes();
+    for i in 0..w * h {
+        b.extend_from_slice(&[(i * 7 % 256) as u8, 90, 200, 128 + (i % 3) as u8]);
+    }
+    b
+}
+
+#[test]
+fn photos_hdr() {
+    let mut seeds = vec![("radiance 24×16".to_string(), radiance(24, 16))];
+    if let Some(a) = eval_assets() {
+        seeds.extend(seed_file(&a.join("envmaps/dikhololo_night_1k.hdr")));
+    }
+    photos("photo-hdr", "photo.hdr", seeds, 100);
+}
+
 #[test]
 fn photos_exr() {
     let n = 24 * 16;

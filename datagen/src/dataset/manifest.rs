@@ -381,6 +381,50 @@ pub struct ManifestFile {
     pub manifest: Manifest,
 }
 
+/// The deepest nesting of `[` and `{` a manifest may have (the shipped ones reach 2).
+pub const MAX_NESTING: usize = 32;
+
+/// The line where `[`/`{` first nest deeper than [`MAX_NESTING`], outside strings and comments
+/// (a rough TOML lexer: enough to count brackets). The toml crate guards its parser's recursion,
+/// but not every path: a file found by fuzzing (an unclosed inline table repeated 1,900 times,
+/// which TOML 1.1's multi-line inline tables let run on) overflowed a 2 MB thread stack.
+pub fn nested_too_deep(text: &str) -> Option<usize> {
+    let (mut depth, mut line) = (0_usize, 1_usize);
+    let mut chars = text.chars().peekable();
+    while let Some(c) = chars.next() {
+        match c {
+            '\n' => line += 1,
+            '#' => {
+                while chars.peek().is_some_and(|&c| c != '\n') {
+                    chars.next();
+                }
+            }
+            '"' | '\'' => {
+                // Basic strings may escape the quote; literal strings may not. Multi-line strings
+                // are skipped as consecutive strings, which is all the counting needs.
+                while let Some(d) = chars.next() {
+                    if d == '\n' {
+                        line += 1;
+                    } else if c == '"' && d == '\\' {
+                        chars.next();
+                    } else if d == c {
+                        break;
+                    }
+                }
+            }
+            '[' | '{' => {
+                depth += 1;
+                if depth > MAX_NESTING {
+                    return Some(line);
+                }
+            }
+            ']' | '}' => depth = depth.saturating_sub(1),
+            _ => {}
+        }
+    }
+    None
+}
+
 impl ManifestFile {
     /// Reads and parses `path`.
     pub fn load(path: &Path) -> Result<ManifestFile, ManifestError> {
@@ -394,6 +438,12 @@ impl ManifestFile {
 
     /// Parses manifest text that came from `path`.
     pub fn parse(path: &Path, text: String) -> Result<ManifestFile, ManifestError> {
+        if let Some(line) = nested_too_deep(&text) {
+            return Err(ManifestError::Syntax {
+                file: path.display().to_string(),
+                message: format!("line {line}: brackets and braces nested more than {MAX_NESTING} deep"),
+            });
+        }
         let manifest: Manifest = toml::from_str(&text).map_err(|e| ManifestError::Syntax {
             file: path.display().to_string(),
             message: e.to_string().trim_end().to_string(),
@@ -454,6 +504,40 @@ pub fn expand_vars(s: &str) -> Result<String, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn nesting_is_counted_outside_strings_and_comments() {
+        for dir in ["../manifests", "../manifests/train", "../manifests/experiments"] {
+            for e in std::fs::read_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join(dir)).unwrap() {
+                let p = e.unwrap().path();
+                if p.extension().is_some_and(|x| x == "toml") {
+                    assert_eq!(
+                        nested_too_deep(&std::fs::read_to_string(&p).unwrap()),
+                        None,
+                        "{}",
+                        p.display()
+                    );
+                }
+            }
+        }
+        let deep = format!("a = 1\nb = {}1{}\n", "[".repeat(33), "]".repeat(33));
+        assert_eq!(nested_too_deep(&deep), Some(2));
+        assert_eq!(
+            nested_too_deep(&format!("b = {}1{}", "[".repeat(32), "]".repeat(32))),
+            None
+        );
+        let quoted = format!(
+            "s = \"{}\"\nt = '{}'\n# {}\nu = \"\\\"{}\"",
+            "[".repeat(99),
+            "{".repeat(99),
+            "[".repeat(99),
+            "[".repeat(99)
+        );
+        assert_eq!(nested_too_deep(&quoted), None);
+        // An unclosed inline table repeated: the shape of the file that overflowed the stack.
+        let run_on = "[[splits]]\nshapes = { car = 1\n".repeat(40);
+        assert_eq!(nested_too_deep(&run_on), Some(63), "the header of the 32nd repetition");
+    }
 
     const MINIMAL: &str = r#"
 [dataset]

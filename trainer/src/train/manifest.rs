@@ -339,6 +339,15 @@ pub fn load(path: &Path) -> Result<TrainPlan, ManifestError> {
 
 /// Validates manifest text that came from `path`.
 pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
+    if let Some(line) = matedit_datagen::dataset::manifest::nested_too_deep(&text) {
+        return Err(ManifestError::Syntax {
+            file: path.display().to_string(),
+            message: format!(
+                "line {line}: brackets and braces nested more than {} deep",
+                matedit_datagen::dataset::manifest::MAX_NESTING
+            ),
+        });
+    }
     let m: TrainManifest = toml::from_str(&text).map_err(|e| ManifestError::Syntax {
         file: path.display().to_string(),
         message: e.to_string().trim_end().to_string(),
