@@ -125,6 +125,17 @@ fn regression_checkpoint_state_with_impossible_network() {
         prepare: Some(&prepare),
         read: &read,
     };
+    let largest = state
+        .replace("\"input_size\": 16", "\"input_size\": 1024")
+        .replace("\"env_height\": 4", "\"env_height\": 256")
+        .replace("\"base_channels\": 8", "\"base_channels\": 4096")
+        .replace("\"max_channels\": 64", "\"max_channels\": 4096")
+        .replace("\"hidden\": 128", "\"hidden\": 4096")
+        .replace("\"normal_channels\": 16", "\"normal_channels\": 4096");
+    assert!(
+        !fuzz::regression(&reader, largest.as_bytes()),
+        "the largest network the bounds allow"
+    );
     for (from, to) in [
         ("\"dropout\": 0.5", "\"dropout\": -1"),
         ("\"dropout\": 0.5", "\"dropout\": 1.0"),
@@ -132,6 +143,9 @@ fn regression_checkpoint_state_with_impossible_network() {
         ("\"input_size\": 16", "\"input_size\": 1099511627776"),
         ("\"env_height\": 4", "\"env_height\": 65536"),
         ("\"max_channels\": 64", "\"max_channels\": 1000000"),
+        // Inside the bounds but far larger than the weights file: refused without building it.
+        ("\"hidden\": 128", "\"hidden\": 4096"),
+        ("\"input_size\": 16", "\"input_size\": 1024"),
     ] {
         assert!(state.contains(from), "{from}");
         assert!(!fuzz::regression(&reader, state.replace(from, to).as_bytes()), "{to}");
