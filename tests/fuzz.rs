@@ -7,19 +7,17 @@
 //! CI: `cargo test --release --test fuzz`. The long run: `MATEDIT_FUZZ_SCALE=K` (K times each reader's CI cases) (and
 //! `MATEDIT_FUZZ_SEED`), `scripts/fuzz_long.sh`.
 
-mod common;
 #[path = "common/fuzz.rs"]
 mod fuzz;
 
-use fuzz::{Counting, Reader, Verdict, fuzz, seed_file};
-use matedit_datagen::dataset::run::{RunOptions, Worker, load as load_manifest, run};
+use fuzz::{Counting, Reader, Verdict, copy_tree, dataset, eval_assets, fuzz, radiance, seed_file};
+use matedit_datagen::dataset::run::load as load_manifest;
 use matedit_datagen::dataset::verify::verify;
 use matedit_datagen::io::{encode_env_exr, encode_exr_channels, load_env, read_exr_channels};
 use matedit_datagen::shapes::{Shape, UpAxis};
 use matedit_physics::EnvMap;
 use matedit_physics::brdf::{Dsbrdf, Lambert, MerlBrdf};
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
 
 #[global_allocator]
 static ALLOCATOR: Counting = Counting;
@@ -54,7 +52,7 @@ g trim\nusemtl blue\nf 1//3 2//3 6//3 5//3\nf 4//4 8//4 7//4 3//4\nf -8 -4 -1 -5
 #[test]
 fn obj_meshes() {
     let mut seeds = vec![text("octahedron", OCTAHEDRON), text("cube", CUBE)];
-    if let Some(assets) = common::eval_assets() {
+    if let Some(assets) = eval_assets() {
         for rel in [
             "meshes/tinyobjloader/cornell_box_multimaterial.obj",
             "meshes/common-3d-test-models/suzanne.obj",
@@ -104,15 +102,6 @@ fn obj_meshes() {
     });
 }
 
-/// A Radiance file of `w × h` flat RGBE pixels, by hand (an independent writer).
-fn radiance(w: usize, h: usize) -> Vec<u8> {
-    let mut b = format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\nEXPOSURE=1.0\n\n-Y {h} +X {w}\n").into_bytes();
-    for i in 0..w * h {
-        b.extend_from_slice(&[(i * 7 % 256) as u8, 90, 200, 128 + (i % 3) as u8]);
-    }
-    b
-}
-
 fn env_valid(map: &EnvMap) -> Verdict {
     if map.width() != 2 * map.height() {
         Err(format!("a {}×{} map", map.width(), map.height()))
@@ -129,7 +118,7 @@ fn hdr_environment_maps() {
         ("radiance 16×8".to_string(), radiance(16, 8)),
         ("radiance 4×2".to_string(), radiance(4, 2)),
     ];
-    if let Some(assets) = common::eval_assets() {
+    if let Some(assets) = eval_assets() {
         seeds.extend(seed_file(&assets.join("envmaps/studio_small_03_1k.hdr")));
     }
     fuzz(&Reader {
@@ -331,80 +320,6 @@ fn regression_manifest_counts_beyond_reason() {
     let end = count + quickstart[count..].find('\n').unwrap();
     let text = format!("{}count = 99999999999{}", &quickstart[..count], &quickstart[end..]);
     assert!(!fuzz::regression(&manifest_reader(Vec::new()), text.as_bytes()));
-}
-
-/// A tiny dataset (16² images, DSBRDF files, no fitting), rendered once per process.
-fn dataset() -> &'static Path {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let root = common::scratch("fuzz-dataset");
-        let _ = std::fs::remove_dir_all(&root);
-        std::fs::create_dir_all(root.join("src/mats")).unwrap();
-        let mats = [[0.8, 0.2, 0.1], [0.1, 0.5, 0.7], [0.4, 0.4, 0.4], [0.9, 0.9, 0.2]].map(Dsbrdf::near_lambertian);
-        for (i, m) in mats.iter().enumerate() {
-            std::fs::write(root.join(format!("src/mats/m{i}.dsbrdf.json")), m.to_json()).unwrap();
-        }
-        let manifest = r#"
-[dataset]
-name = "fuzz"
-seed = 3
-output = "unused"
-shard_size = 2
-[render]
-resolution = 16
-env_resolution = "4x8"
-quality = "fast"
-[views]
-azimuths = 4
-elevation_deg = 20.0
-per_combination = 1
-[[shapes]]
-source = "procedural"
-category = "car"
-count = 2
-[[materials]]
-source = "dsbrdf"
-path = "mats"
-[[environments]]
-source = "procedural"
-family = "overcast"
-count = 1
-[[splits]]
-name = "train"
-shapes = { car = 1 }
-materials = 2
-[[splits]]
-name = "test"
-shapes = { car = 1 }
-materials = 2
-"#;
-        std::fs::write(root.join("src/m.toml"), manifest).unwrap();
-        let out = root.join("dataset");
-        let l = load_manifest(&root.join("src/m.toml")).unwrap();
-        run(
-            &l,
-            &RunOptions {
-                out: Some(out.clone()),
-                worker: Worker::ALL,
-                progress: false,
-            },
-        )
-        .unwrap();
-        out
-    })
-}
-
-fn copy_tree(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let p = e.unwrap().path();
-        let dest = to.join(p.file_name().unwrap());
-        if p.is_dir() {
-            copy_tree(&p, &dest);
-        } else {
-            std::fs::copy(&p, &dest).unwrap();
-        }
-    }
 }
 
 /// `datagen verify` on the tiny dataset with one of its files mutated: never a panic, and a

@@ -653,3 +653,100 @@ pub fn regression(reader: &Reader<'_>, bytes: &[u8]) -> bool {
 pub fn seed_file(path: &Path) -> Option<(String, Vec<u8>)> {
     std::fs::read(path).ok().map(|b| (path.display().to_string(), b))
 }
+
+/// `../shared/eval-assets` (or `$MATEDIT_EVAL_ASSETS`), when present.
+pub fn eval_assets() -> Option<PathBuf> {
+    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let workspace = here
+        .ancestors()
+        .find(|a| a.join("Cargo.lock").is_file())
+        .unwrap_or(here);
+    let p = std::env::var_os("MATEDIT_EVAL_ASSETS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace.join("../shared/eval-assets"));
+    p.is_dir().then_some(p)
+}
+
+/// A Radiance file of `w × h` flat RGBE pixels, by hand (an independent writer).
+pub fn radiance(w: usize, h: usize) -> Vec<u8> {
+    let mut b = format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\nEXPOSURE=1.0\n\n-Y {h} +X {w}\n").into_bytes();
+    for i in 0..w * h {
+        b.extend_from_slice(&[(i * 7 % 256) as u8, 90, 200, 128 + (i % 3) as u8]);
+    }
+    b
+}
+
+/// A tiny dataset (16² images, DSBRDF files, no fitting), rendered once per process.
+pub fn dataset() -> &'static Path {
+    static DIR: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    DIR.get_or_init(|| {
+        let root = std::env::temp_dir().join(format!("matedit-fuzz-dataset-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(root.join("src/mats")).unwrap();
+        let mats = [[0.8, 0.2, 0.1], [0.1, 0.5, 0.7], [0.4, 0.4, 0.4], [0.9, 0.9, 0.2]]
+            .map(matedit_physics::brdf::Dsbrdf::near_lambertian);
+        for (i, m) in mats.iter().enumerate() {
+            std::fs::write(root.join(format!("src/mats/m{i}.dsbrdf.json")), m.to_json()).unwrap();
+        }
+        let manifest = r#"
+[dataset]
+name = "fuzz"
+seed = 3
+output = "unused"
+shard_size = 2
+[render]
+resolution = 16
+env_resolution = "4x8"
+quality = "fast"
+[views]
+azimuths = 4
+elevation_deg = 20.0
+per_combination = 1
+[[shapes]]
+source = "procedural"
+category = "car"
+count = 2
+[[materials]]
+source = "dsbrdf"
+path = "mats"
+[[environments]]
+source = "procedural"
+family = "overcast"
+count = 1
+[[splits]]
+name = "train"
+shapes = { car = 1 }
+materials = 2
+[[splits]]
+name = "test"
+shapes = { car = 1 }
+materials = 2
+"#;
+        std::fs::write(root.join("src/m.toml"), manifest).unwrap();
+        let out = root.join("dataset");
+        let l = matedit_datagen::dataset::run::load(&root.join("src/m.toml")).unwrap();
+        matedit_datagen::dataset::run::run(
+            &l,
+            &matedit_datagen::dataset::run::RunOptions {
+                out: Some(out.clone()),
+                worker: matedit_datagen::dataset::run::Worker::ALL,
+                progress: false,
+            },
+        )
+        .unwrap();
+        out
+    })
+}
+
+pub fn copy_tree(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let p = e.unwrap().path();
+        let dest = to.join(p.file_name().unwrap());
+        if p.is_dir() {
+            copy_tree(&p, &dest);
+        } else {
+            std::fs::copy(&p, &dest).unwrap();
+        }
+    }
+}

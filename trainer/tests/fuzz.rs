@@ -10,9 +10,7 @@ mod fuzz;
 
 use burn::optim::AdamConfig;
 use burn::tensor::Device;
-use fuzz::{Counting, Reader, Verdict, fuzz, seed_file};
-use matedit_datagen::dataset::run::{RunOptions, Worker, load as load_manifest, run};
-use matedit_physics::brdf::Dsbrdf;
+use fuzz::{Counting, Reader, Verdict, copy_tree, dataset, eval_assets, fuzz, radiance, seed_file};
 use matedit_trainer::data::Dataset;
 use matedit_trainer::edit::load_model;
 use matedit_trainer::edit::photo::{load_mask, load_photo};
@@ -38,26 +36,6 @@ fn scratch(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
-}
-
-fn eval_assets() -> Option<PathBuf> {
-    let p = std::env::var_os("MATEDIT_EVAL_ASSETS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/eval-assets"));
-    p.is_dir().then_some(p)
-}
-
-fn copy_tree(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let p = e.unwrap().path();
-        let dest = to.join(p.file_name().unwrap());
-        if p.is_dir() {
-            copy_tree(&p, &dest);
-        } else {
-            std::fs::copy(&p, &dest).unwrap();
-        }
-    }
 }
 
 #[test]
@@ -272,15 +250,6 @@ fn photos_jpeg() {
     photos("photo-jpeg", "photo.jpg", seeds, 200);
 }
 
-/// A Radiance file of `w × h` flat RGBE pixels, by hand.
-fn radiance(w: usize, h: usize) -> Vec<u8> {
-    let mut b = format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {h} +X {w}\n").into_bytes();
-    for i in 0..w * h {
-        b.extend_from_slice(&[(i * 7 % 256) as u8, 90, 200, 128 + (i % 3) as u8]);
-    }
-    b
-}
-
 #[test]
 fn photos_hdr() {
     let mut seeds = vec![("radiance 24×16".to_string(), radiance(24, 16))];
@@ -344,40 +313,6 @@ fn masks_and_region_labels() {
         prepare: None,
         read: &read,
     });
-}
-
-/// A tiny dataset (16² images, DSBRDF files), rendered once per process.
-fn dataset() -> &'static Path {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let root = scratch("dataset");
-        std::fs::create_dir_all(root.join("src/mats")).unwrap();
-        let mats = [[0.8, 0.2, 0.1], [0.1, 0.5, 0.7], [0.4, 0.4, 0.4], [0.9, 0.9, 0.2]].map(Dsbrdf::near_lambertian);
-        for (i, m) in mats.iter().enumerate() {
-            std::fs::write(root.join(format!("src/mats/m{i}.dsbrdf.json")), m.to_json()).unwrap();
-        }
-        let manifest = "[dataset]\nname = \"fuzz\"\nseed = 3\noutput = \"unused\"\nshard_size = 2\n\
-            [render]\nresolution = 16\nenv_resolution = \"4x8\"\nquality = \"fast\"\n\
-            [views]\nazimuths = 4\nelevation_deg = 20.0\nper_combination = 1\n\
-            [[shapes]]\nsource = \"procedural\"\ncategory = \"car\"\ncount = 2\n\
-            [[materials]]\nsource = \"dsbrdf\"\npath = \"mats\"\n\
-            [[environments]]\nsource = \"procedural\"\nfamily = \"overcast\"\ncount = 1\n\
-            [[splits]]\nname = \"train\"\nshapes = { car = 1 }\nmaterials = 2\n\
-            [[splits]]\nname = \"test\"\nshapes = { car = 1 }\nmaterials = 2\n";
-        std::fs::write(root.join("src/m.toml"), manifest).unwrap();
-        let out = root.join("dataset");
-        let l = load_manifest(&root.join("src/m.toml")).unwrap();
-        run(
-            &l,
-            &RunOptions {
-                out: Some(out.clone()),
-                worker: Worker::ALL,
-                progress: false,
-            },
-        )
-        .unwrap();
-        out
-    })
 }
 
 /// The trainer's dataset reader (open, then every sample with its checksum verified) on the

@@ -94,7 +94,7 @@ pub struct Metrics {
     pub images: BTreeMap<String, ImageMetrics>,
     /// [`normal_cosine`] per sample.
     pub normal_cosine: Mean,
-    /// [`material_l2`] (raw scale, Table 1) per material.
+    /// [`material_l2`] (raw scale, in the JSON only: γ up to 1e4 dominates it) per material.
     pub material_l2: Mean,
     /// [`material_l2_normalised`] per material.
     pub material_l2_normalised: Mean,
