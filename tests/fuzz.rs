@@ -144,10 +144,11 @@ fn sky(rows: usize) -> EnvMap {
 
 #[test]
 fn exr_environment_maps() {
-    let seeds = vec![
+    let mut seeds = vec![
         ("env 8×16".to_string(), encode_env_exr(&sky(8)).unwrap()),
         ("env 64×128".to_string(), encode_env_exr(&sky(64)).unwrap()),
     ];
+    seeds.extend(fuzz::odd_exrs(16, 8));
     fuzz(&Reader {
         name: "exr-env",
         file_name: "map.exr",
@@ -177,7 +178,8 @@ fn sample_exr() -> Vec<u8> {
 
 #[test]
 fn exr_channels() {
-    let seeds = vec![("sample 16²".to_string(), sample_exr())];
+    let mut seeds = vec![("sample 16²".to_string(), sample_exr())];
+    seeds.extend(fuzz::odd_exrs(16, 16));
     let read = |p: &Path| -> Result<Verdict, String> {
         let (w, h, channels) = read_exr_channels(p).map_err(err)?;
         Ok(if channels.values().any(|c| c.len() != w * h) {

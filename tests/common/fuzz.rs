@@ -750,3 +750,66 @@ pub fn copy_tree(from: &Path, to: &Path) {
         }
     }
 }
+
+/// EXRs of `w × h` whose channel sets a reader of RGB may not expect: R and G only, Y only,
+/// RGB stored as f16 and as u32, RGB with an extra channel. Written with the exr crate
+/// directly (the project's writer only writes f32).
+pub fn odd_exrs(w: usize, h: usize) -> Vec<(String, Vec<u8>)> {
+    use exr::prelude::{
+        AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes, SmallVec, WritableImage, f16,
+    };
+    let n = w * h;
+    let ramp = |k: f32| (0..n).map(|i| (i as f32 * k).sin().abs()).collect::<Vec<f32>>();
+    let f32s = |names: &[&str]| -> Vec<(String, FlatSamples)> {
+        names
+            .iter()
+            .enumerate()
+            .map(|(k, n)| (n.to_string(), FlatSamples::F32(ramp(0.1 + k as f32 * 0.1))))
+            .collect()
+    };
+    let sets: Vec<(&str, Vec<(String, FlatSamples)>)> = vec![
+        ("R and G only", f32s(&["R", "G"])),
+        ("Y only", f32s(&["Y"])),
+        (
+            "RGB as f16",
+            ["R", "G", "B"]
+                .iter()
+                .map(|c| {
+                    (
+                        c.to_string(),
+                        FlatSamples::F16(ramp(0.2).into_iter().map(f16::from_f32).collect()),
+                    )
+                })
+                .collect(),
+        ),
+        (
+            "RGB as u32",
+            ["R", "G", "B"]
+                .iter()
+                .map(|c| (c.to_string(), FlatSamples::U32((0..n as u32).collect())))
+                .collect(),
+        ),
+        ("RGB and Z", f32s(&["R", "G", "B", "Z"])),
+    ];
+    sets.into_iter()
+        .map(|(label, channels)| {
+            let list: Vec<AnyChannel<FlatSamples>> = channels
+                .into_iter()
+                .map(|(name, s)| AnyChannel::new(name.as_str(), s))
+                .collect();
+            let layer = Layer::new(
+                (w, h),
+                LayerAttributes::default(),
+                Encoding::SMALL_LOSSLESS,
+                AnyChannels::sort(SmallVec::from_vec(list)),
+            );
+            let mut bytes = std::io::Cursor::new(Vec::new());
+            Image::from_layer(layer)
+                .write()
+                .non_parallel()
+                .to_buffered(&mut bytes)
+                .expect("EXR");
+            (format!("exr {label} {w}×{h}"), bytes.into_inner())
+        })
+        .collect()
+}

@@ -272,7 +272,7 @@ fn photos_exr() {
     photos(
         "photo-exr",
         "photo.exr",
-        vec![("exr rgba 24×16".to_string(), bytes)],
+        [vec![("exr rgba 24×16".to_string(), bytes)], fuzz::odd_exrs(24, 16)].concat(),
         200,
     );
 }
