@@ -93,7 +93,6 @@ where
 struct ZipBlocks {
     deflate: libdeflater::Compressor,
     scratch: Vec<u8>,
-    out: Vec<u8>,
 }
 
 impl ZipBlocks {
@@ -105,7 +104,6 @@ impl ZipBlocks {
         Self {
             deflate: libdeflater::Compressor::new(level),
             scratch: Vec::new(),
-            out: Vec::new(),
         }
     }
 
@@ -120,12 +118,12 @@ impl ZipBlocks {
         self.scratch.clear();
         self.scratch.resize(n, 0);
         let (even, odd) = self.scratch.split_at_mut(n.div_ceil(2));
-        for (i, &b) in raw.iter().enumerate() {
-            if i % 2 == 0 {
-                even[i / 2] = b;
-            } else {
-                odd[i / 2] = b;
-            }
+        for ((e, o), pair) in even.iter_mut().zip(odd.iter_mut()).zip(raw.chunks_exact(2)) {
+            *e = pair[0];
+            *o = pair[1];
+        }
+        if n % 2 == 1 {
+            even[n / 2] = raw[n - 1];
         }
         let mut previous = self.scratch.first().copied().unwrap_or(0);
         for b in self.scratch.iter_mut().skip(1) {
@@ -133,13 +131,13 @@ impl ZipBlocks {
             *b = current.wrapping_sub(previous).wrapping_add(128);
             previous = current;
         }
-        self.out.clear();
-        self.out.resize(self.deflate.zlib_compress_bound(n), 0);
+        let mut out = vec![0; self.deflate.zlib_compress_bound(n)];
         let size = self
             .deflate
-            .zlib_compress(&self.scratch, &mut self.out)
+            .zlib_compress(&self.scratch, &mut out)
             .map_err(|e| exr::error::Error::Invalid(format!("deflate: {e}").into()))?;
-        Ok(if size < n { self.out[..size].to_vec() } else { raw })
+        out.truncate(size);
+        Ok(if size < n { out } else { raw })
     }
 }
 
@@ -165,17 +163,17 @@ fn env_channels(env: &EnvMap) -> Vec<(&'static str, Vec<f32>)> {
 /// before the reader allocates for it (the exr crate sizes its buffers from the header).
 pub const EXR_MAX_EXPANSION: u64 = 4096;
 
-/// Refuses a file whose headers declare more pixel data than [`EXR_MAX_EXPANSION`] allows.
-fn check_exr_size(path: &Path) -> Result<()> {
-    let file = std::fs::metadata(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let meta =
-        exr::meta::MetaData::read_from_file(path, false).with_context(|| format!("cannot read {}", path.display()))?;
+/// Refuses a file (`bytes`, read from `path`) whose headers declare more pixel data than
+/// [`EXR_MAX_EXPANSION`] allows.
+fn check_exr_size(path: &Path, bytes: &[u8]) -> Result<()> {
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
+        .with_context(|| format!("cannot read {}", path.display()))?;
     let declared: u128 = meta
         .headers
         .iter()
         .map(|h| h.layer_size.area() as u128 * h.channels.bytes_per_pixel as u128)
         .sum();
-    let allowed = (file.len() as u128 + 1024) * EXR_MAX_EXPANSION as u128;
+    let allowed = (bytes.len() as u128 + 1024) * EXR_MAX_EXPANSION as u128;
     if declared > allowed {
         let size = meta.headers.first().map(|h| h.layer_size).unwrap_or_default();
         bail!(
@@ -183,7 +181,7 @@ fn check_exr_size(path: &Path) -> Result<()> {
             path.display(),
             size.width(),
             size.height(),
-            file.len()
+            bytes.len()
         );
     }
     Ok(())
@@ -191,8 +189,17 @@ fn check_exr_size(path: &Path) -> Result<()> {
 
 /// Reads every channel of the first layer as `f32`, keyed by name, with the image size.
 pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, Vec<f32>>)> {
-    check_exr_size(path)?;
-    let image = read_first_flat_layer_from_file(path).with_context(|| format!("cannot read {}", path.display()))?;
+    // One read of the file serves the size check and the decoding.
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    check_exr_size(path, &bytes)?;
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(std::io::Cursor::new(bytes))
+        .with_context(|| format!("cannot read {}", path.display()))?;
     let size = image.layer_data.size;
     let mut out = BTreeMap::new();
     for ch in &image.layer_data.channel_data.list {
