@@ -4,7 +4,7 @@
 //!
 //! `cargo run --release -p matedit-trainer --example eq6_timing -- SIZE [RUNS]`
 use anyhow::{Result, bail};
-use matedit_trainer::edit::optimize::{Eq6Config, Point, Problem, post_optimise};
+use matedit_trainer::edit::optimize::{Eq6Config, Point, Priors, Problem, post_optimise};
 use matedit_trainer::render::RenderingLayer;
 use matedit_trainer::train::synthetic::sphere_batch;
 use std::time::Instant;
@@ -38,6 +38,7 @@ fn main() -> Result<()> {
             env: &start.env,
             a: 1.0,
             b: 10.0,
+            priors: Priors::NONE,
         };
         let t = Instant::now();
         let r = post_optimise(&problem, start.clone(), &Eq6Config::default())?;

@@ -8,6 +8,7 @@
 #![warn(missing_docs)]
 
 pub mod alloc;
+pub mod baseline;
 pub mod bench;
 pub mod data;
 pub mod edit;

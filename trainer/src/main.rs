@@ -4,6 +4,7 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use matedit_trainer::alloc::PeakAlloc;
+use matedit_trainer::baseline::lombardi::LombardiConfig;
 use matedit_trainer::bench;
 use matedit_trainer::eval::{EvalOptions, evaluate};
 use matedit_trainer::model::Widths;
@@ -44,9 +45,10 @@ enum Command {
     /// Score checkpoints on a dataset split: METRICS.json and Markdown tables shaped like the
     /// paper's Tables 1–3 (with both trivial baselines).
     Eval {
-        /// Checkpoint folder (`OUT/checkpoints/STAGE`); repeat to compare several.
+        /// Checkpoint folder (`OUT/checkpoints/STAGE`), or `LABEL=FOLDER` to name its row and
+        /// column (default: its stage name); repeat to compare several.
         #[arg(long, required = true)]
-        checkpoint: Vec<PathBuf>,
+        checkpoint: Vec<String>,
         /// Dataset folder.
         #[arg(long)]
         data: PathBuf,
@@ -81,6 +83,22 @@ enum Command {
         /// Eq. 6's L-BFGS iterations per property and round.
         #[arg(long, default_value_t = 4)]
         eq6_iterations: usize,
+        /// Also score the Lombardi-style optimiser of material and light given the true normals
+        /// (Table 3's baseline; slow: seconds per sample).
+        #[arg(long)]
+        lombardi: bool,
+        /// Its reflectance prior's relative weight.
+        #[arg(long, default_value_t = LombardiConfig::default().material_weight)]
+        lombardi_material_weight: f64,
+        /// Its natural-illumination prior's relative weight.
+        #[arg(long, default_value_t = LombardiConfig::default().light_weight)]
+        lombardi_light_weight: f64,
+        /// Its rounds of (material, light).
+        #[arg(long, default_value_t = LombardiConfig::default().rounds)]
+        lombardi_rounds: usize,
+        /// Its L-BFGS iterations per property and round.
+        #[arg(long, default_value_t = LombardiConfig::default().iterations)]
+        lombardi_iterations: usize,
         /// No progress bar.
         #[arg(long)]
         quiet: bool,
@@ -117,6 +135,17 @@ enum Command {
         #[arg(long, value_delimiter = ',', default_value = "cpu-small:64:8,cpu-small:128:8")]
         train: Vec<String>,
     },
+}
+
+/// `LABEL=FOLDER` as (label, folder), or a folder (an existing path is never split, even with
+/// an '=' in its name) as ("", folder).
+fn labelled(arg: &str) -> (String, PathBuf) {
+    match arg.split_once('=') {
+        Some((label, folder)) if !std::path::Path::new(arg).exists() && !label.is_empty() => {
+            (label.to_owned(), PathBuf::from(folder))
+        }
+        _ => (String::new(), PathBuf::from(arg)),
+    }
 }
 
 /// Runs evaluation and writes `out` (JSON) and its `.md` tables; prints the tables.
@@ -171,6 +200,8 @@ fn run(cli: Cli) -> Result<()> {
                 progress: !quiet,
                 sheet: Some((out.join("eval.png"), 8)),
                 eq6: None,
+                lombardi: None,
+                names: Vec::new(),
             };
             eval_to(&checkpoints, &opts, &out.join("eval.json"))?;
         }
@@ -187,8 +218,14 @@ fn run(cli: Cli) -> Result<()> {
             eq6,
             eq6_rounds,
             eq6_iterations,
+            lombardi,
+            lombardi_material_weight,
+            lombardi_light_weight,
+            lombardi_rounds,
+            lombardi_iterations,
             quiet,
         } => {
+            let (names, checkpoint): (Vec<String>, Vec<PathBuf>) = checkpoint.iter().map(|c| labelled(c)).unzip();
             let opts = EvalOptions {
                 data,
                 split,
@@ -203,6 +240,14 @@ fn run(cli: Cli) -> Result<()> {
                     iterations: eq6_iterations,
                     ..Default::default()
                 }),
+                lombardi: lombardi.then(|| LombardiConfig {
+                    material_weight: lombardi_material_weight,
+                    light_weight: lombardi_light_weight,
+                    rounds: lombardi_rounds,
+                    iterations: lombardi_iterations,
+                    ..Default::default()
+                }),
+                names,
             };
             eval_to(&checkpoint, &opts, &out)?;
         }

@@ -632,3 +632,164 @@ fn eval_scores_only_the_asked_categories() {
         "{e}"
     );
 }
+
+/// The tiny dataset with one material per object (Baseline 1 edits single-material objects),
+/// rendered once per test process.
+fn single_material_dataset() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let src = dataset().parent().unwrap().join("src");
+        let text = DATASET.replace("[multi_material]\nmode = \"per_region\"\n", "");
+        assert_ne!(text, DATASET);
+        std::fs::write(src.join("single.toml"), text).unwrap();
+        let out = root().join("dataset-single");
+        let l = load_manifest(&src.join("single.toml")).unwrap();
+        let opts = RunOptions {
+            out: Some(out.clone()),
+            worker: Worker::ALL,
+            progress: false,
+        };
+        run(&l, &opts).unwrap();
+        out
+    })
+}
+
+fn one_stage_manifest(dataset: &Path, name: &str, kind: &str, steps: usize) -> String {
+    format!(
+        r#"
+[run]
+name = "{name}"
+seed = 6
+output = "unused"
+
+[model]
+input_size = 16
+env_height = 4
+widths = {{ base_channels = 4, max_channels = 16, hidden = 32, normal_channels = 8 }}
+
+[data]
+dataset = "{}"
+workers = 1
+
+[[stages]]
+name = "{name}"
+kind = "{kind}"
+steps = {steps}
+batch_size = 4
+learning_rate = [[0, 2e-3]]
+checkpoint_every = 3
+"#,
+        dataset.display()
+    )
+}
+
+fn total_losses(out: &Path) -> Vec<f64> {
+    metric_lines(out)
+        .iter()
+        .map(|l| {
+            serde_json::from_str::<Value>(l).unwrap()["losses"]["total"]
+                .as_f64()
+                .unwrap()
+        })
+        .collect()
+}
+
+#[test]
+fn baseline_1_resumes_bit_identically_and_table_3_has_every_method() {
+    let ds = single_material_dataset();
+    let m = write_manifest("b1.toml", &one_stage_manifest(ds, "b1", "encoder-decoder", 15));
+    let whole = root().join("b1-whole");
+    let o = train(&m, &whole, false);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let want = metric_lines(&whole);
+    let loss = total_losses(&whole);
+    assert_eq!(loss.len(), 15);
+    // (That the loss falls is tested on a fixed batch, where batch-to-batch noise cannot hide
+    // it: train/tests.rs.)
+    assert!(loss.iter().all(|l| l.is_finite() && *l > 0.0), "{loss:?}");
+    let want_scores = scores(&whole);
+    let b1 = network_scores(&want_scores, "b1");
+    assert!(b1["images"]["O'"]["l2"]["count"].as_u64() == Some(4), "{b1}");
+    assert!(b1["images"].get("I'").is_none(), "Baseline 1 renders no I': {b1}");
+
+    // Killed mid-run and resumed: the same losses and scores, bit for bit.
+    let out = root().join("b1-killed");
+    let mut child = trainer()
+        .arg("run")
+        .arg(&m)
+        .arg("--out")
+        .arg(&out)
+        .arg("--quiet")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while metric_lines(&out).len() < 7 && t0.elapsed() < Duration::from_secs(120) {
+        if child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let running = child.try_wait().unwrap().is_none();
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(
+        running && metric_lines(&out).len() < want.len(),
+        "the kill came too late"
+    );
+    let o = train(&m, &out, true);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(metric_lines(&out), want, "the resumed loss sequence differs");
+    assert_eq!(scores(&out), want_scores, "the resumed scores differ");
+
+    // Baseline 2 (the pretrain stage: three networks, L2 losses only) falls too.
+    let m2 = write_manifest("b2.toml", &one_stage_manifest(ds, "pretrain", "pretrain", 9));
+    let b2 = root().join("b2");
+    let o = train(&m2, &b2, false);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(total_losses(&b2).iter().all(|l| l.is_finite()));
+
+    // Table 3 with every method, labelled.
+    let json = root().join("table3.json");
+    let o = trainer()
+        .arg("eval")
+        .arg("--checkpoint")
+        .arg(format!("Baseline 1={}", whole.join("checkpoints/b1").display()))
+        .arg("--checkpoint")
+        .arg(format!("Baseline 2={}", b2.join("checkpoints/pretrain").display()))
+        .args(["--eq6", "--eq6-iterations", "1", "--lombardi", "--lombardi-rounds", "1"])
+        .args(["--lombardi-iterations", "2", "--sheet", "0", "--quiet", "--data"])
+        .arg(ds)
+        .arg("--out")
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let md = std::fs::read_to_string(json.with_extension("md")).unwrap();
+    assert!(
+        md.contains("| O' = I | mean material (n', L' of Baseline 2) | Lombardi (true n) | Baseline 1 | Baseline 2 | Baseline 2 + Eq. 6 |"),
+        "{md}"
+    );
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let l = &v["lombardi"]["metrics"]["images"]["O'"];
+    assert_eq!(l["l2"]["count"], 4, "{v}");
+    assert!(v["lombardi"]["energy"][1].as_f64() <= v["lombardi"]["energy"][0].as_f64());
+    // Eq. 6 is not Baseline 1's (it has no n', m', L' to refine).
+    assert!(v["checkpoints"][0]["eq6"].is_null() && !v["checkpoints"][1]["eq6"].is_null());
+
+    // A manifest that mixes Baseline 1 with the network's stages is refused, naming the field.
+    let mixed = write_manifest(
+        "mixed.toml",
+        &format!(
+            "{}\n[[stages]]\nname = \"p\"\nkind = \"pretrain\"\nsteps = 1\nbatch_size = 4\nlearning_rate = [[0, 1e-3]]\n",
+            one_stage_manifest(ds, "b1", "encoder-decoder", 1)
+        ),
+    );
+    let o = train(&mixed, &root().join("mixed"), false);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && e.contains("mixed.toml") && e.contains("Baseline 1"),
+        "{e}"
+    );
+}

@@ -164,7 +164,7 @@ fn ground_truth_n_m_l_reproduce_datagens_exact_images() {
 /// true, and the priors) the energy and the material's error both fall.
 #[test]
 fn eq6_on_datagen_samples_stays_at_the_truth_and_returns_from_a_perturbed_material() {
-    use matedit_trainer::edit::optimize::{Eq6Config, Point, Problem, post_optimise};
+    use matedit_trainer::edit::optimize::{Eq6Config, Point, Priors, Problem, post_optimise};
     let (root, out) = make_dataset("eq6");
     let ds = Arc::new(Dataset::open(&out).unwrap());
     let layer = RenderingLayer::new(64);
@@ -193,6 +193,7 @@ fn eq6_on_datagen_samples_stays_at_the_truth_and_returns_from_a_perturbed_materi
             env: &truth.env,
             a: 1.0,
             b: 10.0,
+            priors: Priors::NONE,
         };
         let norm: f64 = image.iter().map(|v| (*v as f64).powi(2)).sum();
         let at_truth = post_optimise(&problem, truth.clone(), &cfg).unwrap();

@@ -436,6 +436,7 @@ pub fn understand(
                 env: &prior.env,
                 a: cfg.a,
                 b: cfg.b,
+                priors: optimize::Priors::NONE,
             };
             let r = optimize::post_optimise(&problem, prior.clone(), cfg)?;
             x = r.point;

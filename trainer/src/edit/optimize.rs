@@ -73,6 +73,113 @@ pub struct Energy {
     pub normals: f64,
     /// b‖L* − L'‖².
     pub light: f64,
+    /// The material prior's term (0 in Eq. 6; see [`Priors`]).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub material_prior: f64,
+    /// The light prior's term (0 in Eq. 6; see [`Priors`]).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub light_prior: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
+/// A Gaussian over the normalised DSBRDF parameters: w Σ_r Σ_j (m*_rj − μ_j)² / σ_j², every
+/// region slot alike.
+#[derive(Clone, Copy, Debug)]
+pub struct MaterialPrior<'a> {
+    /// w.
+    pub weight: f64,
+    /// μ, 108 values.
+    pub mean: &'a [f64],
+    /// 1/σ², 108 values.
+    pub inv_var: &'a [f64],
+}
+
+/// A natural-illumination prior: w Σ ρ(ln L*_a − ln L*_b) over every pair of neighbouring texels
+/// of one channel (along a row, wrapping at the seam, and along a column), with the
+/// heavy-tailed ρ(d) = √(d² + ε²) − ε that natural light's log-gradients follow.
+#[derive(Clone, Copy, Debug)]
+pub struct LightPrior {
+    /// w.
+    pub weight: f64,
+    /// ε: below it ρ is quadratic, above it linear.
+    pub epsilon: f64,
+}
+
+/// Priors on m* and L*. Eq. 6 has none: its priors are the network's n' and L'
+/// ([`Problem::a`], [`Problem::b`]). The Lombardi-style baseline (`crate::baseline::lombardi`)
+/// has both.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Priors<'a> {
+    /// On m*.
+    pub material: Option<MaterialPrior<'a>>,
+    /// On L*.
+    pub light: Option<LightPrior>,
+}
+
+impl Priors<'_> {
+    /// No prior (Eq. 6).
+    pub const NONE: Priors<'static> = Priors {
+        material: None,
+        light: None,
+    };
+}
+
+/// Texels darker than this count as this in the light prior's logarithm.
+const LOG_FLOOR: f64 = 1e-30;
+
+impl MaterialPrior<'_> {
+    /// The term at `m` (`[R, 108]`), and its gradient added into `grad` when given.
+    fn energy(&self, m: &[f32], mut grad: Option<&mut [f64]>) -> f64 {
+        let n = self.mean.len().max(1);
+        let mut e = 0.0;
+        for (i, &v) in m.iter().enumerate() {
+            let d = v as f64 - self.mean[i % n];
+            e += d * d * self.inv_var[i % n];
+            if let Some(g) = grad.as_deref_mut() {
+                g[i] += 2.0 * self.weight * d * self.inv_var[i % n];
+            }
+        }
+        self.weight * e
+    }
+}
+
+impl LightPrior {
+    /// The term at `env` (`[3, He, 2He]`), and its gradient added into `grad` when given.
+    fn energy(&self, env: &[f32], he: usize, mut grad: Option<&mut [f64]>) -> f64 {
+        let we = 2 * he;
+        let eps = self.epsilon;
+        let ln = |v: f32| (v as f64).max(LOG_FLOOR).ln();
+        let mut e = 0.0;
+        let mut pair = |a: usize, b: usize, grad: &mut Option<&mut [f64]>| {
+            let d = ln(env[a]) - ln(env[b]);
+            let r = (d * d + eps * eps).sqrt();
+            e += r - eps;
+            if let Some(g) = grad.as_deref_mut() {
+                let dr = self.weight * d / r;
+                if env[a] as f64 > LOG_FLOOR {
+                    g[a] += dr / env[a] as f64;
+                }
+                if env[b] as f64 > LOG_FLOOR {
+                    g[b] -= dr / env[b] as f64;
+                }
+            }
+        };
+        for c in 0..3 {
+            for y in 0..he {
+                for x in 0..we {
+                    let k = (c * he + y) * we + x;
+                    pair(k, (c * he + y) * we + (x + 1) % we, &mut grad);
+                    if y + 1 < he {
+                        pair(k, k + we, &mut grad);
+                    }
+                }
+            }
+        }
+        self.weight * e
+    }
 }
 
 /// One logged step: E after an L-BFGS iteration (iteration 0: the run's start).
@@ -108,6 +215,8 @@ pub struct Problem<'a> {
     pub a: f64,
     /// Weights.
     pub b: f64,
+    /// Priors on m* and L* ([`Priors::NONE`] in Eq. 6).
+    pub priors: Priors<'a>,
 }
 
 /// A point: n*, m*, L* in the layer's layouts.
@@ -176,11 +285,16 @@ impl Problem<'_> {
             .zip(self.env)
             .map(|(&l, &l0)| (l as f64 - l0 as f64).powi(2))
             .sum();
+        let he = self.layer.texels().height();
+        let material_prior = self.priors.material.map_or(0.0, |p| p.energy(&x.materials, None));
+        let light_prior = self.priors.light.map_or(0.0, |p| p.energy(&x.env, he, None));
         let e = Energy {
-            total: image + self.a * normals + self.b * light,
+            total: image + self.a * normals + self.b * light + material_prior + light_prior,
             image,
             normals: self.a * normals,
             light: self.b * light,
+            material_prior,
+            light_prior,
         };
         if !grad {
             return Ok((e, None));
@@ -197,18 +311,25 @@ impl Problem<'_> {
                 };
             }
         }
-        let gl = g
+        let mut gl: Vec<f64> = g
             .env
             .iter()
             .zip(&x.env)
             .zip(self.env)
             .map(|((&g, &l), &l0)| g as f64 + 2.0 * self.b * (l as f64 - l0 as f64))
             .collect();
+        let mut gm: Vec<f64> = g.materials.iter().map(|&v| v as f64).collect();
+        if let Some(p) = self.priors.material {
+            p.energy(&x.materials, Some(&mut gm));
+        }
+        if let Some(p) = self.priors.light {
+            p.energy(&x.env, he, Some(&mut gl));
+        }
         Ok((
             e,
             Some(PointGradient {
                 normals: gn,
-                materials: g.materials.iter().map(|&v| v as f64).collect(),
+                materials: gm,
                 env: gl,
             }),
         ))
@@ -396,12 +517,23 @@ pub struct Optimised {
 
 /// Eq. 6 from `start` (the network's prediction, whose n' and L' are also `problem`'s priors).
 pub fn post_optimise(problem: &Problem, start: Point, cfg: &Eq6Config) -> Result<Optimised> {
+    alternate(
+        problem,
+        start,
+        cfg,
+        &[Property::Normals, Property::Material, Property::Light],
+    )
+}
+
+/// `problem`'s energy from `start`, minimised over `properties` in turn (the others held), each
+/// by L-BFGS, for `cfg.rounds` rounds.
+pub fn alternate(problem: &Problem, start: Point, cfg: &Eq6Config, properties: &[Property]) -> Result<Optimised> {
     let (e0, _) = problem.energy(&start, false)?;
     let mut x = start;
     let mut current = e0;
     let mut steps = Vec::new();
     for round in 0..cfg.rounds {
-        for property in [Property::Normals, Property::Material, Property::Light] {
+        for &property in properties {
             let par = Parametrised::new(problem, property, x.clone());
             let q0 = par.start();
             let log = Arc::new(Mutex::new(Vec::new()));
@@ -529,6 +661,7 @@ mod tests {
             env: &prior.env,
             a: 1.0,
             b: 10.0,
+            priors: Priors::NONE,
         }
     }
 

@@ -13,6 +13,7 @@
 //! on the ground-truth object mask against I or O.
 
 use super::{I_PRIME, Metrics, O_PRIME, Pair, Sample, TableRow};
+use crate::baseline::lombardi::{self, LombardiConfig, ReflectancePrior};
 use crate::data::{Dataset, Loader, LoaderConfig};
 use crate::render::op::host;
 use crate::render::{Batch, RenderingLayer};
@@ -48,6 +49,11 @@ pub struct EvalOptions {
     pub sheet: Option<(PathBuf, usize)>,
     /// Also score every checkpoint after the post-optimisation (Eq. 6) of each sample.
     pub eq6: Option<crate::edit::optimize::Eq6Config>,
+    /// Also score the Lombardi-style optimiser (given the true normals) on each sample.
+    pub lombardi: Option<LombardiConfig>,
+    /// Row labels of the checkpoints, in order (default, or where empty: each checkpoint's
+    /// stage name), e.g. "Baseline 2" and "ours" for Table 3.
+    pub names: Vec<String>,
 }
 
 /// One checkpoint's scores.
@@ -92,10 +98,41 @@ pub struct EvalReport {
     pub copy_input: Metrics,
     /// Per checkpoint, in the order given.
     pub checkpoints: Vec<CheckpointEval>,
+    /// The Lombardi-style optimiser given the true normals: I* = R(n, m*, L*) against I,
+    /// O' = R(n, m_t, L*) against O, m* against m (`--lombardi`).
+    #[serde(default)]
+    pub lombardi: Option<LombardiEval>,
+}
+
+/// The Lombardi-style baseline's scores and what produced them.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct LombardiEval {
+    /// Its settings.
+    pub config: Option<LombardiConfig>,
+    /// Training materials its reflectance prior was fitted to.
+    pub prior_materials: usize,
+    /// The scores.
+    pub metrics: Metrics,
+    /// Its energy at the uninformed start and at the end, summed over the samples.
+    pub energy: [f64; 2],
+    /// Seconds, summed over the samples.
+    pub seconds: f64,
 }
 
 /// The mean normalised parameters of the materials of `ds`'s training splits, with their ids.
 pub fn mean_training_material(ds: &Dataset) -> Result<([f32; PARAMS], Vec<String>)> {
+    let (materials, ids) = training_materials(ds)?;
+    let mut sum = [0.0f64; PARAMS];
+    for m in &materials {
+        for (s, v) in sum.iter_mut().zip(m) {
+            *s += *v as f64;
+        }
+    }
+    Ok((sum.map(|s| (s / ids.len() as f64) as f32), ids))
+}
+
+/// The normalised parameters of the materials of `ds`'s training splits, with their ids (sorted).
+pub fn training_materials(ds: &Dataset) -> Result<(Vec<[f32; PARAMS]>, Vec<String>)> {
     let mut ids: Vec<String> = ds
         .info()
         .plan
@@ -112,16 +149,15 @@ pub fn mean_training_material(ds: &Dataset) -> Result<([f32; PARAMS], Vec<String
             ds.dir().display()
         );
     }
-    let mut sum = [0.0f64; PARAMS];
-    for id in &ids {
-        let m = ds
-            .normalised_material(id)
-            .with_context(|| format!("{}: material {id} is not in the table", ds.dir().display()))?;
-        for (s, v) in sum.iter_mut().zip(m) {
-            *s += *v as f64;
-        }
-    }
-    Ok((sum.map(|s| (s / ids.len() as f64) as f32), ids))
+    let materials = ids
+        .iter()
+        .map(|id| {
+            ds.normalised_material(id)
+                .copied()
+                .with_context(|| format!("{}: material {id} is not in the table", ds.dir().display()))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok((materials, ids))
 }
 
 /// Evaluates `checkpoints` (folders written by `trainer run`) on `opts.split`.
@@ -145,6 +181,17 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
         );
     }
     let (mean, mean_ids) = mean_training_material(&train_ds)?;
+    if !opts.names.is_empty() && opts.names.len() != checkpoints.len() {
+        bail!("{} names for {} checkpoints", opts.names.len(), checkpoints.len());
+    }
+    let reflectance_prior = match &opts.lombardi {
+        Some(cfg) => {
+            cfg.validate()?;
+            let (materials, _) = training_materials(&train_ds)?;
+            Some(ReflectancePrior::fit(&materials.iter().collect::<Vec<_>>())?)
+        }
+        None => None,
+    };
     let device = Device::flex();
     let mut nets = Vec::new();
     for c in checkpoints {
@@ -161,8 +208,14 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
         checkpoints: nets
             .iter()
             .zip(checkpoints)
-            .map(|((_, s), c)| CheckpointEval {
-                name: s.stage_name.clone(),
+            .enumerate()
+            .map(|(k, ((_, s), c))| CheckpointEval {
+                name: opts
+                    .names
+                    .get(k)
+                    .filter(|n| !n.is_empty())
+                    .cloned()
+                    .unwrap_or_else(|| s.stage_name.clone()),
                 checkpoint: c.display().to_string(),
                 ..Default::default()
             })
@@ -225,9 +278,21 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
         }
         let copy = score_batch(&hb, &[(O_PRIME, &hb.input, &hb.target)], None, None);
         report.copy_input.merge(&copy);
+        if let (Some(cfg), Some(prior)) = (&opts.lombardi, &reflectance_prior) {
+            let row = report.lombardi.get_or_insert_with(|| LombardiEval {
+                config: Some(cfg.clone()),
+                prior_materials: prior.materials,
+                ..Default::default()
+            });
+            lombardi_batch(&layer, &hb, prior, cfg, row)?;
+        }
         let last = nets.len() - 1;
         for (c, ((net, _), row)) in nets.iter().zip(report.checkpoints.iter_mut()).enumerate() {
             let tb = hb.to_device(&device);
+            if let Some(ed) = &net.encoder_decoder {
+                encoder_decoder_batch(ed, &layer, &hb, tb, row)?;
+                continue;
+            }
             let p = predict(net, &tb, true);
             let (n_p, m_p) = (host(&p.normals), host(&p.materials));
             let l_p = p.env.as_ref().map(host).unwrap_or_default();
@@ -325,7 +390,7 @@ fn eq6_batch(
     l_p: &[f32],
     cfg: &crate::edit::optimize::Eq6Config,
 ) -> Result<(crate::edit::optimize::Point, [f64; 3])> {
-    use crate::edit::optimize::{Point, Problem, post_optimise};
+    use crate::edit::optimize::{Point, Priors, Problem, post_optimise};
     let (p, t, r) = (hb.size * hb.size, 6 * hb.env_height * hb.env_height, hb.regions);
     let mut out = Point {
         normals: Vec::with_capacity(n_p.len()),
@@ -350,6 +415,7 @@ fn eq6_batch(
             env: &start.env,
             a: cfg.a,
             b: cfg.b,
+            priors: Priors::NONE,
         };
         let res = post_optimise(&problem, start.clone(), cfg)?;
         energy[0] += res.start.total;
@@ -360,6 +426,97 @@ fn eq6_batch(
         out.env.extend(res.point.env);
     }
     Ok((out, energy))
+}
+
+/// Baseline 1 on a batch: its O' = D(f_o, E(m_t)) against O and f_m against m (the full
+/// pipeline's row), and R(n, f_m, L) against I (Table 1's protocol). It predicts no normals
+/// and no light, so Table 2 and the mean-material baseline have no entry for it.
+fn encoder_decoder_batch(
+    ed: &crate::model::encoder_decoder::EncoderDecoder,
+    layer: &RenderingLayer,
+    hb: &HostBatch,
+    tb: crate::train::batch::TensorBatch,
+    row: &mut CheckpointEval,
+) -> Result<()> {
+    if hb.regions != 1 {
+        bail!(
+            "Baseline 1 edits single-material objects; samples {:?} have {} regions",
+            hb.ids,
+            hb.regions
+        );
+    }
+    let m_t = tb.target_materials.reshape([hb.batch, PARAMS]);
+    let (m_p, o_p) = ed.edit(tb.input, tb.mask, m_t);
+    let (m_p, o_p) = (host(&m_p), host(&o_p));
+    let i_given_n_l = layer.forward(&Batch {
+        batch: hb.batch,
+        size: (hb.size, hb.size),
+        regions: 1,
+        normals: &hb.normals,
+        region_map: &hb.region_map,
+        materials: &m_p,
+        env: &hb.env,
+    })?;
+    row.network
+        .merge(&score_batch(hb, &[(O_PRIME, &o_p, &hb.target)], None, Some(&m_p)));
+    row.material_protocol.merge(&score_batch(
+        hb,
+        &[(I_PRIME, &i_given_n_l, &hb.input)],
+        None,
+        Some(&m_p),
+    ));
+    Ok(())
+}
+
+/// The Lombardi-style optimiser on every sample of a batch, scored into `row`.
+fn lombardi_batch(
+    layer: &RenderingLayer,
+    hb: &HostBatch,
+    prior: &ReflectancePrior,
+    cfg: &LombardiConfig,
+    row: &mut LombardiEval,
+) -> Result<()> {
+    let (p, r) = (hb.size * hb.size, hb.regions);
+    let (mut i_s, mut o_s, mut m_s) = (Vec::new(), Vec::new(), Vec::new());
+    for k in 0..hb.batch {
+        let t0 = std::time::Instant::now();
+        let px = k * 3 * p..(k + 1) * 3 * p;
+        let normals = &hb.normals[px.clone()];
+        let region_map = &hb.region_map[k * p..(k + 1) * p];
+        let o = lombardi::Observed {
+            size: hb.size,
+            regions: r,
+            image: &hb.input[px.clone()],
+            region_map,
+            normals,
+        };
+        let res = lombardi::recover(layer, &o, prior, cfg)?;
+        let target = &hb.target_materials[k * r * PARAMS..(k + 1) * r * PARAMS];
+        let one = |m: &[f32], env: &[f32]| {
+            layer.forward(&Batch {
+                batch: 1,
+                size: (hb.size, hb.size),
+                regions: r,
+                normals,
+                region_map,
+                materials: m,
+                env,
+            })
+        };
+        i_s.extend(one(&res.point.materials, &res.point.env)?);
+        o_s.extend(one(target, &res.point.env)?);
+        m_s.extend_from_slice(&res.point.materials);
+        row.energy[0] += res.start.total;
+        row.energy[1] += res.end.total;
+        row.seconds += t0.elapsed().as_secs_f64();
+    }
+    row.metrics.merge(&score_batch(
+        hb,
+        &[(I_PRIME, &i_s, &hb.input), (O_PRIME, &o_s, &hb.target)],
+        None,
+        Some(&m_s),
+    ));
+    Ok(())
 }
 
 /// Keeps the first `keep` samples of a batch.
@@ -449,14 +606,24 @@ impl EvalReport {
             name: "O' = I".into(),
             metrics: self.copy_input.clone(),
         }];
-        if let Some(last) = self.checkpoints.last() {
+        // The last checkpoint that predicts n' and L' (Baseline 1 predicts neither).
+        if let Some(last) = self.checkpoints.iter().rev().find(|c| c.mean_material.samples > 0) {
             t3.push(TableRow {
                 name: format!("mean material (n', L' of {})", last.name),
                 metrics: last.mean_material.clone(),
             });
         }
-        t3.extend(rows(&|c| c.network.clone()));
+        if let Some(l) = &self.lombardi {
+            t3.push(TableRow {
+                name: "Lombardi (true n)".into(),
+                metrics: l.metrics.clone(),
+            });
+        }
         for c in &self.checkpoints {
+            t3.push(TableRow {
+                name: c.name.clone(),
+                metrics: c.network.clone(),
+            });
             if let Some(m) = &c.eq6 {
                 t3.push(TableRow {
                     name: format!("{} + Eq. 6", c.name),
@@ -478,7 +645,8 @@ impl EvalReport {
         out += &super::table1_markdown(&rows(&|c| c.material_protocol.clone()));
         out += "\nTable 2 (normal module, given ground-truth material and illumination):\n\n";
         out += &super::table2_markdown(&rows(&|c| c.normal_protocol.clone()));
-        out += "\nTable 3 (material transfer: O' = R(n', m_t, L') against O; trivial baselines first):\n\n";
+        out += "\nTable 3 (material transfer, O' against O: R(n', m_t, L') for the networks of Fig. 2, R(n, m_t, L*) for \
+                Lombardi, the decoder's image for Baseline 1; trivial baselines first):\n\n";
         out += &super::table3_markdown(&t3);
         out += "\nFull pipeline (n', m', L' all predicted):\n\n";
         out += &super::tables::pipeline_markdown(&rows(&|c| c.network.clone()));

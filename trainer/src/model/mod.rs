@@ -9,10 +9,14 @@
 //! * [`material::MaterialNet`]: strided convolutions, three fully connected layers with dropout,
 //!   tanh to the 108 normalised DSBRDF parameters; one prediction per region.
 //!
+//! [`encoder_decoder::EncoderDecoder`] is Baseline 1 of Sec. 4.5 (after Kulkarni et al.), which
+//! edits without rendering.
+//!
 //! Every module sees the same input: ln(1 + I) (3 channels, which keeps the HDR scale the
 //! illumination module needs while compressing highlights) and the object or region mask.
 
 pub mod encoder;
+pub mod encoder_decoder;
 pub mod illumination;
 pub mod material;
 pub mod normal;

@@ -392,9 +392,20 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
             ));
         }
     };
+    let kinds = |k: StageKind| m.stages.iter().filter(|s| s.get_ref().kind == k).count();
+    if kinds(StageKind::EncoderDecoder) > 0
+        && let Some(other) = m.stages.iter().find(|s| s.get_ref().kind != StageKind::EncoderDecoder)
+    {
+        return Err(bad(
+            other.span(),
+            "stages.kind",
+            "Baseline 1 (kind = \"encoder-decoder\") is a network of its own: give it a manifest without pretrain or joint stages".into(),
+        ));
+    }
     let net = NetConfig::new(*m.model.input_size.get_ref(), widths)
         .with_env_height(*m.model.env_height.get_ref())
-        .with_init(init);
+        .with_init(init)
+        .with_encoder_decoder(m.stages.iter().any(|s| s.get_ref().kind == StageKind::EncoderDecoder));
     if let Err(e) = net.validate() {
         let span = if e.starts_with("input_size") {
             m.model.input_size.span()
@@ -476,11 +487,18 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
             }
         }
         let rw = s.render_with;
-        if s.kind == StageKind::Pretrain && rw != RenderWith::default() {
+        if s.kind != StageKind::Joint && rw != RenderWith::default() {
             return Err(bad(
                 st.span(),
                 &field("render_with"),
-                "a pretrain stage does not render; render_with applies to joint stages".into(),
+                format!(
+                    "a {} stage does not render; render_with applies to joint stages",
+                    if s.kind == StageKind::Pretrain {
+                        "pretrain"
+                    } else {
+                        "encoder-decoder"
+                    }
+                ),
             ));
         }
         if ![rw.normals, rw.material, rw.illumination]

@@ -1,6 +1,7 @@
 //! The whole network of Fig. 2: the three prediction modules (the rendering layer has no
-//! parameters and lives in [`crate::render`]).
+//! parameters and lives in [`crate::render`]); and, in a Baseline 1 run, its encoder–decoder.
 
+use crate::model::encoder_decoder::EncoderDecoder;
 use crate::model::illumination::IlluminationNet;
 use crate::model::material::MaterialNet;
 use crate::model::normal::NormalNet;
@@ -22,6 +23,10 @@ pub struct NetConfig {
     /// Weight initialisation.
     #[config(default = "Init::Uniform008")]
     pub init: Init,
+    /// Whether the network also holds Baseline 1's encoder–decoder (a run with an
+    /// `encoder-decoder` stage).
+    #[config(default = false)]
+    pub encoder_decoder: bool,
 }
 
 /// The three prediction modules.
@@ -33,6 +38,8 @@ pub struct Net {
     pub material: MaterialNet,
     /// Illumination prediction.
     pub illumination: IlluminationNet,
+    /// Baseline 1 (Sec. 4.5), in a run that trains it.
+    pub encoder_decoder: Option<EncoderDecoder>,
 }
 
 impl NetConfig {
@@ -84,6 +91,9 @@ impl NetConfig {
             normal: NormalNet::new(self.input_size, &self.widths, self.init, device),
             material: MaterialNet::new(self.input_size, &self.widths, self.init, device),
             illumination: IlluminationNet::new(self.input_size, self.env_height, &self.widths, self.init, device),
+            encoder_decoder: self
+                .encoder_decoder
+                .then(|| EncoderDecoder::new(self.input_size, &self.widths, self.init, device)),
         }
     }
 }

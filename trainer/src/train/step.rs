@@ -11,6 +11,7 @@ use crate::render::op::{Rendered, host};
 use anyhow::{Context, Result};
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor};
+use matedit_physics::brdf::dsbrdf::PARAMS;
 use serde::{Deserialize, Serialize};
 
 /// What a stage trains.
@@ -22,6 +23,9 @@ pub enum StageKind {
     Pretrain,
     /// The modules through the rendering layer with the joint loss of Eq. 5.
     Joint,
+    /// Baseline 1 of Sec. 4.5 (after Kulkarni et al.): the encoder–decoder alone, with the L2
+    /// loss on f_m (w_m) and the perceptual loss on its O' (w_p, and w_s when set); no rendering.
+    EncoderDecoder,
 }
 
 /// Where the rendering layer takes one of its inputs from in a joint stage.
@@ -222,6 +226,9 @@ pub fn train_step(
     step: StepKind,
     ctx: &StepContext,
 ) -> Result<(Net, Losses)> {
+    if step.kind == StageKind::EncoderDecoder {
+        return encoder_decoder_step(net, optim, lr, host_batch, ctx);
+    }
     let (w, device) = (ctx.weights, ctx.device);
     let b = host_batch.to_device(device);
     let rw = step.render_with;
@@ -300,6 +307,52 @@ pub fn train_step(
         + w.perceptual * losses.perceptual
         + w.illumination * losses.illumination
         + w.ssim * losses.ssim;
+    if !losses.total.is_finite() {
+        anyhow::bail!("the loss is not finite ({losses:?}) on batch {:?}", host_batch.ids);
+    }
+    let grads = GradientsParams::from_grads(total.backward(), &net);
+    let net = optim.step(lr, net, grads);
+    Ok((net, losses))
+}
+
+/// One step of Baseline 1: f_m against m (Eq. 4), O' = D(f_o, E(m_t)) against O.
+fn encoder_decoder_step(
+    net: Net,
+    optim: &mut ModuleOptimizer,
+    lr: f64,
+    host_batch: &HostBatch,
+    ctx: &StepContext,
+) -> Result<(Net, Losses)> {
+    let w = ctx.weights;
+    let ed = net
+        .encoder_decoder
+        .as_ref()
+        .context("an encoder-decoder stage needs a network built with its encoder-decoder")?;
+    if host_batch.regions != 1 {
+        anyhow::bail!(
+            "Baseline 1 edits single-material objects; batch {:?} has {} regions",
+            host_batch.ids,
+            host_batch.regions
+        );
+    }
+    let b = host_batch.to_device(ctx.device);
+    let n = host_batch.batch;
+    let m_t = b.target_materials.clone().reshape([n, PARAMS]);
+    let (m_p, o_p) = ed.edit(b.input.clone(), b.mask.clone(), m_t);
+    let lm = material_loss(m_p.reshape([n, 1, PARAMS]), b.materials.clone());
+    let lp = ctx.perceptual.loss(o_p.clone(), b.target.clone(), b.mask.clone());
+    let mut losses = Losses {
+        material: scalar(&lm),
+        perceptual: scalar(&lp),
+        ..Losses::default()
+    };
+    let mut total = lm.mul_scalar(w.material) + lp.mul_scalar(w.perceptual);
+    if w.ssim > 0.0 {
+        let ls = ssim_loss(o_p, b.target.clone(), b.mask.clone());
+        losses.ssim = scalar(&ls);
+        total = total + ls.mul_scalar(w.ssim);
+    }
+    losses.total = w.material * losses.material + w.perceptual * losses.perceptual + w.ssim * losses.ssim;
     if !losses.total.is_finite() {
         anyhow::bail!("the loss is not finite ({losses:?}) on batch {:?}", host_batch.ids);
     }
