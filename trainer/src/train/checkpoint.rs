@@ -136,7 +136,13 @@ pub fn remove_stale_temporaries(root: &Path) -> Result<()> {
 pub fn read_state(dir: &Path) -> Result<State> {
     let p = dir.join("state.json");
     let text = std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()))?;
-    let s: State = serde_json::from_str(&text).with_context(|| format!("{}: not a checkpoint state", p.display()))?;
+    let mut v: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{}: not a checkpoint state", p.display()))?;
+    // Checkpoints written before Baseline 1 existed have no such field: they hold none.
+    if let Some(net) = v.get_mut("net").and_then(|n| n.as_object_mut()) {
+        net.entry("encoder_decoder").or_insert(serde_json::Value::Bool(false));
+    }
+    let s: State = serde_json::from_value(v).with_context(|| format!("{}: not a checkpoint state", p.display()))?;
     if s.version != VERSION {
         bail!("{}: version {} (this trainer reads {VERSION})", p.display(), s.version);
     }
@@ -188,4 +194,39 @@ pub fn load_net(dir: &Path, device: &Device) -> Result<(Net, State)> {
 pub fn load_optimizer(dir: &Path, fresh: ModuleOptimizer) -> Result<ModuleOptimizer> {
     let p = dir.join("optimizer.bpk");
     fresh.load(&p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::Widths;
+    use burn::optim::AdamConfig;
+
+    #[test]
+    fn checkpoints_from_before_baseline_1_still_load_and_both_kinds_round_trip() {
+        let root = std::env::temp_dir().join(format!("matedit-checkpoint-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let device = Device::flex().autodiff();
+        for with_b1 in [false, true] {
+            let cfg = NetConfig::new(16, Widths::new(4, 16, 32, 8))
+                .with_env_height(4)
+                .with_encoder_decoder(with_b1);
+            let net = cfg.init(&device);
+            let optim = AdamConfig::new().init();
+            let name = format!("b1-{with_b1}");
+            let dir = save(&root, &name, &net, &optim, State::untrained(cfg.clone(), &name)).unwrap();
+            let (back, state) = load_net(&dir, &device).unwrap();
+            assert_eq!(state.net, cfg);
+            assert_eq!(back.encoder_decoder.is_some(), with_b1);
+        }
+        // A state.json written before the field existed reads as a network without Baseline 1.
+        let dir = root.join("checkpoints/b1-false");
+        let p = dir.join("state.json");
+        let mut v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+        assert!(v["net"].as_object_mut().unwrap().remove("encoder_decoder").is_some());
+        std::fs::write(&p, serde_json::to_string_pretty(&v).unwrap()).unwrap();
+        let (net, state) = load_net(&dir, &device).unwrap();
+        assert!(!state.net.encoder_decoder && net.encoder_decoder.is_none());
+        let _ = std::fs::remove_dir_all(&root);
+    }
 }
