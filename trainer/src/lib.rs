@@ -1,9 +1,12 @@
 //! # matedit-trainer
 //!
-//! The trainer of the material-editing network (Fig. 2 of the paper). This first part holds the
-//! material targets: the material module predicts the 108 DSBRDF parameters normalised to the
-//! tanh range [−0.95, 0.95] (Sec. 3.2), and its outputs map back to raw, renderable materials.
-//! The Burn modules, the rendering layer and the training loop build on it.
+//! The network of Fig. 2 of the paper and everything around it: reading the factory's datasets
+//! (`data`), the prediction modules and Baseline 1's encoder–decoder (`model`), the
+//! differentiable rendering layer (`render`), losses, steps, stages and checkpoints (`train`),
+//! the metrics and Tables 1–3 (`eval`), the comparison methods that are not networks
+//! (`baseline`), editing photos and the post-optimisation of Eq. 6 (`edit`), and the material
+//! targets (`targets`): the 108 DSBRDF parameters normalised to the tanh range [−0.95, 0.95]
+//! (Sec. 3.2) and back.
 
 #![warn(missing_docs)]
 

@@ -158,8 +158,8 @@ fn eval_to(checkpoints: &[PathBuf], opts: &EvalOptions, out: &std::path::Path) -
     println!("{md}");
     if let Some(last) = report.checkpoints.last() {
         match report.beats_baselines(&last.name) {
-            Some(true) => println!("{}: O' beats both trivial baselines on L2 and SSIM.", last.name),
-            Some(false) => println!("{}: O' does NOT beat both trivial baselines on L2 and SSIM.", last.name),
+            Some(true) => println!("{}: O' beats the trivial baselines on L2 and SSIM.", last.name),
+            Some(false) => println!("{}: O' does NOT beat the trivial baselines on L2 and SSIM.", last.name),
             None => {}
         }
     }

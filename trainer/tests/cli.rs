@@ -129,17 +129,22 @@ fn dataset() -> &'static Path {
         for (i, m) in mats.iter().enumerate() {
             std::fs::write(src.join(format!("mats/m{i}.dsbrdf.json")), m.to_json()).unwrap();
         }
-        std::fs::write(src.join("m.toml"), DATASET).unwrap();
-        let out = root().join("dataset");
-        let l = load_manifest(&src.join("m.toml")).unwrap();
-        let opts = RunOptions {
-            out: Some(out.clone()),
-            worker: Worker::ALL,
-            progress: false,
-        };
-        run(&l, &opts).unwrap();
-        out
+        render(&src, "m.toml", DATASET, "dataset")
     })
+}
+
+/// Renders dataset manifest `text`, written as `src/name`, into `root()/out`.
+fn render(src: &Path, name: &str, text: &str, out: &str) -> PathBuf {
+    std::fs::write(src.join(name), text).unwrap();
+    let out = root().join(out);
+    let l = load_manifest(&src.join(name)).unwrap();
+    let opts = RunOptions {
+        out: Some(out.clone()),
+        worker: Worker::ALL,
+        progress: false,
+    };
+    run(&l, &opts).unwrap();
+    out
 }
 
 fn trainer() -> Command {
@@ -641,16 +646,7 @@ fn single_material_dataset() -> &'static Path {
         let src = dataset().parent().unwrap().join("src");
         let text = DATASET.replace("[multi_material]\nmode = \"per_region\"\n", "");
         assert_ne!(text, DATASET);
-        std::fs::write(src.join("single.toml"), text).unwrap();
-        let out = root().join("dataset-single");
-        let l = load_manifest(&src.join("single.toml")).unwrap();
-        let opts = RunOptions {
-            out: Some(out.clone()),
-            worker: Worker::ALL,
-            progress: false,
-        };
-        run(&l, &opts).unwrap();
-        out
+        render(&src, "single.toml", &text, "dataset-single")
     })
 }
 

@@ -9,8 +9,11 @@
 //! * R(n', m̄, L'): the trivial baseline that edits to the mean training material m̄ (the mean
 //!   of the normalised parameters of the training splits' materials) instead of m_t.
 //!
-//! The other trivial baseline, O' = I (no edit at all), needs no network. All images are scored
-//! on the ground-truth object mask against I or O.
+//! The other trivial baseline, O' = I (no edit at all), needs no network. Table 3's other
+//! methods: a Baseline 1 checkpoint (`Net::encoder_decoder`) gives O' and m' without rendering;
+//! `--eq6` refines each Fig. 2 network's n', m', L' per sample (Eq. 6) before rendering;
+//! `--lombardi` recovers m*, L* per sample given the true n (`crate::baseline::lombardi`). All
+//! images are scored on the ground-truth object mask against I or O.
 
 use super::{I_PRIME, Metrics, O_PRIME, Pair, Sample, TableRow};
 use crate::baseline::lombardi::{self, LombardiConfig, ReflectancePrior};
@@ -653,11 +656,16 @@ impl EvalReport {
         out
     }
 
-    /// Whether `name`'s O' beats both trivial baselines on L2 (lower) and SSIM (higher).
+    /// Whether `name`'s O' beats the trivial baselines on L2 (lower) and SSIM (higher): both, or
+    /// O' = I alone for a method that predicts no n' and L' to edit with the mean material
+    /// (Baseline 1).
     pub fn beats_baselines(&self, name: &str) -> Option<bool> {
         let c = self.checkpoints.iter().find(|c| c.name == name)?;
         let (l2, ssim) = (c.network.image_l2(O_PRIME)?, c.network.image_ssim(O_PRIME)?);
-        let baselines = [&self.copy_input, &c.mean_material];
+        let mut baselines = vec![&self.copy_input];
+        if c.mean_material.samples > 0 {
+            baselines.push(&c.mean_material);
+        }
         Some(
             baselines.iter().all(|b| {
                 b.image_l2(O_PRIME).is_some_and(|v| l2 < v) && b.image_ssim(O_PRIME).is_some_and(|v| ssim > v)

@@ -4,7 +4,7 @@
 use super::{Init, Widths};
 use burn::module::Module;
 use burn::nn::PaddingConfig2d;
-use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
@@ -31,6 +31,17 @@ pub fn down(cin: usize, cout: usize, init: Init, device: &Device) -> Conv2d {
         .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1));
     if let Some(i) = init.initializer() {
         c = c.with_initializer(i);
+    }
+    c.init(device)
+}
+
+/// A 4×4 stride-2 deconvolution with padding 1 (doubles the size exactly).
+pub fn up(cin: usize, cout: usize, init: Init, device: &Device) -> ConvTranspose2d {
+    let mut c = ConvTranspose2dConfig::new([cin, cout], [4, 4])
+        .with_stride([2, 2])
+        .with_padding([1, 1]);
+    if let Some(x) = init.initializer() {
+        c = c.with_initializer(x);
     }
     c.init(device)
 }

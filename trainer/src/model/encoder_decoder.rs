@@ -13,12 +13,12 @@
 //! exp of the last layer, clamped like the illumination module's radiance. One material per
 //! object, as in the paper's Table 3.
 
-use super::encoder::{channels_at, down, levels_for};
+use super::encoder::{channels_at, down, levels_for, up};
 use super::illumination::LOG_RADIANCE_BOUND;
 use super::material::linear;
 use super::{Init, Widths, network_input};
 use burn::module::Module;
-use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
+use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d};
 use burn::nn::{Dropout, DropoutConfig, Linear, PaddingConfig2d};
 use burn::tensor::activation::{relu, tanh};
 use burn::tensor::{Device, Tensor};
@@ -68,13 +68,7 @@ impl EncoderDecoder {
             .map(|i| {
                 let cin = 2 * channels_at(w, i);
                 let cout = if i == 0 { w.base_channels } else { channels_at(w, i - 1) };
-                let mut c = ConvTranspose2dConfig::new([cin, cout], [4, 4])
-                    .with_stride([2, 2])
-                    .with_padding([1, 1]);
-                if let Some(x) = init.initializer() {
-                    c = c.with_initializer(x);
-                }
-                c.init(device)
+                up(cin, cout, init, device)
             })
             .collect();
         let mut out = Conv2dConfig::new([w.base_channels + 4, 3], [3, 3]).with_padding(PaddingConfig2d::Same);

@@ -3,11 +3,11 @@
 //! layer (clamped to e^±12), so radiance is positive and spans the orders of magnitude of HDR
 //! light probes.
 
-use super::encoder::{Encoder, levels_for};
+use super::encoder::{Encoder, levels_for, up};
 use super::material::linear;
 use super::{Init, Widths, network_input};
 use burn::module::Module;
-use burn::nn::conv::{ConvTranspose2d, ConvTranspose2dConfig};
+use burn::nn::conv::ConvTranspose2d;
 use burn::nn::{Dropout, DropoutConfig, Linear};
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
@@ -45,13 +45,7 @@ impl IlluminationNet {
                 } else {
                     (seed_channels >> (i + 1)).max(8)
                 };
-                let mut c = ConvTranspose2dConfig::new([cin, cout], [4, 4])
-                    .with_stride([2, 2])
-                    .with_padding([1, 1]);
-                if let Some(x) = init.initializer() {
-                    c = c.with_initializer(x);
-                }
-                c.init(device)
+                up(cin, cout, init, device)
             })
             .collect();
         Self {
