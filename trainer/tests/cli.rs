@@ -755,7 +755,7 @@ fn baseline_1_resumes_bit_identically_and_table_3_has_every_method() {
         .arg("--checkpoint")
         .arg(format!("Baseline 2={}", b2.join("checkpoints/pretrain").display()))
         .args(["--eq6", "--eq6-iterations", "1", "--lombardi", "--lombardi-rounds", "1"])
-        .args(["--lombardi-iterations", "2", "--sheet", "0", "--quiet", "--data"])
+        .args(["--lombardi-iterations", "2", "--sheet", "2", "--quiet", "--data"])
         .arg(ds)
         .arg("--out")
         .arg(&json)
@@ -771,6 +771,9 @@ fn baseline_1_resumes_bit_identically_and_table_3_has_every_method() {
     let l = &v["lombardi"]["metrics"]["images"]["O'"];
     assert_eq!(l["l2"]["count"], 4, "{v}");
     assert!(v["lombardi"]["energy"][1].as_f64() <= v["lombardi"]["energy"][0].as_f64());
+    // Every method's O' side by side: I, O, then one column per method of Table 3.
+    let sheet = image::open(root().join("table3-methods.png")).unwrap();
+    assert_eq!((sheet.width(), sheet.height() > 2 * 160), (6 * 160, true));
     // Eq. 6 is not Baseline 1's (it has no n', m', L' to refine).
     assert!(v["checkpoints"][0]["eq6"].is_null() && !v["checkpoints"][1]["eq6"].is_null());
 

@@ -260,6 +260,7 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
         _ => Vec::new(),
     };
     let mut shown: Vec<super::sheet::Shown> = Vec::new();
+    let (mut compared, mut method_names): (Vec<super::sheet::Compared>, Vec<String>) = (Vec::new(), Vec::new());
     let mut seen = 0usize;
     for batch in loader {
         if seen >= limit {
@@ -281,19 +282,23 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
         }
         let copy = score_batch(&hb, &[(O_PRIME, &hb.input, &hb.target)], None, None);
         report.copy_input.merge(&copy);
+        // Every method's O' of this batch, in Table 3's order, for the methods sheet.
+        let mut edits: Vec<(String, Vec<f32>)> = Vec::new();
         if let (Some(cfg), Some(prior)) = (&opts.lombardi, &reflectance_prior) {
             let row = report.lombardi.get_or_insert_with(|| LombardiEval {
                 config: Some(cfg.clone()),
                 prior_materials: prior.materials,
                 ..Default::default()
             });
-            lombardi_batch(&layer, &hb, prior, cfg, row)?;
+            let o_s = lombardi_batch(&layer, &hb, prior, cfg, row)?;
+            edits.push(("Lombardi (true n)".into(), o_s));
         }
         let last = nets.len() - 1;
         for (c, ((net, _), row)) in nets.iter().zip(report.checkpoints.iter_mut()).enumerate() {
             let tb = hb.to_device(&device);
             if let Some(ed) = &net.encoder_decoder {
-                encoder_decoder_batch(ed, &layer, &hb, tb, row)?;
+                let o_p = encoder_decoder_batch(ed, &layer, &hb, tb, row)?;
+                edits.push((row.name.clone(), o_p));
                 continue;
             }
             let p = predict(net, &tb, true);
@@ -330,6 +335,7 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
                 .merge(&score_batch(&hb, &[(I_PRIME, &i_given_m_l, i)], Some(&n_p), None));
             row.mean_material
                 .merge(&score_batch(&hb, &[(O_PRIME, &o_mean, o)], None, None));
+            edits.push((row.name.clone(), o_p.clone()));
             if let Some(cfg) = &opts.eq6 {
                 let (star, energy) = eq6_batch(&layer, &hb, &n_p, &m_p, &l_p, cfg)?;
                 let (n_s, m_s, l_s) = (&star.normals, &star.materials, &star.env);
@@ -345,6 +351,7 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
                 for (a, b) in e.iter_mut().zip(energy) {
                     *a += b;
                 }
+                edits.push((format!("{} + Eq. 6", row.name), o_s));
             }
             if c == last {
                 let (p, t) = (hb.size * hb.size, 2 * hb.env_height * hb.env_height);
@@ -362,6 +369,18 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
                 }
             }
         }
+        let p = hb.size * hb.size;
+        for k in (0..hb.batch).filter(|k| picks.contains(&(seen + k))) {
+            let px = |v: &[f32]| v[k * 3 * p..(k + 1) * 3 * p].to_vec();
+            method_names = edits.iter().map(|(n, _)| n.clone()).collect();
+            compared.push(super::sheet::Compared {
+                size: hb.size,
+                mask: hb.mask[k * p..(k + 1) * p].to_vec(),
+                input: px(&hb.input),
+                target: px(&hb.target),
+                edits: edits.iter().map(|(_, v)| px(v)).collect(),
+            });
+        }
         seen += hb.batch;
         bar.set_position(seen as u64);
     }
@@ -371,6 +390,13 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
         && !shown.is_empty()
     {
         super::sheet::write(path, &shown)?;
+    }
+    // With more than one method, their O' side by side: `SHEET-methods.png`.
+    if let Some((path, _)) = &opts.sheet
+        && method_names.len() > 1
+        && !compared.is_empty()
+    {
+        super::sheet::write_methods(&methods_sheet_path(path), &method_names, &compared)?;
     }
     if seen == 0 {
         bail!(
@@ -431,6 +457,15 @@ fn eq6_batch(
     Ok((out, energy))
 }
 
+/// Where the methods sheet of a contact sheet at `sheet` goes: `NAME-methods.png` beside it.
+pub fn methods_sheet_path(sheet: &Path) -> PathBuf {
+    let stem = sheet
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    sheet.with_file_name(format!("{stem}-methods.png"))
+}
+
 /// Baseline 1 on a batch: its O' = D(f_o, E(m_t)) against O and f_m against m (the full
 /// pipeline's row), and R(n, f_m, L) against I (Table 1's protocol). It predicts no normals
 /// and no light, so Table 2 and the mean-material baseline have no entry for it.
@@ -440,7 +475,7 @@ fn encoder_decoder_batch(
     hb: &HostBatch,
     tb: crate::train::batch::TensorBatch,
     row: &mut CheckpointEval,
-) -> Result<()> {
+) -> Result<Vec<f32>> {
     if hb.regions != 1 {
         bail!(
             "Baseline 1 edits single-material objects; samples {:?} have {} regions",
@@ -468,17 +503,17 @@ fn encoder_decoder_batch(
         None,
         Some(&m_p),
     ));
-    Ok(())
+    Ok(o_p)
 }
 
-/// The Lombardi-style optimiser on every sample of a batch, scored into `row`.
+/// The Lombardi-style optimiser on every sample of a batch, scored into `row`; its O'.
 fn lombardi_batch(
     layer: &RenderingLayer,
     hb: &HostBatch,
     prior: &ReflectancePrior,
     cfg: &LombardiConfig,
     row: &mut LombardiEval,
-) -> Result<()> {
+) -> Result<Vec<f32>> {
     let (p, r) = (hb.size * hb.size, hb.regions);
     let (mut i_s, mut o_s, mut m_s) = (Vec::new(), Vec::new(), Vec::new());
     for k in 0..hb.batch {
@@ -519,7 +554,7 @@ fn lombardi_batch(
         None,
         Some(&m_s),
     ));
-    Ok(())
+    Ok(o_s)
 }
 
 /// Keeps the first `keep` samples of a batch.

@@ -1,5 +1,6 @@
 //! The contact sheet of `trainer eval`: one row per shown sample, columns I, I', O, O', n, n',
-//! L, L' (the final checkpoint's predictions) under a header row naming them. Each pair shares
+//! L, L' (the final checkpoint's predictions) under a header row naming them; and, when several
+//! methods are scored, the methods sheet: I, O and every method's O' side by side. Each pair shares
 //! the ground truth's exposure (the metrics' rule, [`super::metrics::metric_exposure`]), so a
 //! brightness error shows as one.
 
@@ -122,6 +123,55 @@ const LABELS: SheetLabels<'static> = SheetLabels {
 pub fn sheet_image(shown: &[Shown]) -> image::RgbaImage {
     let tiles: Vec<Tile> = shown.iter().flat_map(tiles).collect();
     contact_sheet(&tiles, TILE, TILE, COLUMNS.len(), &LABELS)
+}
+
+/// One shown sample of the methods sheet: I, O and each method's O' (`[3, S, S]` each).
+#[derive(Clone, Debug, Default)]
+pub struct Compared {
+    /// Image side.
+    pub size: usize,
+    /// Object mask `[S, S]`.
+    pub mask: Vec<f32>,
+    /// I.
+    pub input: Vec<f32>,
+    /// O.
+    pub target: Vec<f32>,
+    /// Each method's O', in the order of the names.
+    pub edits: Vec<Vec<f32>>,
+}
+
+/// Tile side of the methods sheet (wider than [`TILE`]: its column names are longer).
+pub const METHOD_TILE: usize = 160;
+
+/// The methods sheet: per sample I, O and every method's O' (the edits at O's exposure, so that
+/// a brightness error shows), under a header row naming them.
+pub fn methods_image(names: &[String], compared: &[Compared]) -> image::RgbaImage {
+    let mut columns: Vec<&str> = vec!["I (input)", "O (truth)"];
+    columns.extend(names.iter().map(String::as_str));
+    let mut tiles: Vec<Tile> = Vec::new();
+    for c in compared {
+        let (n, hw) = (c.size, c.size * c.size);
+        let at = |img: &[f32], e: f32| letterboxed(METHOD_TILE, n, n, [0; 4], radiance(img, Some(&c.mask), hw, e));
+        tiles.push(at(&c.input, metric_exposure(&c.input, &c.mask)));
+        let e = metric_exposure(&c.target, &c.mask);
+        for img in std::iter::once(&c.target).chain(&c.edits) {
+            tiles.push(at(img, e));
+        }
+    }
+    let labels = SheetLabels {
+        columns: &columns,
+        rows: &[],
+    };
+    contact_sheet(&tiles, METHOD_TILE, METHOD_TILE, columns.len(), &labels)
+}
+
+/// Writes the methods sheet to `path` (PNG, atomically).
+pub fn write_methods(path: &Path, names: &[String], compared: &[Compared]) -> Result<()> {
+    let img = methods_image(names, compared);
+    matedit_datagen::io::write_atomically(path, |tmp| {
+        img.save_with_format(tmp, image::ImageFormat::Png)
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))
+    })
 }
 
 /// Writes the sheet of `shown` to `path` (PNG, atomically).
