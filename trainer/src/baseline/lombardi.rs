@@ -79,8 +79,8 @@ impl LombardiConfig {
     /// Checks the settings a user can give.
     pub fn validate(&self) -> Result<()> {
         for (name, v) in [
-            ("material weight", self.material_weight),
-            ("light weight", self.light_weight),
+            ("material weight (--lombardi-material-weight)", self.material_weight),
+            ("light weight (--lombardi-light-weight)", self.light_weight),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 bail!("Lombardi baseline: the {name} must be finite and ≥ 0, got {v}");
@@ -93,7 +93,11 @@ impl LombardiConfig {
             );
         }
         if self.rounds == 0 || self.iterations == 0 {
-            bail!("Lombardi baseline: rounds and iterations must be ≥ 1");
+            bail!(
+                "Lombardi baseline: rounds (--lombardi-rounds) and iterations (--lombardi-iterations) must be ≥ 1, got {} and {}",
+                self.rounds,
+                self.iterations
+            );
         }
         Ok(())
     }
@@ -480,7 +484,8 @@ mod tests {
                 ..Default::default()
             },
         ] {
-            assert!(bad.validate().is_err(), "{bad:?}");
+            let e = bad.validate().err().map(|e| e.to_string()).unwrap_or_default();
+            assert!(e.starts_with("Lombardi baseline:"), "{bad:?}: {e}");
         }
     }
 }
