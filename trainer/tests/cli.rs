@@ -67,21 +67,7 @@ f 1 3 5\nf 3 2 5\nf 2 4 5\nf 4 1 5\nf 3 1 6\nf 2 3 6\nf 4 2 6\nf 1 4 6\n";
 /// A training manifest over `dataset`: two stages with frequent checkpoints.
 fn training_manifest(dataset: &Path) -> String {
     format!(
-        r#"
-[run]
-name = "cli"
-seed = 4
-output = "unused"
-
-[model]
-input_size = 16
-env_height = 4
-widths = {{ base_channels = 4, max_channels = 16, hidden = 32, normal_channels = 8 }}
-
-[data]
-dataset = "{}"
-workers = 1
-
+        r#"{}
 [[stages]]
 name = "pretrain"
 kind = "pretrain"
@@ -101,6 +87,28 @@ checkpoint_every = 4
 
 [eval]
 split = "test"
+"#,
+        run_head(dataset, "cli", 4)
+    )
+}
+
+/// The `[run]`, `[model]` and `[data]` sections every test manifest shares.
+fn run_head(dataset: &Path, name: &str, seed: u64) -> String {
+    format!(
+        r#"
+[run]
+name = "{name}"
+seed = {seed}
+output = "unused"
+
+[model]
+input_size = 16
+env_height = 4
+widths = {{ base_channels = 4, max_channels = 16, hidden = 32, normal_channels = 8 }}
+
+[data]
+dataset = "{}"
+workers = 1
 "#,
         dataset.display()
     )
@@ -652,21 +660,7 @@ fn single_material_dataset() -> &'static Path {
 
 fn one_stage_manifest(dataset: &Path, name: &str, kind: &str, steps: usize) -> String {
     format!(
-        r#"
-[run]
-name = "{name}"
-seed = 6
-output = "unused"
-
-[model]
-input_size = 16
-env_height = 4
-widths = {{ base_channels = 4, max_channels = 16, hidden = 32, normal_channels = 8 }}
-
-[data]
-dataset = "{}"
-workers = 1
-
+        r#"{}
 [[stages]]
 name = "{name}"
 kind = "{kind}"
@@ -675,7 +669,7 @@ batch_size = 4
 learning_rate = [[0, 2e-3]]
 checkpoint_every = 3
 "#,
-        dataset.display()
+        run_head(dataset, name, 6)
     )
 }
 

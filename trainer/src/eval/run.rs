@@ -122,16 +122,15 @@ pub struct LombardiEval {
     pub seconds: f64,
 }
 
-/// The mean normalised parameters of the materials of `ds`'s training splits, with their ids.
-pub fn mean_training_material(ds: &Dataset) -> Result<([f32; PARAMS], Vec<String>)> {
-    let (materials, ids) = training_materials(ds)?;
+/// The mean of normalised materials (`training_materials` never returns none).
+fn mean_of(materials: &[[f32; PARAMS]]) -> [f32; PARAMS] {
     let mut sum = [0.0f64; PARAMS];
-    for m in &materials {
+    for m in materials {
         for (s, v) in sum.iter_mut().zip(m) {
             *s += *v as f64;
         }
     }
-    Ok((sum.map(|s| (s / ids.len() as f64) as f32), ids))
+    sum.map(|s| (s / materials.len().max(1) as f64) as f32)
 }
 
 /// The normalised parameters of the materials of `ds`'s training splits, with their ids (sorted).
@@ -183,15 +182,15 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
             opts.categories.join(", ")
         );
     }
-    let (mean, mean_ids) = mean_training_material(&train_ds)?;
+    let (training, mean_ids) = training_materials(&train_ds)?;
+    let mean = mean_of(&training);
     if !opts.names.is_empty() && opts.names.len() != checkpoints.len() {
         bail!("{} names for {} checkpoints", opts.names.len(), checkpoints.len());
     }
     let reflectance_prior = match &opts.lombardi {
         Some(cfg) => {
             cfg.validate()?;
-            let (materials, _) = training_materials(&train_ds)?;
-            Some(ReflectancePrior::fit(&materials.iter().collect::<Vec<_>>())?)
+            Some(ReflectancePrior::fit(&training.iter().collect::<Vec<_>>())?)
         }
         None => None,
     };
@@ -284,6 +283,7 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
         report.copy_input.merge(&copy);
         // Every method's O' of this batch, in Table 3's order, for the methods sheet.
         let mut edits: Vec<(String, Vec<f32>)> = Vec::new();
+        let shows = (0..hb.batch).any(|k| picks.contains(&(seen + k)));
         if let (Some(cfg), Some(prior)) = (&opts.lombardi, &reflectance_prior) {
             let row = report.lombardi.get_or_insert_with(|| LombardiEval {
                 config: Some(cfg.clone()),
@@ -335,7 +335,9 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
                 .merge(&score_batch(&hb, &[(I_PRIME, &i_given_m_l, i)], Some(&n_p), None));
             row.mean_material
                 .merge(&score_batch(&hb, &[(O_PRIME, &o_mean, o)], None, None));
-            edits.push((row.name.clone(), o_p.clone()));
+            if shows {
+                edits.push((row.name.clone(), o_p.clone()));
+            }
             if let Some(cfg) = &opts.eq6 {
                 let (star, energy) = eq6_batch(&layer, &hb, &n_p, &m_p, &l_p, cfg)?;
                 let (n_s, m_s, l_s) = (&star.normals, &star.materials, &star.env);
