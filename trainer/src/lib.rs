@@ -4,7 +4,8 @@
 //! (`data`), the prediction modules and Baseline 1's encoder–decoder (`model`), the
 //! differentiable rendering layer (`render`), losses, steps, stages and checkpoints (`train`),
 //! the metrics and Tables 1–3 (`eval`), the comparison methods that are not networks
-//! (`baseline`), editing photos and the post-optimisation of Eq. 6 (`edit`), and the material
+//! (`baseline`), editing photos and the post-optimisation of Eq. 6 (`edit`), the editing web page
+//! (`serve`), and the material
 //! targets (`targets`): the 108 DSBRDF parameters normalised to the tanh range [−0.95, 0.95]
 //! (Sec. 3.2) and back.
 
@@ -19,4 +20,5 @@ pub mod eval;
 pub mod model;
 pub mod render;
 pub mod targets;
+pub mod serve;
 pub mod train;

@@ -255,7 +255,7 @@ pub fn recover(
         iterations: cfg.iterations,
         history: cfg.history,
     };
-    alternate(&problem, start, &solver, &[Property::Material, Property::Light])
+    alternate(&problem, start, &solver, &[Property::Material, Property::Light], None)
 }
 
 #[cfg(test)]

@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 use matedit_trainer::edit::optimize::Eq6Config;
 use matedit_trainer::edit::target::parse_material_arg;
 use matedit_trainer::edit::{Composite, EditRequest, edit, swap, transfer};
+use matedit_trainer::serve::{ServeConfig, serve};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -125,6 +126,41 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         #[command(flatten)]
         finish: Finish,
     },
+    /// Material editing in the browser: a page to upload a photo and its mask (or paint it),
+    /// pick a library material by its sphere or a photo to transfer from, optionally refine with
+    /// Eq. 6 (live energy, cancellable), and see and download everything `edit` writes.
+    #[command(after_help = "Example:
+  matedit serve --model out/train/quickstart        # then open http://127.0.0.1:8080
+
+Edits run one at a time through the same code as `matedit edit`; others wait in a bounded queue
+and see their place. Uploads are checked by decoding them; nothing a request names reaches the
+file system. Binds to 127.0.0.1 unless --bind says otherwise.")]
+    Serve {
+        /// A run folder (its latest checkpoint) or a checkpoint folder.
+        #[arg(long)]
+        model: PathBuf,
+        /// Port (0: any free one, printed).
+        #[arg(long, default_value_t = 8080)]
+        port: u16,
+        /// Address to listen on (e.g. 0.0.0.0 for every interface).
+        #[arg(long, default_value = "127.0.0.1")]
+        bind: std::net::IpAddr,
+        /// Edits that may wait beyond the running one.
+        #[arg(long, default_value_t = 8)]
+        queue: usize,
+        /// Largest upload in MB (photo, mask and transfer photo together).
+        #[arg(long, default_value_t = 32)]
+        max_upload_mb: usize,
+        /// Largest photo in megapixels.
+        #[arg(long, default_value_t = 25.0)]
+        max_megapixels: f64,
+        /// Finished edits whose files are kept for download.
+        #[arg(long, default_value_t = 32)]
+        keep: usize,
+        /// Folder for uploads and outputs (default: a temporary one, removed on exit).
+        #[arg(long)]
+        work: Option<PathBuf>,
+    },
 }
 
 /// What `transfer` and `swap` take after their two photos.
@@ -143,6 +179,29 @@ struct Finish {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
+        Command::Serve {
+            model,
+            port,
+            bind,
+            queue,
+            max_upload_mb,
+            max_megapixels,
+            keep,
+            work,
+        } => {
+            if !(max_megapixels > 0.0 && max_megapixels.is_finite()) {
+                anyhow::bail!("--max-megapixels {max_megapixels}: expected a positive number");
+            }
+            let mut cfg = ServeConfig::new(model);
+            cfg.port = port;
+            cfg.bind = bind;
+            cfg.queue = queue;
+            cfg.max_upload_bytes = max_upload_mb.saturating_mul(1 << 20);
+            cfg.max_pixels = (max_megapixels * 1e6) as u64;
+            cfg.keep = keep;
+            cfg.work = work;
+            serve(cfg)
+        }
         Command::Edit {
             model,
             image,

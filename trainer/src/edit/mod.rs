@@ -11,6 +11,7 @@ pub mod composite;
 pub mod optimize;
 pub mod output;
 pub mod photo;
+pub mod progress;
 pub mod target;
 #[cfg(test)]
 mod tests;
@@ -26,7 +27,9 @@ use burn::tensor::Device;
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use photo::{Framing, Photo, TRAINING_MEAN_LUMINANCE, luminance};
+use progress::{Progress, enter};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// How the re-rendered object goes back into the photo.
@@ -399,13 +402,16 @@ pub fn read_photo(photo_path: &Path, mask: Option<&Path>, regions: Option<&Path>
     })
 }
 
-/// Frames a read photo and runs the network (and Eq. 6 with `optimize`).
+/// Frames a read photo and runs the network (and Eq. 6 with `optimize`), showing its phases to
+/// `watcher`.
 pub fn understand(
     model: &Model,
     read: ReadPhoto,
     path: &Path,
     optimize: Option<&optimize::Eq6Config>,
+    watcher: Option<&Arc<Progress>>,
 ) -> Result<Understood> {
+    let w = watcher.map(|w| w.as_ref());
     let ReadPhoto {
         photo: p,
         coverage,
@@ -418,12 +424,14 @@ pub fn understand(
         labels.as_ref().map(|(l, n)| (l.as_slice(), *n)),
         model.state.net.input_size,
     )?;
+    enter(w, "network")?;
     let t = Instant::now();
     let mut x = network_prediction(&model.net, model.state.net.env_height, &prep)?;
     let network_seconds = t.elapsed().as_secs_f64();
     let eq6 = match optimize {
         None => None,
         Some(cfg) => {
+            enter(w, "eq6")?;
             let t = Instant::now();
             let prior = x.clone();
             let problem = optimize::Problem {
@@ -438,7 +446,7 @@ pub fn understand(
                 b: cfg.b,
                 priors: optimize::Priors::NONE,
             };
-            let r = optimize::post_optimise(&problem, prior.clone(), cfg)?;
+            let r = optimize::post_optimise_watched(&problem, prior.clone(), cfg, watcher)?;
             x = r.point;
             Some(Eq6Report {
                 config: cfg.clone(),
@@ -473,7 +481,9 @@ fn finish(
     out: &Path,
     t0: Instant,
     t_load: f64,
+    watcher: Option<&Progress>,
 ) -> Result<EditReport> {
+    enter(watcher, "render")?;
     let t1 = Instant::now();
     let target_params: Option<Vec<f32>> = (!targets.is_empty()).then(|| {
         targets
@@ -541,6 +551,7 @@ fn finish(
         },
         files: Vec::new(),
     };
+    enter(watcher, "write")?;
     let t3 = Instant::now();
     let mats: Vec<Dsbrdf> = targets.iter().map(|(m, _)| m.clone()).collect();
     report.files = output::write_all(out, &p, &prep, &pred, &composites, &mats)?;
@@ -558,11 +569,31 @@ fn finish(
 /// written when any input is bad.
 pub fn edit(model: &Path, req: &EditRequest, out: &Path) -> Result<EditReport> {
     let t0 = Instant::now();
+    check_request(req)?;
+    output::refuse_overwriting_inputs(out, &[Some(&req.photo), req.mask.as_deref(), req.regions.as_deref()])?;
+    let model = Model::load(model)?;
+    edit_with(&model, req, out, None, t0)
+}
+
+fn check_request(req: &EditRequest) -> Result<()> {
     if req.materials.is_empty() && req.relight.is_none() {
         bail!("nothing to do: give --material (the edit) and/or --relight (another illumination)");
     }
+    Ok(())
+}
+
+/// [`edit`] with a loaded model (what `matedit serve` runs for every request), its phases and
+/// Eq. 6's energies shown to `watcher`; `t0` is when the request began.
+pub fn edit_with(
+    model: &Model,
+    req: &EditRequest,
+    out: &Path,
+    watcher: Option<&Arc<Progress>>,
+    t0: Instant,
+) -> Result<EditReport> {
+    check_request(req)?;
     output::refuse_overwriting_inputs(out, &[Some(&req.photo), req.mask.as_deref(), req.regions.as_deref()])?;
-    let model = Model::load(model)?;
+    enter(watcher.map(|w| w.as_ref()), "reading")?;
     let read = read_photo(&req.photo, req.mask.as_deref(), req.regions.as_deref())?;
     let regions = read.labels.as_ref().map_or(1, |l| l.1);
     let targets: Vec<(Dsbrdf, target::RegionTarget)> =
@@ -576,8 +607,18 @@ pub fn edit(model: &Path, req: &EditRequest, out: &Path) -> Result<EditReport> {
         .map(|spec| Ok::<_, anyhow::Error>((spec.as_str(), target::relight_env(spec, model.state.net.env_height)?)))
         .transpose()?;
     let t_load = t0.elapsed().as_secs_f64();
-    let u = understand(&model, read, &req.photo, req.optimize.as_ref())?;
-    finish(&model, u, &targets, relight, req.composite, out, t0, t_load)
+    let u = understand(model, read, &req.photo, req.optimize.as_ref(), watcher)?;
+    finish(
+        model,
+        u,
+        &targets,
+        relight,
+        req.composite,
+        out,
+        t0,
+        t_load,
+        watcher.map(|w| w.as_ref()),
+    )
 }
 
 /// Material transfer (Fig. 4): the material predicted from photo `from` (its first region)
@@ -593,13 +634,40 @@ pub fn transfer(
     let t0 = Instant::now();
     output::refuse_overwriting_inputs(out, &[Some(from.0), from.1, Some(to.0), to.1])?;
     let model = Model::load(model)?;
+    transfer_with(&model, from, to, optimize, how, out, None, t0)
+}
+
+/// [`transfer`] with a loaded model, watched as [`edit_with`].
+#[allow(clippy::too_many_arguments)]
+pub fn transfer_with(
+    model: &Model,
+    from: (&Path, Option<&Path>),
+    to: (&Path, Option<&Path>),
+    optimize: Option<&optimize::Eq6Config>,
+    how: Composite,
+    out: &Path,
+    watcher: Option<&Arc<Progress>>,
+    t0: Instant,
+) -> Result<EditReport> {
+    output::refuse_overwriting_inputs(out, &[Some(from.0), from.1, Some(to.0), to.1])?;
+    enter(watcher.map(|w| w.as_ref()), "reading")?;
     let read_from = read_photo(from.0, from.1, None)?;
     let read_to = read_photo(to.0, to.1, None)?;
     let t_load = t0.elapsed().as_secs_f64();
-    let source = understand(&model, read_from, from.0, optimize)?;
+    let source = understand(model, read_from, from.0, optimize, watcher)?;
     let target = source_material(&source)?;
-    let u = understand(&model, read_to, to.0, optimize)?;
-    finish(&model, u, &[target], None, how, out, t0, t_load)
+    let u = understand(model, read_to, to.0, optimize, watcher)?;
+    finish(
+        model,
+        u,
+        &[target],
+        None,
+        how,
+        out,
+        t0,
+        t_load,
+        watcher.map(|w| w.as_ref()),
+    )
 }
 
 /// The DSBRDF predicted for a photo's first region, as a target for another photo.
@@ -638,10 +706,10 @@ pub fn swap(
     let model = Model::load(model)?;
     let (read_a, read_b) = (read_photo(a.0, a.1, None)?, read_photo(b.0, b.1, None)?);
     let t_load = t0.elapsed().as_secs_f64();
-    let ua = understand(&model, read_a, a.0, optimize)?;
-    let ub = understand(&model, read_b, b.0, optimize)?;
+    let ua = understand(&model, read_a, a.0, optimize, None)?;
+    let ub = understand(&model, read_b, b.0, optimize, None)?;
     let (ta, tb) = (source_material(&ua)?, source_material(&ub)?);
-    let ra = finish(&model, ua, &[tb], None, how, &out_a, t0, t_load)?;
-    let rb = finish(&model, ub, &[ta], None, how, &out_b, t0, t_load)?;
+    let ra = finish(&model, ua, &[tb], None, how, &out_a, t0, t_load, None)?;
+    let rb = finish(&model, ub, &[ta], None, how, &out_b, t0, t_load, None)?;
     Ok([ra, rb])
 }

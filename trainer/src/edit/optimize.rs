@@ -14,6 +14,7 @@
 //! Pixels of I that are not finite take no part. Each L-BFGS run starts where the previous
 //! ended and keeps its best point, so E never increases from one logged iteration to the next.
 
+use super::progress::{Cancelled, Progress};
 use crate::render::{Batch, RenderingLayer};
 use anyhow::{Result, anyhow};
 use argmin::core::observers::{Observe, ObserverMode};
@@ -487,8 +488,13 @@ impl Gradient for Lent<'_, '_> {
     }
 }
 
-/// Records the best cost after each iteration.
-struct Recorder(Arc<Mutex<Vec<(u64, f64)>>>);
+/// Records the best cost after each iteration, shows it to a watcher (never above `floor`, the
+/// energy the property's run started from) and stops the run once the watcher cancels.
+struct Recorder {
+    log: Arc<Mutex<Vec<(u64, f64)>>>,
+    watcher: Option<Arc<Progress>>,
+    floor: f64,
+}
 
 impl Observe<IterState<Vec<f64>, Vec<f64>, (), (), (), f64>> for Recorder {
     fn observe_iter(
@@ -496,8 +502,17 @@ impl Observe<IterState<Vec<f64>, Vec<f64>, (), (), (), f64>> for Recorder {
         state: &IterState<Vec<f64>, Vec<f64>, (), (), (), f64>,
         _kv: &KV,
     ) -> Result<(), argmin::core::Error> {
-        if let Ok(mut v) = self.0.lock() {
-            v.push((state.get_iter(), state.get_best_cost()));
+        let best = state.get_best_cost();
+        if let Ok(mut v) = self.log.lock() {
+            v.push((state.get_iter(), best));
+        }
+        if let Some(w) = &self.watcher {
+            if state.get_iter() > 0 && best.is_finite() {
+                w.energy(best.min(self.floor));
+            }
+            if w.is_cancelled() {
+                return Err(argmin::core::Error::new(Cancelled));
+            }
         }
         Ok(())
     }
@@ -517,18 +532,39 @@ pub struct Optimised {
 
 /// Eq. 6 from `start` (the network's prediction, whose n' and L' are also `problem`'s priors).
 pub fn post_optimise(problem: &Problem, start: Point, cfg: &Eq6Config) -> Result<Optimised> {
+    post_optimise_watched(problem, start, cfg, None)
+}
+
+/// [`post_optimise`], showing its energies to `watcher` and stopping with
+/// [`Cancelled`] when it cancels.
+pub fn post_optimise_watched(
+    problem: &Problem,
+    start: Point,
+    cfg: &Eq6Config,
+    watcher: Option<&Arc<Progress>>,
+) -> Result<Optimised> {
     alternate(
         problem,
         start,
         cfg,
         &[Property::Normals, Property::Material, Property::Light],
+        watcher,
     )
 }
 
 /// `problem`'s energy from `start`, minimised over `properties` in turn (the others held), each
-/// by L-BFGS, for `cfg.rounds` rounds.
-pub fn alternate(problem: &Problem, start: Point, cfg: &Eq6Config, properties: &[Property]) -> Result<Optimised> {
+/// by L-BFGS, for `cfg.rounds` rounds; `watcher` sees every iteration's energy and may cancel.
+pub fn alternate(
+    problem: &Problem,
+    start: Point,
+    cfg: &Eq6Config,
+    properties: &[Property],
+    watcher: Option<&Arc<Progress>>,
+) -> Result<Optimised> {
     let (e0, _) = problem.energy(&start, false)?;
+    if let Some(w) = watcher {
+        w.energy(e0.total);
+    }
     let mut x = start;
     let mut current = e0;
     let mut steps = Vec::new();
@@ -543,8 +579,18 @@ pub fn alternate(problem: &Problem, start: Point, cfg: &Eq6Config, properties: &
             let solver = LBFGS::new(line, cfg.history.max(1));
             let run = Executor::new(Lent(&par), solver)
                 .configure(|s| s.param(q0.clone()).max_iters(cfg.iterations as u64))
-                .add_observer(Recorder(log.clone()), ObserverMode::Always)
+                .add_observer(
+                    Recorder {
+                        log: log.clone(),
+                        watcher: watcher.cloned(),
+                        floor: current.total,
+                    },
+                    ObserverMode::Always,
+                )
                 .run();
+            if watcher.is_some_and(|w| w.is_cancelled()) {
+                return Err(Cancelled.into());
+            }
             steps.push(Step {
                 round,
                 property,

@@ -6,7 +6,9 @@ use anyhow::{Context, Result, bail};
 use matedit_datagen::materials::{cache, fit, library};
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::{BrdfModel, BrdfSpec};
+use std::collections::HashMap;
 use std::path::Path;
+use std::sync::{Mutex, OnceLock};
 
 /// A region's target as the report records it.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -55,7 +57,16 @@ pub fn dsbrdf_of(spec: &str) -> Result<(Dsbrdf, String)> {
         if let Some(f) = cache::load_cached(&cache::default_dir(), &m) {
             return Ok((f, "cached fit".into()));
         }
+        // A long-lived process (`matedit serve`) fits each library material once.
+        static FITTED: OnceLock<Mutex<HashMap<String, Dsbrdf>>> = OnceLock::new();
+        let memo = FITTED.get_or_init(Default::default);
+        if let Some(f) = memo.lock().ok().and_then(|m| m.get(&name).cloned()) {
+            return Ok((f, "fitted earlier in this process".into()));
+        }
         let (f, _) = fit::fit_dsbrdf(&m.spec.build().with_context(|| format!("material {spec}"))?);
+        if let Ok(mut memo) = memo.lock() {
+            memo.insert(name, f.clone());
+        }
         return Ok((f, "fitted now".into()));
     }
     match parsed.build().with_context(|| format!("material {spec}"))? {

@@ -1,0 +1,509 @@
+//! `matedit serve`: material editing in the browser. One page ([`PAGE`]) uploads a photo and its
+//! mask (a file, the photo's alpha, or painted on the page), picks a library material by its
+//! sphere or a second photo to transfer from, and shows what `matedit edit` / `transfer` write,
+//! which is what runs: the handlers only check uploads and queue jobs ([`jobs`]); one worker
+//! that owns the network runs them in order through [`crate::edit::edit_with`] and
+//! [`crate::edit::transfer_with`], showing Eq. 6's energy live and stopping when cancelled.
+//!
+//! | route | what |
+//! |---|---|
+//! | `GET /` | the page |
+//! | `GET /api/info` | the model and the server's limits |
+//! | `GET /api/library`, `GET /api/library/{name}/sphere.png` | library materials and their spheres |
+//! | `POST /api/edit` (multipart) | queue an edit: `photo`, `mask`?, `material` or `source` (+ `source_mask`), `optimize`?, `composite`? |
+//! | `GET /api/jobs/{id}` | its state: place in the queue, phase, Eq. 6 energies, files, report |
+//! | `POST /api/jobs/{id}/cancel` | cancel it, waiting or running |
+//! | `GET /api/jobs/{id}/files/{name}` | a file its report lists (`?download` to save it) |
+
+pub mod jobs;
+pub mod library;
+pub mod upload;
+#[cfg(test)]
+mod tests;
+
+use crate::edit::optimize::Eq6Config;
+use crate::edit::{Composite, EditRequest, Model};
+use anyhow::{Context, Result, bail};
+use axum::Router;
+use axum::extract::{DefaultBodyLimit, Multipart, Path as UrlPath, Query, State};
+use axum::http::{StatusCode, header};
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::{get, post};
+use jobs::{Job, Queue, Work};
+use serde_json::{Value, json};
+use std::collections::HashMap;
+use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use upload::Part;
+
+/// The page: HTML, style and script in one file, served as is.
+pub const PAGE: &str = include_str!("page.html");
+
+/// How to serve.
+#[derive(Clone, Debug)]
+pub struct ServeConfig {
+    /// A run folder (its latest checkpoint) or a checkpoint folder.
+    pub model: PathBuf,
+    /// Address to bind (127.0.0.1 unless asked otherwise).
+    pub bind: IpAddr,
+    /// Port (0: any free one).
+    pub port: u16,
+    /// Edits that may wait beyond the running one.
+    pub queue: usize,
+    /// Largest request body in bytes.
+    pub max_upload_bytes: usize,
+    /// Largest photo in pixels.
+    pub max_pixels: u64,
+    /// Finished jobs whose files are kept.
+    pub keep: usize,
+    /// Where jobs' uploads and outputs go (default: a fresh folder in the system's temp folder,
+    /// removed when the server stops).
+    pub work: Option<PathBuf>,
+    /// Eq. 6's settings when a request asks for it.
+    pub eq6: Eq6Config,
+}
+
+impl ServeConfig {
+    /// Defaults for `model`: 127.0.0.1:8080, 8 waiting, 32 MB uploads, 25 megapixels.
+    pub fn new(model: PathBuf) -> Self {
+        Self {
+            model,
+            bind: IpAddr::V4(Ipv4Addr::LOCALHOST),
+            port: 8080,
+            queue: 8,
+            max_upload_bytes: 32 << 20,
+            max_pixels: 25_000_000,
+            keep: 32,
+            work: None,
+            eq6: Eq6Config::default(),
+        }
+    }
+}
+
+struct App {
+    queue: Arc<Queue>,
+    library: library::Library,
+    info: Value,
+    work: PathBuf,
+    max_pixels: u64,
+    eq6: Eq6Config,
+    counter: AtomicU64,
+    secret: [u8; 32],
+    /// Uploads being decoded and checked at once (each may hold a large photo in memory).
+    checking: tokio::sync::Semaphore,
+}
+
+/// A running server.
+pub struct Server {
+    /// Where it listens.
+    pub addr: SocketAddr,
+    queue: Arc<Queue>,
+    shutdown: Option<tokio::sync::oneshot::Sender<()>>,
+    task: tokio::task::JoinHandle<()>,
+    worker: Option<std::thread::JoinHandle<()>>,
+    work: PathBuf,
+    remove_work: bool,
+}
+
+impl Server {
+    /// Stops listening, lets the running edit finish, and removes a temporary work folder.
+    pub async fn stop(mut self) {
+        if let Some(s) = self.shutdown.take() {
+            let _ = s.send(());
+        }
+        let _ = (&mut self.task).await;
+        self.queue.stop();
+        if let Some(w) = self.worker.take() {
+            let _ = tokio::task::spawn_blocking(move || w.join()).await;
+        }
+        if self.remove_work {
+            let _ = std::fs::remove_dir_all(&self.work);
+        }
+    }
+
+    /// Waits for Ctrl-C, then [`stop`](Self::stop)s.
+    pub async fn run_until_interrupted(self) {
+        let _ = tokio::signal::ctrl_c().await;
+        eprintln!("stopping: the running edit finishes first");
+        self.stop().await;
+    }
+}
+
+/// Loads the model, binds, and serves in the background of the current tokio runtime.
+pub async fn start(cfg: ServeConfig) -> Result<Server> {
+    let (work, remove_work) = match &cfg.work {
+        Some(w) => (w.clone(), false),
+        None => (
+            std::env::temp_dir().join(format!("matedit-serve-{}-{}", std::process::id(), nanos())),
+            true,
+        ),
+    };
+    std::fs::create_dir_all(&work).with_context(|| format!("cannot create the work folder {}", work.display()))?;
+    let queue = Arc::new(Queue::new(cfg.queue, cfg.keep));
+    // The network stays on the worker thread that loaded it.
+    let (tx, rx) = std::sync::mpsc::channel::<Result<Value>>();
+    let (q, path) = (queue.clone(), cfg.model.clone());
+    let worker = std::thread::Builder::new()
+        .name("matedit-edit".into())
+        .spawn(move || match Model::load(&path) {
+            Ok(model) => {
+                let s = &model.state;
+                let _ = tx.send(Ok(json!({
+                    "checkpoint": model.dir.display().to_string(),
+                    "stage": s.stage_name,
+                    "input_size": s.net.input_size,
+                    "env_height": s.net.env_height,
+                })));
+                jobs::work(&q, &model);
+            }
+            Err(e) => {
+                let _ = tx.send(Err(e));
+            }
+        })
+        .context("cannot start the edit worker")?;
+    let mut info = tokio::task::spawn_blocking(move || rx.recv())
+        .await
+        .context("the edit worker stopped")?
+        .context("the edit worker stopped")??;
+    info["max_upload_mb"] = json!(cfg.max_upload_bytes as f64 / (1 << 20) as f64);
+    info["max_megapixels"] = json!(cfg.max_pixels as f64 / 1e6);
+    info["queue"] = json!(cfg.queue);
+    info["eq6"] = json!(cfg.eq6);
+    let app = Arc::new(App {
+        queue: queue.clone(),
+        library: library::Library::default(),
+        info,
+        work: work.clone(),
+        max_pixels: cfg.max_pixels,
+        eq6: cfg.eq6.clone(),
+        counter: AtomicU64::new(0),
+        checking: tokio::sync::Semaphore::new(2),
+        secret: *blake3::hash(format!("{}:{}:{:?}", std::process::id(), nanos(), work).as_bytes()).as_bytes(),
+    });
+    let router = router(app, cfg.max_upload_bytes);
+    let listener = tokio::net::TcpListener::bind((cfg.bind, cfg.port))
+        .await
+        .with_context(|| format!("cannot listen on {}:{}", cfg.bind, cfg.port))?;
+    let addr = listener.local_addr()?;
+    let (stx, srx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(async move {
+        let _ = axum::serve(listener, router)
+            .with_graceful_shutdown(async {
+                let _ = srx.await;
+            })
+            .await;
+    });
+    Ok(Server {
+        addr,
+        queue,
+        shutdown: Some(stx),
+        task,
+        worker: Some(worker),
+        work,
+        remove_work,
+    })
+}
+
+fn nanos() -> u128 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos())
+}
+
+fn router(app: Arc<App>, max_upload: usize) -> Router {
+    Router::new()
+        .route("/", get(|| async { Html(PAGE) }))
+        .route("/api/info", get(info))
+        .route("/api/library", get(|| async { axum::Json(library::Library::list()) }))
+        .route("/api/library/{name}/sphere.png", get(thumbnail))
+        .route("/api/edit", post(submit))
+        .route("/api/jobs/{id}", get(status))
+        .route("/api/jobs/{id}/cancel", post(cancel))
+        .route("/api/jobs/{id}/files/{name}", get(file))
+        .fallback(|| async { error(StatusCode::NOT_FOUND, "no such page") })
+        .layer(DefaultBodyLimit::max(max_upload))
+        .with_state(app)
+}
+
+fn error(status: StatusCode, message: impl Into<String>) -> Response {
+    (status, axum::Json(json!({ "error": message.into() }))).into_response()
+}
+
+async fn info(State(app): State<Arc<App>>) -> Response {
+    axum::Json(app.info.clone()).into_response()
+}
+
+async fn thumbnail(State(app): State<Arc<App>>, UrlPath(name): UrlPath<String>) -> Response {
+    let app2 = app.clone();
+    let r = tokio::task::spawn_blocking(move || app2.library.thumbnail(&name)).await;
+    match r {
+        Ok(Some(Ok(png))) => (
+            [
+                (header::CONTENT_TYPE, "image/png"),
+                (header::CACHE_CONTROL, "max-age=86400"),
+            ],
+            png,
+        )
+            .into_response(),
+        Ok(Some(Err(e))) => error(StatusCode::INTERNAL_SERVER_ERROR, e),
+        Ok(None) => error(StatusCode::NOT_FOUND, "no such library material"),
+        Err(_) => error(StatusCode::INTERNAL_SERVER_ERROR, "the thumbnail could not be rendered"),
+    }
+}
+
+/// The fields of an edit request.
+#[derive(Default)]
+struct Fields {
+    files: HashMap<&'static str, Part>,
+    material: Option<String>,
+    optimize: bool,
+    composite: Composite,
+}
+
+async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
+    let mut f = Fields::default();
+    loop {
+        let field = match mp.next_field().await {
+            Ok(Some(field)) => field,
+            Ok(None) => break,
+            Err(e) => return Err(multipart_error(e)),
+        };
+        let name = field.name().unwrap_or("").to_string();
+        let file_name = field.file_name().unwrap_or("").to_string();
+        let bytes = field.bytes().await.map_err(multipart_error)?;
+        let text = || String::from_utf8_lossy(&bytes).trim().to_string();
+        match name.as_str() {
+            "photo" | "mask" | "source" | "source_mask" => {
+                // An empty file input sends an empty part: as if not given.
+                if !bytes.is_empty() {
+                    let role = match name.as_str() {
+                        "photo" => "photo",
+                        "mask" => "mask",
+                        "source" => "source",
+                        _ => "source_mask",
+                    };
+                    f.files.insert(
+                        role,
+                        Part {
+                            name: file_name,
+                            bytes: bytes.to_vec(),
+                        },
+                    );
+                }
+            }
+            "material" => f.material = Some(text()).filter(|s| !s.is_empty()),
+            "optimize" => f.optimize = matches!(text().as_str(), "on" | "true" | "1"),
+            "composite" => {
+                f.composite = match text().as_str() {
+                    "" | "render" => Composite::Render,
+                    "ratio" => Composite::Ratio,
+                    other => {
+                        return Err(error(
+                            StatusCode::BAD_REQUEST,
+                            format!("composite “{}”: expected render or ratio", upload::display_name(other)),
+                        ));
+                    }
+                }
+            }
+            other => {
+                return Err(error(
+                    StatusCode::BAD_REQUEST,
+                    format!("unexpected field “{}”", upload::display_name(other)),
+                ));
+            }
+        }
+    }
+    Ok(f)
+}
+
+fn multipart_error(e: axum::extract::multipart::MultipartError) -> Response {
+    let status = e.status();
+    let msg = if status == StatusCode::PAYLOAD_TOO_LARGE {
+        "the upload is larger than this server accepts (see its limits at the top of the page)".to_string()
+    } else {
+        format!("the upload could not be read: {}", e.body_text())
+    };
+    error(status, msg)
+}
+
+async fn submit(State(app): State<Arc<App>>, mp: Multipart) -> Response {
+    if let Err(full) = app.queue.has_room() {
+        return error(StatusCode::SERVICE_UNAVAILABLE, full.to_string());
+    }
+    let fields = match read_fields(mp).await {
+        Ok(f) => f,
+        Err(r) => return r,
+    };
+    let Ok(_permit) = app.checking.acquire().await else {
+        return error(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping");
+    };
+    let n = app.counter.fetch_add(1, Ordering::Relaxed);
+    let mut h = blake3::Hasher::new_keyed(&app.secret);
+    h.update(&n.to_le_bytes());
+    let id = h.finalize().to_hex()[..24].to_string();
+    let dir = app.work.join(&id);
+    let app2 = app.clone();
+    let dir2 = dir.clone();
+    let prepared = tokio::task::spawn_blocking(move || prepare(&app2, &dir2, fields)).await;
+    let (work, names) = match prepared {
+        Ok(Ok(w)) => w,
+        Ok(Err(e)) => {
+            let _ = std::fs::remove_dir_all(&dir);
+            let msg = format!("{e:#}").replace(&format!("{}/in/", dir.display()), "");
+            return error(StatusCode::UNPROCESSABLE_ENTITY, msg);
+        }
+        Err(_) => {
+            let _ = std::fs::remove_dir_all(&dir);
+            return error(StatusCode::INTERNAL_SERVER_ERROR, "the upload could not be checked");
+        }
+    };
+    match app.queue.submit(Job::new(id.clone(), dir.clone(), work, names)) {
+        Ok((_, place)) => (
+            StatusCode::ACCEPTED,
+            axum::Json(json!({ "id": id, "place": place, "url": format!("/api/jobs/{id}") })),
+        )
+            .into_response(),
+        Err(full) => {
+            let _ = std::fs::remove_dir_all(&dir);
+            error(StatusCode::SERVICE_UNAVAILABLE, full.to_string())
+        }
+    }
+}
+
+/// Saves and checks the uploads (decoding them as `matedit edit` does) and describes the job.
+fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result<(Work, Vec<(PathBuf, String)>)> {
+    let mut names = Vec::new();
+    let mut save = |role: &'static str, f: &mut Fields| -> Result<Option<PathBuf>> {
+        match f.files.remove(role) {
+            None => Ok(None),
+            Some(part) => {
+                let (path, shown) = upload::save(dir, role, &part, app.max_pixels)?;
+                names.push((path.clone(), shown));
+                Ok(Some(path))
+            }
+        }
+    };
+    let photo = save("photo", &mut f)?.context("no photo: choose the photo to edit")?;
+    let mask = save("mask", &mut f)?;
+    let source = save("source", &mut f)?;
+    let source_mask = save("source_mask", &mut f)?;
+    // Messages name the uploads as the user called them, not by where they were saved.
+    let check = |photo: &std::path::Path, mask: Option<&std::path::Path>| -> Result<()> {
+        crate::edit::read_photo(photo, mask, None).map(|_| ()).map_err(|e| {
+            let mut t = format!("{e:#}");
+            for (path, name) in &names {
+                t = t.replace(&path.display().to_string(), name);
+            }
+            anyhow::anyhow!(t)
+        })
+    };
+    check(&photo, mask.as_deref())?;
+    let optimize = f.optimize.then(|| app.eq6.clone());
+    let work = match (source, f.material) {
+        (Some(_), Some(_)) => bail!("give either a material or a photo to transfer from, not both"),
+        (None, None) => bail!("no material: pick a library material or a photo to transfer from"),
+        (None, Some(spec)) => {
+            upload::check_material(&spec)?;
+            if source_mask.is_some() {
+                bail!("a mask for the transfer photo was given, but no transfer photo");
+            }
+            Work::Edit(EditRequest {
+                photo,
+                mask,
+                regions: None,
+                materials: vec![(None, spec)],
+                relight: None,
+                composite: f.composite,
+                optimize,
+            })
+        }
+        (Some(source), None) => {
+            check(&source, source_mask.as_deref())?;
+            Work::Transfer {
+                from: (source, source_mask),
+                to: (photo, mask),
+                optimize,
+                composite: f.composite,
+            }
+        }
+    };
+    Ok((work, names))
+}
+
+fn job(app: &App, id: &str) -> Result<Arc<Job>, Response> {
+    app.queue
+        .get(id)
+        .ok_or_else(|| error(StatusCode::NOT_FOUND, "no such edit (finished edits are kept for a while only)"))
+}
+
+async fn status(State(app): State<Arc<App>>, UrlPath(id): UrlPath<String>) -> Response {
+    match job(&app, &id) {
+        Ok(j) => axum::Json(app.queue.status(&j, &format!("/api/jobs/{id}"))).into_response(),
+        Err(r) => r,
+    }
+}
+
+async fn cancel(State(app): State<Arc<App>>, UrlPath(id): UrlPath<String>) -> Response {
+    match app.queue.cancel(&id) {
+        Some(_) => match job(&app, &id) {
+            Ok(j) => axum::Json(app.queue.status(&j, &format!("/api/jobs/{id}"))).into_response(),
+            Err(_) => axum::Json(json!({ "id": id, "state": "cancelled" })).into_response(),
+        },
+        None => error(StatusCode::NOT_FOUND, "no such edit"),
+    }
+}
+
+async fn file(
+    State(app): State<Arc<App>>,
+    UrlPath((id, name)): UrlPath<(String, String)>,
+    Query(q): Query<HashMap<String, String>>,
+) -> Response {
+    let j = match job(&app, &id) {
+        Ok(j) => j,
+        Err(r) => return r,
+    };
+    // Only names the job's report lists resolve to a path.
+    let Some(path) = j.file(&name) else {
+        return error(StatusCode::NOT_FOUND, "no such file in this edit");
+    };
+    let bytes = match tokio::fs::read(&path).await {
+        Ok(b) => b,
+        Err(_) => return error(StatusCode::NOT_FOUND, "the file is gone"),
+    };
+    let kind = match path.extension().and_then(|e| e.to_str()) {
+        Some("png") => "image/png",
+        Some("json") => "application/json",
+        Some("exr") => "image/x-exr",
+        _ => "application/octet-stream",
+    };
+    let mut r = ([(header::CONTENT_TYPE, kind)], bytes).into_response();
+    if q.contains_key("download") {
+        let v = format!("attachment; filename=\"{}\"", name.replace(['"', '\\'], "_"));
+        if let Ok(v) = header::HeaderValue::from_str(&v) {
+            r.headers_mut().insert(header::CONTENT_DISPOSITION, v);
+        }
+    }
+    r
+}
+
+/// `matedit serve`: starts the server on a runtime of its own and runs until Ctrl-C.
+pub fn serve(cfg: ServeConfig) -> Result<()> {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the server's runtime")?;
+    rt.block_on(async move {
+        eprintln!("loading {} …", cfg.model.display());
+        let public = !cfg.bind.is_loopback();
+        let server = start(cfg).await?;
+        println!("matedit serve: open http://{} (Ctrl-C stops)", server.addr);
+        if public {
+            eprintln!("note: listening beyond this machine; anyone who reaches it may queue edits");
+        }
+        server.run_until_interrupted().await;
+        Ok(())
+    })
+}

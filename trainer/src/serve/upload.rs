@@ -1,0 +1,114 @@
+//! What a request may upload, checked by its content: the image format is read from the bytes
+//! (never from the name), the pixel count from the header before anything is decoded, and then
+//! every image is decoded and the mask checked by the same reader as `matedit edit` before the
+//! job is queued. Nothing a request names reaches the file system: uploads are saved under the
+//! job's folder as `in/ROLE.EXT`, with ROLE and EXT chosen here.
+
+use anyhow::{Context, Result, bail};
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+
+/// Image formats a photo may come in, told by their first bytes.
+pub fn sniff(bytes: &[u8]) -> Option<&'static str> {
+    if bytes.starts_with(b"\x89PNG\r\n\x1a\n") {
+        Some("png")
+    } else if bytes.starts_with(&[0xff, 0xd8, 0xff]) {
+        Some("jpg")
+    } else if bytes.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
+        Some("exr")
+    } else if bytes.starts_with(b"#?RADIANCE") || bytes.starts_with(b"#?RGBE") {
+        Some("hdr")
+    } else {
+        None
+    }
+}
+
+/// Width and height from an image's header.
+pub fn dimensions(bytes: &[u8], format: &str) -> Result<(u64, u64)> {
+    if format == "exr" {
+        let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
+            .map_err(|e| anyhow::anyhow!("not a readable EXR image ({e})"))?;
+        let h = meta.headers.first().context("an EXR image without a layer")?;
+        let s = h.layer_size;
+        return Ok((s.0 as u64, s.1 as u64));
+    }
+    let (w, h) = image::ImageReader::new(Cursor::new(bytes))
+        .with_guessed_format()
+        .context("not a readable image")?
+        .into_dimensions()
+        .context("not a readable image")?;
+    Ok((w as u64, h as u64))
+}
+
+/// One uploaded file.
+#[derive(Clone, Debug)]
+pub struct Part {
+    /// The name the user's browser gave (for messages only).
+    pub name: String,
+    /// Its bytes.
+    pub bytes: Vec<u8>,
+}
+
+/// Checks an uploaded image (`role` says what it is for: photo, mask) and saves it as
+/// `DIR/in/ROLE.EXT`; masks must be PNG or JPEG. Returns the path and how messages name it.
+pub fn save(dir: &Path, role: &str, part: &Part, max_pixels: u64) -> Result<(PathBuf, String)> {
+    let shown = format!("{role} “{}”", display_name(&part.name));
+    if part.bytes.is_empty() {
+        bail!("{shown}: the file is empty");
+    }
+    let Some(ext) = sniff(&part.bytes) else {
+        bail!("{shown}: not a PNG, JPEG, EXR or HDR image (the content decides, not the name)");
+    };
+    if role.ends_with("mask") && !matches!(ext, "png" | "jpg") {
+        bail!("{shown}: masks must be PNG or JPEG images, this is {}", ext.to_uppercase());
+    }
+    let (w, h) = dimensions(&part.bytes, ext).with_context(|| shown.clone())?;
+    if w == 0 || h == 0 {
+        bail!("{shown}: the image is empty ({w}×{h})");
+    }
+    if w * h > max_pixels {
+        bail!(
+            "{shown}: {w}×{h} is {:.1} megapixels, more than this server's limit of {:.1}; scale it down first",
+            (w * h) as f64 / 1e6,
+            max_pixels as f64 / 1e6
+        );
+    }
+    let path = super::jobs::input_path(dir, role, ext);
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
+    }
+    std::fs::write(&path, &part.bytes).with_context(|| format!("cannot save the {role}"))?;
+    Ok((path, shown))
+}
+
+/// A file name as a message may show it: its last component, printable, at most 60 characters.
+pub fn display_name(name: &str) -> String {
+    let last = name.rsplit(['/', '\\']).next().unwrap_or("");
+    let clean: String = last.chars().filter(|c| !c.is_control()).take(60).collect();
+    if clean.is_empty() { "upload".into() } else { clean }
+}
+
+/// Material specs a request may name: library materials and the parametric models. File specs
+/// (`dsbrdf:`, `merl:`) would let a request read the server's files.
+pub fn check_material(spec: &str) -> Result<()> {
+    let spec = spec.trim();
+    if let Some(name) = spec.strip_prefix("library:") {
+        matedit_datagen::materials::library::find(name).map_err(|_| {
+            anyhow::anyhow!("material “{}”: no such library material", display_name(name))
+        })?;
+        return Ok(());
+    }
+    if ["lambert:", "ggx:", "plastic:"].iter().any(|p| spec.starts_with(p)) {
+        let parsed: matedit_physics::BrdfSpec = spec
+            .parse()
+            .map_err(|e| anyhow::anyhow!("material “{}”: {e}", display_name(spec)))?;
+        parsed
+            .build()
+            .map_err(|e| anyhow::anyhow!("material “{}”: {e}", display_name(spec)))?;
+        return Ok(());
+    }
+    bail!(
+        "material “{}”: pick a library material (library:NAME) or a parametric one (lambert:R,G,B, ggx:ALPHA:F0, plastic:ALPHA:R,G,B); file specs are not accepted over the web",
+        display_name(spec)
+    )
+}

@@ -1,0 +1,364 @@
+//! `matedit serve` driven by headless Chromium through chromedriver (Debian's `chromium` and
+//! `chromium-driver`): the page loads, a photo and its mask from the test split of a small
+//! dataset rendered like the quickstart's are uploaded, a library material is picked by its
+//! sphere, and the edited photo the page shows is the one `matedit edit` writes for the same
+//! inputs, pixel for pixel; bad uploads get their message on the page; a queued edit is
+//! cancelled from the page.
+//!
+//! Without chromedriver on the PATH the test says so and passes, unless
+//! `MATEDIT_REQUIRE_BROWSER=1` (set by `.ci/run`, which installs both). With
+//! `MATEDIT_SCREENSHOTS=DIR` it saves screenshots of the page there (the README's).
+
+use burn::optim::AdamConfig;
+use burn::tensor::Device;
+use fantoccini::{Client, ClientBuilder, Locator};
+use matedit_datagen::dataset::run::{RunOptions, Worker, load as load_manifest, run};
+use matedit_physics::brdf::Dsbrdf;
+use matedit_physics::tonemap::tonemap_u8;
+use matedit_trainer::data::Dataset;
+use matedit_trainer::edit::{EditRequest, edit};
+use matedit_trainer::model::Widths;
+use matedit_trainer::serve::{ServeConfig, start};
+use matedit_trainer::train::checkpoint::{State, save};
+use matedit_trainer::train::network::NetConfig;
+use serde_json::Value;
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+const DATASET: &str = r#"
+[dataset]
+name = "browser"
+seed = 2017
+output = "unused"
+shard_size = 8
+
+[render]
+resolution = 96
+env_resolution = "8x16"
+quality = "fast"
+
+[views]
+azimuths = 8
+elevation_deg = 20.0
+per_combination = 1
+
+[[shapes]]
+source = "procedural"
+category = "car"
+count = 2
+
+[[materials]]
+source = "dsbrdf"
+path = "mats"
+
+[[environments]]
+source = "procedural"
+family = "sunsky"
+count = 1
+
+[[splits]]
+name = "train"
+shapes = { car = 1 }
+materials = 2
+
+[[splits]]
+name = "test"
+shapes = { car = 1 }
+materials = 2
+"#;
+
+const MATERIAL: &str = "library:gold-polished";
+
+fn root() -> PathBuf {
+    std::env::temp_dir().join(format!("matedit-browser-{}", std::process::id()))
+}
+
+/// A test-split photo (8-bit sRGB PNG) and its mask, and an untrained network's checkpoint.
+fn fixture() -> (PathBuf, PathBuf, PathBuf) {
+    let src = root().join("src");
+    std::fs::create_dir_all(src.join("mats")).unwrap();
+    for (i, m) in [
+        Dsbrdf::near_lambertian([0.7, 0.25, 0.1]),
+        Dsbrdf::near_lambertian([0.2, 0.4, 0.7]),
+        Dsbrdf::near_lambertian([0.5, 0.5, 0.5]),
+        Dsbrdf::near_lambertian([0.8, 0.7, 0.2]),
+    ]
+    .iter()
+    .enumerate()
+    {
+        std::fs::write(src.join(format!("mats/m{i}.dsbrdf.json")), m.to_json()).unwrap();
+    }
+    std::fs::write(src.join("m.toml"), DATASET).unwrap();
+    let out = root().join("dataset");
+    let opts = RunOptions {
+        out: Some(out.clone()),
+        worker: Worker::ALL,
+        progress: false,
+    };
+    run(&load_manifest(&src.join("m.toml")).unwrap(), &opts).unwrap();
+    let ds = Dataset::open(&out).unwrap();
+    let s = ds.load(&ds.records("test")[0], true).unwrap();
+    let (n, hw) = (s.size, s.size * s.size);
+    let photo = image::RgbImage::from_fn(n as u32, n as u32, |x, y| {
+        let k = y as usize * n + x as usize;
+        image::Rgb([0, 1, 2].map(|c| {
+            if s.mask[k] > 0.0 {
+                tonemap_u8(s.input[c * hw + k], 1.0)
+            } else {
+                [60, 70, 80][c]
+            }
+        }))
+    });
+    let mask = image::GrayImage::from_fn(n as u32, n as u32, |x, y| {
+        image::Luma([if s.mask[y as usize * n + x as usize] > 0.0 { 255 } else { 0 }])
+    });
+    let (p, m) = (root().join("photo.png"), root().join("mask.png"));
+    photo.save(&p).unwrap();
+    mask.save(&m).unwrap();
+
+    let device = Device::flex();
+    device.seed(3);
+    let cfg = NetConfig::new(32, Widths::new(4, 16, 32, 8)).with_env_height(8);
+    let net = cfg.init(&device);
+    let model = save(
+        &root().join("model"),
+        "untrained",
+        &net,
+        &AdamConfig::new().init(),
+        State::untrained(cfg, "untrained"),
+    )
+    .unwrap();
+    (p, m, model)
+}
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+/// chromedriver as a child on a free port, killed when dropped.
+struct Driver(Child, u16);
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn chromedriver() -> Option<Driver> {
+    let port = free_port();
+    let child = Command::new("chromedriver")
+        .arg(format!("--port={port}"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .ok()?;
+    let d = Driver(child, port);
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(20) {
+        if std::net::TcpStream::connect(("127.0.0.1", port)).is_ok() {
+            return Some(d);
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    panic!("chromedriver did not listen on port {port} within 20 s");
+}
+
+async fn browser(driver: &Driver) -> Client {
+    let profile = root().join(format!("chrome-{}", driver.1));
+    let caps = serde_json::json!({
+        "goog:chromeOptions": {
+            "binary": "/usr/bin/chromium",
+            "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                     "--window-size=1400,1100", format!("--user-data-dir={}", profile.display())]
+        }
+    });
+    let Value::Object(caps) = caps else { unreachable!() };
+    ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
+        .capabilities(caps)
+        .connect(&format!("http://127.0.0.1:{}", driver.1))
+        .await
+        .expect("a session of headless Chromium")
+}
+
+async fn screenshot(c: &Client, name: &str) {
+    if let Some(dir) = std::env::var_os("MATEDIT_SCREENSHOTS") {
+        std::fs::create_dir_all(&dir).unwrap();
+        let png = c.screenshot().await.unwrap();
+        std::fs::write(Path::new(&dir).join(name), png).unwrap();
+    }
+}
+
+/// The bytes of the image `id` as the page loaded it.
+async fn image_bytes(c: &Client, id: &str) -> Vec<u8> {
+    let v = c
+        .execute_async(
+            "const [id, done] = arguments;
+             fetch(document.getElementById(id).src).then(r => r.arrayBuffer())
+               .then(b => done(Array.from(new Uint8Array(b)))).catch(e => done(String(e)));",
+            vec![Value::String(id.into())],
+        )
+        .await
+        .unwrap();
+    let Value::Array(a) = v else {
+        panic!("could not read #{id}: {v}")
+    };
+    a.iter().map(|x| x.as_u64().unwrap() as u8).collect()
+}
+
+async fn set_file(c: &Client, id: &str, path: &Path) {
+    c.find(Locator::Id(id))
+        .await
+        .unwrap()
+        .send_keys(&path.display().to_string())
+        .await
+        .unwrap();
+}
+
+async fn wait_state(c: &Client, states: &str, secs: u64) -> String {
+    let t = Instant::now();
+    loop {
+        let s = c
+            .execute("return document.body.dataset.state", vec![])
+            .await
+            .unwrap();
+        let s = s.as_str().unwrap_or("").to_string();
+        if states.split('|').any(|x| x == s) {
+            return s;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(secs),
+            "the page stayed in state {s} for {secs} s"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+async fn text(c: &Client, id: &str) -> String {
+    c.find(Locator::Id(id)).await.unwrap().text().await.unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() {
+    let Some(driver) = chromedriver() else {
+        assert!(
+            std::env::var_os("MATEDIT_REQUIRE_BROWSER").is_none(),
+            "MATEDIT_REQUIRE_BROWSER is set but chromedriver is not on the PATH (apt-get install chromium chromium-driver)"
+        );
+        eprintln!("skipped: no chromedriver on the PATH (apt-get install chromium chromium-driver)");
+        return;
+    };
+    let _ = std::fs::remove_dir_all(root());
+    let (photo, mask, model) = tokio::task::spawn_blocking(fixture).await.unwrap();
+
+    // What the command line writes for the same inputs.
+    let cli_out = root().join("cli");
+    let req = EditRequest {
+        photo: photo.clone(),
+        mask: Some(mask.clone()),
+        materials: vec![(None, MATERIAL.into())],
+        ..EditRequest::default()
+    };
+    let (m2, o2) = (model.clone(), cli_out.clone());
+    tokio::task::spawn_blocking(move || edit(&m2, &req, &o2)).await.unwrap().unwrap();
+    let want = image::load_from_memory(&std::fs::read(cli_out.join("edited.png")).unwrap())
+        .unwrap()
+        .to_rgb8();
+
+    let mut cfg = ServeConfig::new(model);
+    cfg.port = 0;
+    cfg.queue = 1;
+    cfg.max_upload_bytes = 1 << 20;
+    let server = start(cfg).await.unwrap();
+    let url = format!("http://{}/", server.addr);
+    let c = browser(&driver).await;
+    c.goto(&url).await.unwrap();
+
+    // An upload and a library pick, as a user makes them.
+    set_file(&c, "photo", &photo).await;
+    set_file(&c, "mask", &mask).await;
+    let pick = Locator::Css(r#".material[data-spec="library:gold-polished"]"#);
+    c.wait().for_element(pick).await.unwrap().click().await.unwrap();
+    // The spheres are the project's renders: wait for the picked one to have loaded.
+    let t = Instant::now();
+    while c
+        .execute(
+            r#"const i = document.querySelector('.material.selected img'); return i.complete && i.naturalWidth"#,
+            vec![],
+        )
+        .await
+        .unwrap()
+        .as_u64()
+        .unwrap_or(0)
+        != 64
+    {
+        assert!(t.elapsed() < Duration::from_secs(60), "the material's sphere never loaded");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let t0 = Instant::now();
+    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
+    let s = wait_state(&c, "done|error", 300).await;
+    assert_eq!(s, "done", "the edit failed: {}", text(&c, "error").await);
+    eprintln!("upload to shown result: {:.2} s (untrained 32² network)", t0.elapsed().as_secs_f64());
+    screenshot(&c, "serve-result.png").await;
+    let got = image::load_from_memory(&image_bytes(&c, "result-edited").await)
+        .unwrap()
+        .to_rgb8();
+    assert_eq!(got.dimensions(), want.dimensions(), "the composite is at the photo's resolution");
+    assert!(got == want, "the page's edited photo differs from `matedit edit`'s");
+    let links = c.find_all(Locator::Css("#downloads a")).await.unwrap();
+    let mut names = Vec::new();
+    for a in links {
+        names.push(a.text().await.unwrap());
+    }
+    for f in ["edited.png", "edited.exr", "i_prime.png", "o_prime.png", "normals.exr", "env.exr", "material.dsbrdf.json", "report.json"] {
+        assert!(names.iter().any(|n| n == f), "no download of {f} among {names:?}");
+    }
+
+    // Bad uploads: a text file named like a photo, and a mask of another size.
+    let junk = root().join("not-a-photo.png");
+    std::fs::write(&junk, "hello, I am text").unwrap();
+    c.goto(&url).await.unwrap();
+    set_file(&c, "photo", &junk).await;
+    set_file(&c, "mask", &mask).await;
+    c.wait().for_element(Locator::Css(".material")).await.unwrap().click().await.unwrap();
+    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
+    wait_state(&c, "error", 30).await;
+    let e = text(&c, "error").await;
+    assert!(e.contains("not-a-photo.png") && e.contains("not a PNG, JPEG, EXR or HDR image"), "{e}");
+
+    let small = root().join("small-mask.png");
+    image::GrayImage::from_fn(10, 10, |x, _| image::Luma([if x < 5 { 255 } else { 0 }]))
+        .save(&small)
+        .unwrap();
+    c.goto(&url).await.unwrap();
+    set_file(&c, "photo", &photo).await;
+    set_file(&c, "mask", &small).await;
+    c.wait().for_element(Locator::Css(".material")).await.unwrap().click().await.unwrap();
+    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
+    wait_state(&c, "error", 30).await;
+    let e = text(&c, "error").await;
+    assert!(e.contains("small-mask.png") && e.contains("must match pixel for pixel"), "{e}");
+    screenshot(&c, "serve-error.png").await;
+
+    // Over the server's upload limit (1 MB here).
+    let big = root().join("big.png");
+    let noise = image::RgbImage::from_fn(800, 800, |x, y| {
+        let h = (x.wrapping_mul(2_654_435_761) ^ y.wrapping_mul(40_503)).wrapping_mul(2_246_822_519);
+        image::Rgb([(h >> 8) as u8, (h >> 16) as u8, (h >> 24) as u8])
+    });
+    noise.save(&big).unwrap();
+    c.goto(&url).await.unwrap();
+    set_file(&c, "photo", &big).await;
+    set_file(&c, "mask", &mask).await;
+    c.wait().for_element(Locator::Css(".material")).await.unwrap().click().await.unwrap();
+    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
+    wait_state(&c, "error", 30).await;
+    let e = text(&c, "error").await;
+    assert!(e.contains("larger than this server accepts"), "{e}");
+
+    c.close().await.unwrap();
+    server.stop().await;
+}
