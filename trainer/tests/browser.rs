@@ -172,7 +172,7 @@ async fn browser(driver: &Driver) -> Client {
         "goog:chromeOptions": {
             "binary": "/usr/bin/chromium",
             "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                     "--window-size=1400,1100", format!("--user-data-dir={}", profile.display())]
+                     "--window-size=1400,1250", format!("--user-data-dir={}", profile.display())]
         }
     });
     let Value::Object(caps) = caps else { unreachable!() };
@@ -186,6 +186,7 @@ async fn browser(driver: &Driver) -> Client {
 async fn screenshot(c: &Client, name: &str) {
     if let Some(dir) = std::env::var_os("MATEDIT_SCREENSHOTS") {
         std::fs::create_dir_all(&dir).unwrap();
+        c.execute("window.scrollTo(0, 0)", vec![]).await.unwrap();
         let png = c.screenshot().await.unwrap();
         std::fs::write(Path::new(&dir).join(name), png).unwrap();
     }
@@ -252,12 +253,20 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     };
     let _ = std::fs::remove_dir_all(root());
     let (photo, mask, model) = tokio::task::spawn_blocking(fixture).await.unwrap();
+    // The README's screenshots: a trained model and a real photo (its alpha as the mask).
+    let (photo, mask, model) = match (
+        std::env::var_os("MATEDIT_BROWSER_MODEL"),
+        std::env::var_os("MATEDIT_BROWSER_PHOTO"),
+    ) {
+        (Some(m), Some(p)) => (PathBuf::from(p), None, PathBuf::from(m)),
+        _ => (photo, Some(mask), model),
+    };
 
     // What the command line writes for the same inputs.
     let cli_out = root().join("cli");
     let req = EditRequest {
         photo: photo.clone(),
-        mask: Some(mask.clone()),
+        mask: mask.clone(),
         materials: vec![(None, MATERIAL.into())],
         ..EditRequest::default()
     };
@@ -267,18 +276,19 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
         .unwrap()
         .to_rgb8();
 
-    let mut cfg = ServeConfig::new(model);
+    let limit = (std::fs::metadata(&photo).unwrap().len() as usize + (1 << 20)).next_power_of_two();
+    let mut cfg = ServeConfig::new(model.clone());
     cfg.port = 0;
     cfg.queue = 1;
-    cfg.max_upload_bytes = 1 << 20;
-    let server = start(cfg).await.unwrap();
+    cfg.max_upload_bytes = limit;
+    let server = start(cfg.clone()).await.unwrap();
     let url = format!("http://{}/", server.addr);
     let c = browser(&driver).await;
     c.goto(&url).await.unwrap();
 
     // An upload and a library pick, as a user makes them.
     set_file(&c, "photo", &photo).await;
-    set_file(&c, "mask", &mask).await;
+    give_mask(&c, mask.as_deref()).await;
     let pick = Locator::Css(r#".material[data-spec="library:gold-polished"]"#);
     c.wait().for_element(pick).await.unwrap().click().await.unwrap();
     // The spheres are the project's renders: wait for the picked one to have loaded.
@@ -301,7 +311,7 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
     let s = wait_state(&c, "done|error", 300).await;
     assert_eq!(s, "done", "the edit failed: {}", text(&c, "error").await);
-    eprintln!("upload to shown result: {:.2} s (untrained 32² network)", t0.elapsed().as_secs_f64());
+    eprintln!("upload to shown result: {:.2} s", t0.elapsed().as_secs_f64());
     screenshot(&c, "serve-result.png").await;
     let got = image::load_from_memory(&image_bytes(&c, "result-edited").await)
         .unwrap()
@@ -316,6 +326,24 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     for f in ["edited.png", "edited.exr", "i_prime.png", "o_prime.png", "normals.exr", "env.exr", "material.dsbrdf.json", "report.json"] {
         assert!(names.iter().any(|n| n == f), "no download of {f} among {names:?}");
     }
+
+    // With Eq. 6: its energy drawn, never rising, and its plot among the results.
+    c.goto(&url).await.unwrap();
+    set_file(&c, "photo", &photo).await;
+    give_mask(&c, mask.as_deref()).await;
+    c.wait().for_element(Locator::Css(r#".material[data-spec="library:gold-polished"]"#)).await.unwrap().click().await.unwrap();
+    c.find(Locator::Id("optimize")).await.unwrap().click().await.unwrap();
+    let t0 = Instant::now();
+    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
+    let s = wait_state(&c, "done|error", 600).await;
+    assert_eq!(s, "done", "the edit failed: {}", text(&c, "error").await);
+    eprintln!("upload to shown result with Eq. 6: {:.2} s", t0.elapsed().as_secs_f64());
+    assert!(c.find(Locator::Id("result-energy")).await.is_ok(), "no energy plot among the results");
+    let visible = c.execute("return !document.getElementById('energy').classList.contains('hidden')", vec![]).await.unwrap();
+    assert_eq!(visible, Value::Bool(true), "the live energy plot is not shown");
+    screenshot(&c, "serve-eq6.png").await;
+    let mask = Some(mask.unwrap_or_else(|| alpha_mask(&photo)));
+    let mask = mask.as_deref().unwrap_or(Path::new(""));
 
     // Bad uploads: a text file named like a photo, and a mask of another size.
     let junk = root().join("not-a-photo.png");
@@ -343,9 +371,10 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     assert!(e.contains("small-mask.png") && e.contains("must match pixel for pixel"), "{e}");
     screenshot(&c, "serve-error.png").await;
 
-    // Over the server's upload limit (1 MB here).
+    // Over the server's upload limit.
     let big = root().join("big.png");
-    let noise = image::RgbImage::from_fn(800, 800, |x, y| {
+    let side = ((limit as f64 / 2.5).sqrt() as u32).max(800);
+    let noise = image::RgbImage::from_fn(side, side, |x, y| {
         let h = (x.wrapping_mul(2_654_435_761) ^ y.wrapping_mul(40_503)).wrapping_mul(2_246_822_519);
         image::Rgb([(h >> 8) as u8, (h >> 16) as u8, (h >> 24) as u8])
     });
@@ -361,4 +390,75 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
 
     c.close().await.unwrap();
     server.stop().await;
+
+    // A long Eq. 6: a second user waits and sees their place; both cancel from the page.
+    cfg.eq6.rounds = 500;
+    cfg.eq6.iterations = 50;
+    let server = start(cfg).await.unwrap();
+    let url = format!("http://{}/", server.addr);
+    let c = browser(&driver).await;
+    let first = c.window().await.unwrap();
+    submit_long(&c, &url, &photo, mask).await;
+    let t = Instant::now();
+    loop {
+        let s = text(&c, "status").await;
+        let drawn = c.execute("return !document.getElementById('energy').classList.contains('hidden')", vec![]).await.unwrap();
+        if s.contains("post-optimising") && drawn == Value::Bool(true) {
+            break;
+        }
+        assert!(t.elapsed() < Duration::from_secs(60), "never saw Eq. 6 running: {s}");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let second = c.new_window(true).await.unwrap();
+    c.switch_to_window(second.handle).await.unwrap();
+    submit_long(&c, &url, &photo, mask).await;
+    wait_state(&c, "queued", 30).await;
+    let t = Instant::now();
+    while !text(&c, "status").await.contains("place 1 in the queue") {
+        assert!(t.elapsed() < Duration::from_secs(10), "{}", text(&c, "status").await);
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    screenshot(&c, "serve-queued.png").await;
+    c.find(Locator::Id("cancel")).await.unwrap().click().await.unwrap();
+    wait_state(&c, "cancelled", 10).await;
+    c.switch_to_window(first).await.unwrap();
+    screenshot(&c, "serve-running.png").await;
+    let t = Instant::now();
+    c.find(Locator::Id("cancel")).await.unwrap().click().await.unwrap();
+    wait_state(&c, "cancelled", 30).await;
+    eprintln!("a running Eq. 6 stopped {:.2} s after Cancel", t.elapsed().as_secs_f64());
+    c.close().await.unwrap();
+    server.stop().await;
+}
+
+/// The mask: a file, or the photo's alpha.
+async fn give_mask(c: &Client, mask: Option<&Path>) {
+    match mask {
+        Some(m) => set_file(c, "mask", m).await,
+        None => c
+            .find(Locator::Css(r#"input[name="mask-mode"][value="alpha"]"#))
+            .await
+            .unwrap()
+            .click()
+            .await
+            .unwrap(),
+    }
+}
+
+/// The photo's alpha channel as a mask file.
+fn alpha_mask(photo: &Path) -> PathBuf {
+    let img = image::open(photo).unwrap().to_rgba8();
+    let m = image::GrayImage::from_fn(img.width(), img.height(), |x, y| image::Luma([img.get_pixel(x, y)[3]]));
+    let p = root().join("alpha-mask.png");
+    m.save(&p).unwrap();
+    p
+}
+
+async fn submit_long(c: &Client, url: &str, photo: &Path, mask: &Path) {
+    c.goto(url).await.unwrap();
+    set_file(c, "photo", photo).await;
+    set_file(c, "mask", mask).await;
+    c.wait().for_element(Locator::Css(".material")).await.unwrap().click().await.unwrap();
+    c.find(Locator::Id("optimize")).await.unwrap().click().await.unwrap();
+    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
 }

@@ -461,12 +461,24 @@ impl<'a> Parametrised<'a> {
 
 /// What argmin's executor owns: a borrow of the parametrised problem (kept by the caller, which
 /// maps the best parameters back to a point).
-struct Lent<'p, 'a>(&'p Parametrised<'a>);
+/// A parametrised problem lent to argmin, with the watcher whose cancel stops it before the next
+/// evaluation (an L-BFGS iteration may evaluate several times).
+struct Lent<'p, 'a>(&'p Parametrised<'a>, Option<&'p Arc<Progress>>);
+
+impl Lent<'_, '_> {
+    fn check(&self) -> Result<(), argmin::core::Error> {
+        match self.1 {
+            Some(w) if w.is_cancelled() => Err(argmin::core::Error::new(Cancelled)),
+            _ => Ok(()),
+        }
+    }
+}
 
 impl CostFunction for Lent<'_, '_> {
     type Param = Vec<f64>;
     type Output = f64;
     fn cost(&self, q: &Self::Param) -> Result<f64, argmin::core::Error> {
+        self.check()?;
         let (e, _) = self
             .0
             .evaluate(q)
@@ -480,6 +492,7 @@ impl Gradient for Lent<'_, '_> {
     type Param = Vec<f64>;
     type Gradient = Vec<f64>;
     fn gradient(&self, q: &Self::Param) -> Result<Vec<f64>, argmin::core::Error> {
+        self.check()?;
         Ok(self
             .0
             .evaluate(q)
@@ -577,7 +590,7 @@ pub fn alternate(
                 .with_c(1e-4, 0.9)
                 .map_err(|e| anyhow!("line search: {e}"))?;
             let solver = LBFGS::new(line, cfg.history.max(1));
-            let run = Executor::new(Lent(&par), solver)
+            let run = Executor::new(Lent(&par, watcher), solver)
                 .configure(|s| s.param(q0.clone()).max_iters(cfg.iterations as u64))
                 .add_observer(
                     Recorder {
