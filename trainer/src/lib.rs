@@ -19,6 +19,6 @@ pub mod edit;
 pub mod eval;
 pub mod model;
 pub mod render;
-pub mod targets;
 pub mod serve;
+pub mod targets;
 pub mod train;

@@ -11,6 +11,7 @@
 
 use burn::optim::AdamConfig;
 use burn::tensor::Device;
+use fantoccini::actions::{InputSource, MOUSE_BUTTON_LEFT, MouseActions, PointerAction};
 use fantoccini::{Client, ClientBuilder, Locator};
 use matedit_datagen::dataset::run::{RunOptions, Worker, load as load_manifest, run};
 use matedit_physics::brdf::Dsbrdf;
@@ -112,7 +113,11 @@ fn fixture() -> (PathBuf, PathBuf, PathBuf) {
         }))
     });
     let mask = image::GrayImage::from_fn(n as u32, n as u32, |x, y| {
-        image::Luma([if s.mask[y as usize * n + x as usize] > 0.0 { 255 } else { 0 }])
+        image::Luma([if s.mask[y as usize * n + x as usize] > 0.0 {
+            255
+        } else {
+            0
+        }])
     });
     let (p, m) = (root().join("photo.png"), root().join("mask.png"));
     photo.save(&p).unwrap();
@@ -221,10 +226,7 @@ async fn set_file(c: &Client, id: &str, path: &Path) {
 async fn wait_state(c: &Client, states: &str, secs: u64) -> String {
     let t = Instant::now();
     loop {
-        let s = c
-            .execute("return document.body.dataset.state", vec![])
-            .await
-            .unwrap();
+        let s = c.execute("return document.body.dataset.state", vec![]).await.unwrap();
         let s = s.as_str().unwrap_or("").to_string();
         if states.split('|').any(|x| x == s) {
             return s;
@@ -271,7 +273,10 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
         ..EditRequest::default()
     };
     let (m2, o2) = (model.clone(), cli_out.clone());
-    tokio::task::spawn_blocking(move || edit(&m2, &req, &o2)).await.unwrap().unwrap();
+    tokio::task::spawn_blocking(move || edit(&m2, &req, &o2))
+        .await
+        .unwrap()
+        .unwrap();
     let want = image::load_from_memory(&std::fs::read(cli_out.join("edited.png")).unwrap())
         .unwrap()
         .to_rgb8();
@@ -304,7 +309,10 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
         .unwrap_or(0)
         != 64
     {
-        assert!(t.elapsed() < Duration::from_secs(60), "the material's sphere never loaded");
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "the material's sphere never loaded"
+        );
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     let t0 = Instant::now();
@@ -316,14 +324,27 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     let got = image::load_from_memory(&image_bytes(&c, "result-edited").await)
         .unwrap()
         .to_rgb8();
-    assert_eq!(got.dimensions(), want.dimensions(), "the composite is at the photo's resolution");
+    assert_eq!(
+        got.dimensions(),
+        want.dimensions(),
+        "the composite is at the photo's resolution"
+    );
     assert!(got == want, "the page's edited photo differs from `matedit edit`'s");
     let links = c.find_all(Locator::Css("#downloads a")).await.unwrap();
     let mut names = Vec::new();
     for a in links {
         names.push(a.text().await.unwrap());
     }
-    for f in ["edited.png", "edited.exr", "i_prime.png", "o_prime.png", "normals.exr", "env.exr", "material.dsbrdf.json", "report.json"] {
+    for f in [
+        "edited.png",
+        "edited.exr",
+        "i_prime.png",
+        "o_prime.png",
+        "normals.exr",
+        "env.exr",
+        "material.dsbrdf.json",
+        "report.json",
+    ] {
         assert!(names.iter().any(|n| n == f), "no download of {f} among {names:?}");
     }
 
@@ -331,15 +352,30 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     c.goto(&url).await.unwrap();
     set_file(&c, "photo", &photo).await;
     give_mask(&c, mask.as_deref()).await;
-    c.wait().for_element(Locator::Css(r#".material[data-spec="library:gold-polished"]"#)).await.unwrap().click().await.unwrap();
+    c.wait()
+        .for_element(Locator::Css(r#".material[data-spec="library:gold-polished"]"#))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
     c.find(Locator::Id("optimize")).await.unwrap().click().await.unwrap();
     let t0 = Instant::now();
     c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
     let s = wait_state(&c, "done|error", 600).await;
     assert_eq!(s, "done", "the edit failed: {}", text(&c, "error").await);
     eprintln!("upload to shown result with Eq. 6: {:.2} s", t0.elapsed().as_secs_f64());
-    assert!(c.find(Locator::Id("result-energy")).await.is_ok(), "no energy plot among the results");
-    let visible = c.execute("return !document.getElementById('energy').classList.contains('hidden')", vec![]).await.unwrap();
+    assert!(
+        c.find(Locator::Id("result-energy")).await.is_ok(),
+        "no energy plot among the results"
+    );
+    let visible = c
+        .execute(
+            "return !document.getElementById('energy').classList.contains('hidden')",
+            vec![],
+        )
+        .await
+        .unwrap();
     assert_eq!(visible, Value::Bool(true), "the live energy plot is not shown");
     screenshot(&c, "serve-eq6.png").await;
     let mask = Some(mask.unwrap_or_else(|| alpha_mask(&photo)));
@@ -350,12 +386,21 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     std::fs::write(&junk, "hello, I am text").unwrap();
     c.goto(&url).await.unwrap();
     set_file(&c, "photo", &junk).await;
-    set_file(&c, "mask", &mask).await;
-    c.wait().for_element(Locator::Css(".material")).await.unwrap().click().await.unwrap();
+    set_file(&c, "mask", mask).await;
+    c.wait()
+        .for_element(Locator::Css(".material"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
     c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
     wait_state(&c, "error", 30).await;
     let e = text(&c, "error").await;
-    assert!(e.contains("not-a-photo.png") && e.contains("not a PNG, JPEG, EXR or HDR image"), "{e}");
+    assert!(
+        e.contains("not-a-photo.png") && e.contains("not a PNG, JPEG, EXR or HDR image"),
+        "{e}"
+    );
 
     let small = root().join("small-mask.png");
     image::GrayImage::from_fn(10, 10, |x, _| image::Luma([if x < 5 { 255 } else { 0 }]))
@@ -364,12 +409,67 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     c.goto(&url).await.unwrap();
     set_file(&c, "photo", &photo).await;
     set_file(&c, "mask", &small).await;
-    c.wait().for_element(Locator::Css(".material")).await.unwrap().click().await.unwrap();
+    c.wait()
+        .for_element(Locator::Css(".material"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
     c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
     wait_state(&c, "error", 30).await;
     let e = text(&c, "error").await;
-    assert!(e.contains("small-mask.png") && e.contains("must match pixel for pixel"), "{e}");
+    assert!(
+        e.contains("small-mask.png") && e.contains("must match pixel for pixel"),
+        "{e}"
+    );
     screenshot(&c, "serve-error.png").await;
+
+    // The brush: nothing painted is an empty mask; a stroke across the object edits.
+    c.goto(&url).await.unwrap();
+    set_file(&c, "photo", &photo).await;
+    c.find(Locator::Css(r#"input[name="mask-mode"][value="brush"]"#))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    c.wait()
+        .for_element(Locator::Css(".material"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    c.wait().for_element(Locator::Css("#view:not(.hidden)")).await.unwrap();
+    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
+    wait_state(&c, "error", 30).await;
+    let e = text(&c, "error").await;
+    assert!(e.contains("painted-mask.png") && e.contains("the mask is empty"), "{e}");
+    let canvas = c.find(Locator::Id("brush-canvas")).await.unwrap();
+    let stroke = MouseActions::new("mouse".into())
+        .then(PointerAction::MoveToElement {
+            element: canvas.clone(),
+            duration: None,
+            x: -30.0,
+            y: 0.0,
+        })
+        .then(PointerAction::Down {
+            button: MOUSE_BUTTON_LEFT,
+        })
+        .then(PointerAction::MoveToElement {
+            element: canvas,
+            duration: Some(Duration::from_millis(300)),
+            x: 30.0,
+            y: 5.0,
+        })
+        .then(PointerAction::Up {
+            button: MOUSE_BUTTON_LEFT,
+        });
+    c.perform_actions(stroke).await.unwrap();
+    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
+    let s = wait_state(&c, "done|error", 300).await;
+    assert_eq!(s, "done", "the painted mask did not edit: {}", text(&c, "error").await);
 
     // Over the server's upload limit.
     let big = root().join("big.png");
@@ -381,8 +481,14 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     noise.save(&big).unwrap();
     c.goto(&url).await.unwrap();
     set_file(&c, "photo", &big).await;
-    set_file(&c, "mask", &mask).await;
-    c.wait().for_element(Locator::Css(".material")).await.unwrap().click().await.unwrap();
+    set_file(&c, "mask", mask).await;
+    c.wait()
+        .for_element(Locator::Css(".material"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
     c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
     wait_state(&c, "error", 30).await;
     let e = text(&c, "error").await;
@@ -402,7 +508,13 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     let t = Instant::now();
     loop {
         let s = text(&c, "status").await;
-        let drawn = c.execute("return !document.getElementById('energy').classList.contains('hidden')", vec![]).await.unwrap();
+        let drawn = c
+            .execute(
+                "return !document.getElementById('energy').classList.contains('hidden')",
+                vec![],
+            )
+            .await
+            .unwrap();
         if s.contains("post-optimising") && drawn == Value::Bool(true) {
             break;
         }
@@ -426,7 +538,10 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     let t = Instant::now();
     c.find(Locator::Id("cancel")).await.unwrap().click().await.unwrap();
     wait_state(&c, "cancelled", 30).await;
-    eprintln!("a running Eq. 6 stopped {:.2} s after Cancel", t.elapsed().as_secs_f64());
+    eprintln!(
+        "a running Eq. 6 stopped {:.2} s after Cancel",
+        t.elapsed().as_secs_f64()
+    );
     c.close().await.unwrap();
     server.stop().await;
 }
@@ -458,7 +573,13 @@ async fn submit_long(c: &Client, url: &str, photo: &Path, mask: &Path) {
     c.goto(url).await.unwrap();
     set_file(c, "photo", photo).await;
     set_file(c, "mask", mask).await;
-    c.wait().for_element(Locator::Css(".material")).await.unwrap().click().await.unwrap();
+    c.wait()
+        .for_element(Locator::Css(".material"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
     c.find(Locator::Id("optimize")).await.unwrap().click().await.unwrap();
     c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
 }

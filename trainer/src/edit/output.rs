@@ -158,7 +158,12 @@ fn write_net_image(out: &Path, stem: &str, img: &[f32], mask: &[f32], n: usize, 
 }
 
 /// A sphere of each material under `env`, `[3, S, S]` each, for the sheet.
-pub(crate) fn spheres(materials: &[&[f32]], env: &[f32], env_height: usize, n: usize) -> Result<Vec<(Vec<f32>, Vec<f32>)>> {
+pub(crate) fn spheres(
+    materials: &[&[f32]],
+    env: &[f32],
+    env_height: usize,
+    n: usize,
+) -> Result<Vec<(Vec<f32>, Vec<f32>)>> {
     let (normals, mask) = matedit_physics::camera::unit_sphere_normals(n);
     let hw = n * n;
     let mut planar_n = vec![0.0_f32; 3 * hw];

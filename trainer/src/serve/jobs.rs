@@ -319,9 +319,7 @@ pub fn work(queue: &Queue, model: &Model) {
         let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(model, &job)));
         let state = match run {
             Ok(Ok(report)) => State::Done(Box::new(report)),
-            Ok(Err(e)) if e.downcast_ref::<Cancelled>().is_some() || job.progress.is_cancelled() => {
-                State::Cancelled
-            }
+            Ok(Err(e)) if e.downcast_ref::<Cancelled>().is_some() || job.progress.is_cancelled() => State::Cancelled,
             Ok(Err(e)) => State::Failed(job.user_message(&format!("{e:#}"))),
             Err(panic) => {
                 let what = panic
@@ -329,7 +327,9 @@ pub fn work(queue: &Queue, model: &Model) {
                     .cloned()
                     .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
                     .unwrap_or_default();
-                State::Failed(format!("internal error while editing ({what}); the server is still running"))
+                State::Failed(format!(
+                    "internal error while editing ({what}); the server is still running"
+                ))
             }
         };
         if matches!(state, State::Cancelled) {

@@ -17,10 +17,13 @@ const SIDE: usize = 64;
 /// Environment rows of the thumbnails' light.
 const ENV_HEIGHT: usize = 16;
 
+/// A thumbnail, rendered once: the PNG or why it could not be made.
+type Thumbnail = Arc<OnceLock<Result<Vec<u8>, String>>>;
+
 /// The library's entries and the thumbnails made so far.
 #[derive(Default)]
 pub struct Library {
-    thumbs: Mutex<HashMap<String, Arc<OnceLock<Result<Vec<u8>, String>>>>>,
+    thumbs: Mutex<HashMap<String, Thumbnail>>,
 }
 
 impl Library {

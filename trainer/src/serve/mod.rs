@@ -17,9 +17,9 @@
 
 pub mod jobs;
 pub mod library;
-pub mod upload;
 #[cfg(test)]
 mod tests;
+pub mod upload;
 
 use crate::edit::optimize::Eq6Config;
 use crate::edit::{Composite, EditRequest, Model};
@@ -123,8 +123,25 @@ impl Server {
         }
     }
 
-    /// Waits for Ctrl-C, then [`stop`](Self::stop)s.
+    /// Waits for Ctrl-C (SIGINT) or SIGTERM (what batch schedulers and service managers send),
+    /// then [`stop`](Self::stop)s.
     pub async fn run_until_interrupted(self) {
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{SignalKind, signal};
+            match signal(SignalKind::terminate()) {
+                Ok(mut term) => {
+                    tokio::select! {
+                        _ = tokio::signal::ctrl_c() => {}
+                        _ = term.recv() => {}
+                    }
+                }
+                Err(_) => {
+                    let _ = tokio::signal::ctrl_c().await;
+                }
+            }
+        }
+        #[cfg(not(unix))]
         let _ = tokio::signal::ctrl_c().await;
         eprintln!("stopping: the running edit finishes first");
         self.stop().await;
@@ -432,26 +449,28 @@ fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result<(Work, Vec
     Ok((work, names))
 }
 
-fn job(app: &App, id: &str) -> Result<Arc<Job>, Response> {
-    app.queue
-        .get(id)
-        .ok_or_else(|| error(StatusCode::NOT_FOUND, "no such edit (finished edits are kept for a while only)"))
+fn no_such_job() -> Response {
+    error(
+        StatusCode::NOT_FOUND,
+        "no such edit (finished edits are kept for a while only)",
+    )
 }
 
 async fn status(State(app): State<Arc<App>>, UrlPath(id): UrlPath<String>) -> Response {
-    match job(&app, &id) {
-        Ok(j) => axum::Json(app.queue.status(&j, &format!("/api/jobs/{id}"))).into_response(),
-        Err(r) => r,
+    match app.queue.get(&id) {
+        Some(j) => axum::Json(app.queue.status(&j, &format!("/api/jobs/{id}"))).into_response(),
+        None => no_such_job(),
     }
 }
 
 async fn cancel(State(app): State<Arc<App>>, UrlPath(id): UrlPath<String>) -> Response {
-    match app.queue.cancel(&id) {
-        Some(_) => match job(&app, &id) {
-            Ok(j) => axum::Json(app.queue.status(&j, &format!("/api/jobs/{id}"))).into_response(),
-            Err(_) => axum::Json(json!({ "id": id, "state": "cancelled" })).into_response(),
-        },
-        None => error(StatusCode::NOT_FOUND, "no such edit"),
+    if app.queue.cancel(&id).is_none() {
+        return no_such_job();
+    }
+    match app.queue.get(&id) {
+        Some(j) => axum::Json(app.queue.status(&j, &format!("/api/jobs/{id}"))).into_response(),
+        // Retired at once: the queue keeps only the last few finished edits.
+        None => axum::Json(json!({ "id": id, "state": "cancelled" })).into_response(),
     }
 }
 
@@ -460,9 +479,8 @@ async fn file(
     UrlPath((id, name)): UrlPath<(String, String)>,
     Query(q): Query<HashMap<String, String>>,
 ) -> Response {
-    let j = match job(&app, &id) {
-        Ok(j) => j,
-        Err(r) => return r,
+    let Some(j) = app.queue.get(&id) else {
+        return no_such_job();
     };
     // Only names the job's report lists resolve to a path.
     let Some(path) = j.file(&name) else {

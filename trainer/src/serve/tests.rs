@@ -69,7 +69,10 @@ fn photo_and_mask() -> (Vec<u8>, Vec<u8>) {
 fn http(addr: SocketAddr, method: &str, path: &str, content_type: Option<&str>, body: &[u8]) -> (u16, Vec<u8>) {
     let mut s = TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
-    let mut head = format!("{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Length: {}\r\n", body.len());
+    let mut head = format!(
+        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Length: {}\r\n",
+        body.len()
+    );
     if let Some(t) = content_type {
         head += &format!("Content-Type: {t}\r\n");
     }
@@ -92,7 +95,9 @@ fn http(addr: SocketAddr, method: &str, path: &str, content_type: Option<&str>, 
 fn unchunk(mut b: &[u8]) -> Vec<u8> {
     let mut out = Vec::new();
     loop {
-        let Some(eol) = b.windows(2).position(|w| w == b"\r\n") else { return out };
+        let Some(eol) = b.windows(2).position(|w| w == b"\r\n") else {
+            return out;
+        };
         let n = usize::from_str_radix(String::from_utf8_lossy(&b[..eol]).trim(), 16).unwrap_or(0);
         if n == 0 {
             return out;
@@ -105,6 +110,9 @@ fn unchunk(mut b: &[u8]) -> Vec<u8> {
 fn json_of(body: &[u8]) -> Value {
     serde_json::from_slice(body).unwrap_or_else(|_| panic!("not JSON: {}", String::from_utf8_lossy(body)))
 }
+
+/// Multipart parts: `(name, Some(file name), bytes)` for files, `(name, None, text)` for fields.
+type Parts<'a> = Vec<(&'a str, Option<&'a str>, &'a [u8])>;
 
 const BOUNDARY: &str = "matedit-test-boundary";
 
@@ -188,9 +196,17 @@ fn an_edit_matches_the_command_line_and_serves_only_its_own_files() {
     let done = wait_for(addr, &url, &["done", "failed"]);
     assert_eq!(done["state"], "done", "{done}");
     // Eq. 6 reported live: from the network's prediction, never increasing.
-    let e: Vec<f64> = done["energies"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    let e: Vec<f64> = done["energies"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
     assert!(e.len() > 1 && e.windows(2).all(|w| w[1] <= w[0]), "{e:?}");
-    assert_eq!(done["report"]["photo"], "photo “car.png”", "the report names the upload, not the server's path");
+    assert_eq!(
+        done["report"]["photo"], "photo “car.png”",
+        "the report names the upload, not the server's path"
+    );
     // Byte for byte what `matedit edit` writes for the same inputs.
     let d = dir("cli");
     std::fs::write(d.join("p.png"), &photo).unwrap();
@@ -203,10 +219,20 @@ fn an_edit_matches_the_command_line_and_serves_only_its_own_files() {
         ..EditRequest::default()
     };
     crate::edit::edit(model(), &req, &d.join("out")).unwrap();
-    for f in ["edited.png", "o_prime.exr", "normals.exr", "env.exr", "material.dsbrdf.json"] {
+    for f in [
+        "edited.png",
+        "o_prime.exr",
+        "normals.exr",
+        "env.exr",
+        "material.dsbrdf.json",
+    ] {
         let (s, b) = http(addr, "GET", &format!("{url}/files/{f}"), None, b"");
         assert_eq!(s, 200, "{f}");
-        assert_eq!(b, std::fs::read(d.join("out").join(f)).unwrap(), "{f} differs from the command line's");
+        assert_eq!(
+            b,
+            std::fs::read(d.join("out").join(f)).unwrap(),
+            "{f} differs from the command line's"
+        );
     }
     let (s, b) = http(addr, "GET", &format!("{url}/files/report.json"), None, b"");
     assert_eq!((s, json_of(&b)["composite"].as_str()), (200, Some("render")));
@@ -292,11 +318,18 @@ fn the_queue_is_bounded_shows_places_and_cancels_waiting_and_running_edits() {
     let (s, _) = http(addr, "POST", &format!("{a_url}/cancel"), None, b"");
     assert_eq!(s, 200);
     assert_eq!(wait_for(addr, &a_url, &["cancelled", "done"])["state"], "cancelled");
-    assert!(t.elapsed() < Duration::from_secs(10), "cancelling took {:?}", t.elapsed());
+    assert!(
+        t.elapsed() < Duration::from_secs(10),
+        "cancelling took {:?}",
+        t.elapsed()
+    );
     // The worker is free again.
     let (s, d) = post_edit(addr, &parts[..3]);
     assert_eq!(s, 202, "{d}");
-    assert_eq!(wait_for(addr, d["url"].as_str().unwrap(), &["done", "failed"])["state"], "done");
+    assert_eq!(
+        wait_for(addr, d["url"].as_str().unwrap(), &["done", "failed"])["state"],
+        "done"
+    );
     rt.block_on(server.stop());
 }
 
@@ -322,30 +355,139 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
     huge[29..33].copy_from_slice(&crc.to_be_bytes());
     let truncated = photo[..photo.len() / 2].to_vec();
     let gold: &[u8] = b"library:gold-polished";
-    let cases: Vec<(Vec<(&str, Option<&str>, &[u8])>, u16, &str)> = vec![
+    let cases: Vec<(Parts, u16, &str)> = vec![
         (vec![("material", None, gold)], 422, "no photo"),
-        (vec![("photo", Some("a.png"), b"hello"), ("material", None, gold)], 422, "“a.png”: not a PNG, JPEG, EXR or HDR image"),
-        (vec![("photo", Some("p.png"), &photo), ("mask", Some("m.png"), &blank), ("material", None, gold)], 422, "the mask is empty"),
-        (vec![("photo", Some("p.png"), &photo), ("mask", Some("m.png"), &full), ("material", None, gold)], 422, "covers the whole photo"),
-        (vec![("photo", Some("p.png"), &photo), ("mask", Some("m.png"), &other_size), ("material", None, gold)], 422, "must match pixel for pixel"),
-        (vec![("photo", Some("p.png"), &photo), ("mask", Some("m.exr"), &exr_mask), ("material", None, gold)], 422, "masks must be PNG or JPEG"),
-        (vec![("photo", Some("p.png"), &photo), ("material", None, gold)], 422, "no mask given and the photo has no alpha channel"),
-        (vec![("photo", Some("big.png"), &huge), ("mask", Some("m.png"), &mask), ("material", None, gold)], 422, "100000×100000 is 10000.0 megapixels, more than this server's limit of 1.0"),
-        (vec![("photo", Some("half.png"), &truncated), ("mask", Some("m.png"), &mask), ("material", None, gold)], 422, "“half.png”"),
-        (vec![("photo", Some("p.png"), &photo), ("mask", Some("m.png"), &mask), ("material", None, b"dsbrdf:/etc/passwd")], 422, "file specs are not accepted"),
-        (vec![("photo", Some("p.png"), &photo), ("mask", Some("m.png"), &mask), ("material", None, b"library:../../x")], 422, "no such library material"),
-        (vec![("photo", Some("p.png"), &photo), ("mask", Some("m.png"), &mask), ("material", None, b"lambert:2,nan,0")], 422, "lambert"),
-        (vec![("photo", Some("p.png"), &photo), ("mask", Some("m.png"), &mask)], 422, "no material"),
-        (vec![("photo", Some("p.png"), &photo), ("mask", Some("m.png"), &mask), ("material", None, gold), ("source", Some("s.png"), &photo)], 422, "not both"),
-        (vec![("photo", Some("p.png"), &photo), ("mask", Some("m.png"), &mask), ("material", None, gold), ("composite", None, b"blend")], 400, "expected render or ratio"),
-        (vec![("photo", Some("p.png"), &photo), ("path", None, b"/etc/passwd")], 400, "unexpected field"),
+        (
+            vec![("photo", Some("a.png"), b"hello"), ("material", None, gold)],
+            422,
+            "“a.png”: not a PNG, JPEG, EXR or HDR image",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &blank),
+                ("material", None, gold),
+            ],
+            422,
+            "the mask is empty",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &full),
+                ("material", None, gold),
+            ],
+            422,
+            "covers the whole photo",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &other_size),
+                ("material", None, gold),
+            ],
+            422,
+            "must match pixel for pixel",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.exr"), &exr_mask),
+                ("material", None, gold),
+            ],
+            422,
+            "masks must be PNG or JPEG",
+        ),
+        (
+            vec![("photo", Some("p.png"), &photo), ("material", None, gold)],
+            422,
+            "no mask given and the photo has no alpha channel",
+        ),
+        (
+            vec![
+                ("photo", Some("big.png"), &huge),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
+            ],
+            422,
+            "100000×100000 is 10000.0 megapixels, more than this server's limit of 1.0",
+        ),
+        (
+            vec![
+                ("photo", Some("half.png"), &truncated),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
+            ],
+            422,
+            "“half.png”",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, b"dsbrdf:/etc/passwd"),
+            ],
+            422,
+            "file specs are not accepted",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, b"library:../../x"),
+            ],
+            422,
+            "no such library material",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, b"lambert:2,nan,0"),
+            ],
+            422,
+            "lambert",
+        ),
+        (
+            vec![("photo", Some("p.png"), &photo), ("mask", Some("m.png"), &mask)],
+            422,
+            "no material",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
+                ("source", Some("s.png"), &photo),
+            ],
+            422,
+            "not both",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
+                ("composite", None, b"blend"),
+            ],
+            400,
+            "expected render or ratio",
+        ),
+        (
+            vec![("photo", Some("p.png"), &photo), ("path", None, b"/etc/passwd")],
+            400,
+            "unexpected field",
+        ),
     ];
     for (parts, status, needle) in &cases {
         let (s, v) = post_edit(addr, parts);
         let msg = v["error"].as_str().unwrap_or_default();
         assert_eq!(s, *status, "{needle}: {v}");
         assert!(msg.contains(needle), "expected “{needle}” in: {msg}");
-        assert!(!msg.contains("/tmp") && !msg.contains("matedit-serve"), "a server path leaked: {msg}");
+        assert!(
+            !msg.contains("/tmp") && !msg.contains("matedit-serve"),
+            "a server path leaked: {msg}"
+        );
     }
     // Not multipart at all, a broken multipart body, and one over the size limit.
     let (s, _) = http(addr, "POST", "/api/edit", Some("text/plain"), b"photo=1");

@@ -60,7 +60,10 @@ pub fn save(dir: &Path, role: &str, part: &Part, max_pixels: u64) -> Result<(Pat
         bail!("{shown}: not a PNG, JPEG, EXR or HDR image (the content decides, not the name)");
     };
     if role.ends_with("mask") && !matches!(ext, "png" | "jpg") {
-        bail!("{shown}: masks must be PNG or JPEG images, this is {}", ext.to_uppercase());
+        bail!(
+            "{shown}: masks must be PNG or JPEG images, this is {}",
+            ext.to_uppercase()
+        );
     }
     let (w, h) = dimensions(&part.bytes, ext).with_context(|| shown.clone())?;
     if w == 0 || h == 0 {
@@ -93,9 +96,8 @@ pub fn display_name(name: &str) -> String {
 pub fn check_material(spec: &str) -> Result<()> {
     let spec = spec.trim();
     if let Some(name) = spec.strip_prefix("library:") {
-        matedit_datagen::materials::library::find(name).map_err(|_| {
-            anyhow::anyhow!("material “{}”: no such library material", display_name(name))
-        })?;
+        matedit_datagen::materials::library::find(name)
+            .map_err(|_| anyhow::anyhow!("material “{}”: no such library material", display_name(name)))?;
         return Ok(());
     }
     if ["lambert:", "ggx:", "plastic:"].iter().any(|p| spec.starts_with(p)) {
