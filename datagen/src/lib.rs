@@ -21,5 +21,6 @@ pub mod dataset;
 pub mod gbuffer;
 pub mod io;
 pub mod materials;
+pub mod progress;
 pub mod render;
 pub mod shapes;

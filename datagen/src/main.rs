@@ -229,14 +229,11 @@ fn run_assets(c: AssetsCommand) -> Result<()> {
             }
             let dir = out.unwrap_or_else(cache::default_dir);
             let lib = library::library();
-            let bar = if std::io::stderr().is_terminal() {
-                indicatif::ProgressBar::new(lib.len() as u64)
-            } else {
-                indicatif::ProgressBar::hidden()
-            };
-            bar.set_style(
-                indicatif::ProgressStyle::with_template("fitting [{bar:40}] {pos}/{len}, ETA {eta}")
-                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            let bar = matedit_datagen::progress::Progress::new(
+                true,
+                lib.len() as u64,
+                "fitting",
+                "fitting [{bar:40}] {pos}/{len}, ETA {eta}",
             );
             let (records, fitted) = cache::fit_library(&dir, &|| bar.inc(1))?;
             bar.finish_and_clear();
@@ -408,10 +405,11 @@ mod dataset {
         for note in &l.plan.catalogue.substitutions {
             eprintln!("note: {note}");
         }
+        // A bar on a terminal, a plain line every MATEDIT_PROGRESS_SECS in a batch log.
         let opts = r::RunOptions {
             out,
             worker,
-            progress: std::io::stderr().is_terminal(),
+            progress: true,
         };
         let s = r::run(&l, &opts)?;
         let rate = if s.render_s > 0.0 {

@@ -1,7 +1,7 @@
 //! `trainer`: trains the material-editing network of Fig. 2 from manifests, evaluates it like
 //! Sec. 4 of the paper, and measures the rendering layer.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use matedit_trainer::alloc::PeakAlloc;
 use matedit_trainer::baseline::lombardi::LombardiConfig;
@@ -10,7 +10,7 @@ use matedit_trainer::eval::{EvalOptions, evaluate};
 use matedit_trainer::model::Widths;
 use matedit_trainer::targets::{material_from_prediction, normalised_target};
 use matedit_trainer::train::manifest;
-use matedit_trainer::train::run::{open_dataset_stream, run as run_manifest};
+use matedit_trainer::train::run::{Preempted, open_dataset_stream, run as run_manifest, stop_requested};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -177,6 +177,12 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let plan = manifest::load(&path)?;
             let out = out.unwrap_or_else(|| PathBuf::from(&plan.manifest.run.output));
+            // A scheduler's notice (Slurm's --signal, Kubernetes' termination): checkpoint and stop.
+            #[cfg(unix)]
+            for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGUSR1] {
+                signal_hook::flag::register(sig, stop_requested().clone())
+                    .context("cannot install the SIGTERM/SIGUSR1 handler")?;
+            }
             let summary = run_manifest(&plan, &out, resume, &open_dataset_stream, quiet)?;
             eprintln!(
                 "{} steps run; checkpoints: {}",
@@ -310,9 +316,17 @@ fn run(cli: Cli) -> Result<()> {
     Ok(())
 }
 
+/// `trainer run`'s status when it stopped on a signal after writing a checkpoint (EX_TEMPFAIL:
+/// try again), which `scripts/train_slurm.sh` turns into a requeue.
+const EXIT_PREEMPTED: u8 = 75;
+
 fn main() -> ExitCode {
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) if e.downcast_ref::<Preempted>().is_some() => {
+            eprintln!("{e:#}");
+            ExitCode::from(EXIT_PREEMPTED)
+        }
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE

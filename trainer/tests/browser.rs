@@ -243,6 +243,69 @@ async fn text(c: &Client, id: &str) -> String {
     c.find(Locator::Id(id)).await.unwrap().text().await.unwrap()
 }
 
+/// How the form is given the mask.
+#[derive(Clone, Copy)]
+enum Mask<'a> {
+    File(&'a Path),
+    Alpha,
+    Brush,
+}
+
+/// Opens the page and fills the form as a user does: the photo, the mask, the library material
+/// `spec` picked by its sphere, Eq. 6 or not.
+async fn fill(c: &Client, url: &str, photo: &Path, mask: Mask<'_>, spec: &str, optimize: bool) {
+    c.goto(url).await.unwrap();
+    set_file(c, "photo", photo).await;
+    let radio = match mask {
+        Mask::File(m) => {
+            set_file(c, "mask", m).await;
+            None
+        }
+        Mask::Alpha => Some(r#"input[name="mask-mode"][value="alpha"]"#),
+        Mask::Brush => Some(r#"input[name="mask-mode"][value="brush"]"#),
+    };
+    if let Some(r) = radio {
+        c.find(Locator::Css(r)).await.unwrap().click().await.unwrap();
+    }
+    let pick = format!(r#".material[data-spec="{spec}"]"#);
+    c.wait()
+        .for_element(Locator::Css(&pick))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    if optimize {
+        c.find(Locator::Id("optimize")).await.unwrap().click().await.unwrap();
+    }
+}
+
+/// Clicks Edit and waits for the page to reach one of `states`; the state and the seconds.
+async fn run_edit(c: &Client, states: &str, secs: u64) -> (String, f64) {
+    let t = Instant::now();
+    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
+    let s = wait_state(c, states, secs).await;
+    (s, t.elapsed().as_secs_f64())
+}
+
+/// Submits an edit whose message must contain every one of `needles`.
+async fn refused(c: &Client, url: &str, photo: &Path, mask: Mask<'_>, needles: &[&str]) {
+    fill(c, url, photo, mask, MATERIAL, false).await;
+    run_edit(c, "error", 30).await;
+    let e = text(c, "error").await;
+    assert!(needles.iter().all(|n| e.contains(n)), "expected {needles:?} in: {e}");
+}
+
+async fn energy_drawn(c: &Client) -> bool {
+    c.execute(
+        "return !document.getElementById('energy').classList.contains('hidden')",
+        vec![],
+    )
+    .await
+    .unwrap()
+        == Value::Bool(true)
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() {
     let Some(driver) = chromedriver() else {
@@ -263,6 +326,7 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
         (Some(m), Some(p)) => (PathBuf::from(p), None, PathBuf::from(m)),
         _ => (photo, Some(mask), model),
     };
+    let given = mask.as_deref().map_or(Mask::Alpha, Mask::File);
 
     // What the command line writes for the same inputs.
     let cli_out = root().join("cli");
@@ -289,13 +353,9 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     let server = start(cfg.clone()).await.unwrap();
     let url = format!("http://{}/", server.addr);
     let c = browser(&driver).await;
-    c.goto(&url).await.unwrap();
 
     // An upload and a library pick, as a user makes them.
-    set_file(&c, "photo", &photo).await;
-    give_mask(&c, mask.as_deref()).await;
-    let pick = Locator::Css(r#".material[data-spec="library:gold-polished"]"#);
-    c.wait().for_element(pick).await.unwrap().click().await.unwrap();
+    fill(&c, &url, &photo, given, MATERIAL, false).await;
     // The spheres are the project's renders: wait for the picked one to have loaded.
     let t = Instant::now();
     while c
@@ -315,11 +375,9 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
         );
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
-    let t0 = Instant::now();
-    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
-    let s = wait_state(&c, "done|error", 300).await;
+    let (s, secs) = run_edit(&c, "done|error", 300).await;
     assert_eq!(s, "done", "the edit failed: {}", text(&c, "error").await);
-    eprintln!("upload to shown result: {:.2} s", t0.elapsed().as_secs_f64());
+    eprintln!("upload to shown result: {secs:.2} s");
     screenshot(&c, "serve-result.png").await;
     let got = image::load_from_memory(&image_bytes(&c, "result-edited").await)
         .unwrap()
@@ -330,9 +388,8 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
         "the composite is at the photo's resolution"
     );
     assert!(got == want, "the page's edited photo differs from `matedit edit`'s");
-    let links = c.find_all(Locator::Css("#downloads a")).await.unwrap();
     let mut names = Vec::new();
-    for a in links {
+    for a in c.find_all(Locator::Css("#downloads a")).await.unwrap() {
         names.push(a.text().await.unwrap());
     }
     for f in [
@@ -348,104 +405,54 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
         assert!(names.iter().any(|n| n == f), "no download of {f} among {names:?}");
     }
 
-    // With Eq. 6: its energy drawn, never rising, and its plot among the results.
-    c.goto(&url).await.unwrap();
-    set_file(&c, "photo", &photo).await;
-    give_mask(&c, mask.as_deref()).await;
-    c.wait()
-        .for_element(Locator::Css(r#".material[data-spec="library:gold-polished"]"#))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
-    c.find(Locator::Id("optimize")).await.unwrap().click().await.unwrap();
-    let t0 = Instant::now();
-    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
-    let s = wait_state(&c, "done|error", 600).await;
+    // With Eq. 6: its energy drawn live and its plot among the results.
+    fill(&c, &url, &photo, given, MATERIAL, true).await;
+    let (s, secs) = run_edit(&c, "done|error", 600).await;
     assert_eq!(s, "done", "the edit failed: {}", text(&c, "error").await);
-    eprintln!("upload to shown result with Eq. 6: {:.2} s", t0.elapsed().as_secs_f64());
+    eprintln!("upload to shown result with Eq. 6: {secs:.2} s");
     assert!(
         c.find(Locator::Id("result-energy")).await.is_ok(),
         "no energy plot among the results"
     );
-    let visible = c
-        .execute(
-            "return !document.getElementById('energy').classList.contains('hidden')",
-            vec![],
-        )
-        .await
-        .unwrap();
-    assert_eq!(visible, Value::Bool(true), "the live energy plot is not shown");
+    assert!(energy_drawn(&c).await, "the live energy plot is not shown");
     screenshot(&c, "serve-eq6.png").await;
-    let mask = Some(mask.unwrap_or_else(|| alpha_mask(&photo)));
-    let mask = mask.as_deref().unwrap_or(Path::new(""));
+    let mask = mask.unwrap_or_else(|| alpha_mask(&photo));
 
-    // Bad uploads: a text file named like a photo, and a mask of another size.
+    // Bad uploads: a text file named like a photo, a mask of another size, nothing painted.
     let junk = root().join("not-a-photo.png");
     std::fs::write(&junk, "hello, I am text").unwrap();
-    c.goto(&url).await.unwrap();
-    set_file(&c, "photo", &junk).await;
-    set_file(&c, "mask", mask).await;
-    c.wait()
-        .for_element(Locator::Css(".material"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
-    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
-    wait_state(&c, "error", 30).await;
-    let e = text(&c, "error").await;
-    assert!(
-        e.contains("not-a-photo.png") && e.contains("not a PNG, JPEG, EXR or HDR image"),
-        "{e}"
-    );
-
+    refused(
+        &c,
+        &url,
+        &junk,
+        Mask::File(&mask),
+        &["not-a-photo.png", "not a PNG, JPEG, EXR or HDR image"],
+    )
+    .await;
     let small = root().join("small-mask.png");
     image::GrayImage::from_fn(10, 10, |x, _| image::Luma([if x < 5 { 255 } else { 0 }]))
         .save(&small)
         .unwrap();
-    c.goto(&url).await.unwrap();
-    set_file(&c, "photo", &photo).await;
-    set_file(&c, "mask", &small).await;
-    c.wait()
-        .for_element(Locator::Css(".material"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
-    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
-    wait_state(&c, "error", 30).await;
-    let e = text(&c, "error").await;
-    assert!(
-        e.contains("small-mask.png") && e.contains("must match pixel for pixel"),
-        "{e}"
-    );
+    refused(
+        &c,
+        &url,
+        &photo,
+        Mask::File(&small),
+        &["small-mask.png", "must match pixel for pixel"],
+    )
+    .await;
     screenshot(&c, "serve-error.png").await;
+    refused(
+        &c,
+        &url,
+        &photo,
+        Mask::Brush,
+        &["painted-mask.png", "the mask is empty"],
+    )
+    .await;
 
-    // The brush: nothing painted is an empty mask; a stroke across the object edits.
-    c.goto(&url).await.unwrap();
-    set_file(&c, "photo", &photo).await;
-    c.find(Locator::Css(r#"input[name="mask-mode"][value="brush"]"#))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
-    c.wait()
-        .for_element(Locator::Css(".material"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
+    // The brush: a stroke across the object edits.
     c.wait().for_element(Locator::Css("#view:not(.hidden)")).await.unwrap();
-    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
-    wait_state(&c, "error", 30).await;
-    let e = text(&c, "error").await;
-    assert!(e.contains("painted-mask.png") && e.contains("the mask is empty"), "{e}");
     let canvas = c.find(Locator::Id("brush-canvas")).await.unwrap();
     let stroke = MouseActions::new("mouse".into())
         .then(PointerAction::MoveToElement {
@@ -467,8 +474,7 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
             button: MOUSE_BUTTON_LEFT,
         });
     c.perform_actions(stroke).await.unwrap();
-    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
-    let s = wait_state(&c, "done|error", 300).await;
+    let (s, _) = run_edit(&c, "done|error", 300).await;
     assert_eq!(s, "done", "the painted mask did not edit: {}", text(&c, "error").await);
 
     // Over the server's upload limit.
@@ -479,52 +485,32 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
         image::Rgb([(h >> 8) as u8, (h >> 16) as u8, (h >> 24) as u8])
     });
     noise.save(&big).unwrap();
-    c.goto(&url).await.unwrap();
-    set_file(&c, "photo", &big).await;
-    set_file(&c, "mask", mask).await;
-    c.wait()
-        .for_element(Locator::Css(".material"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
-    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
-    wait_state(&c, "error", 30).await;
-    let e = text(&c, "error").await;
-    assert!(e.contains("larger than this server accepts"), "{e}");
-
+    refused(&c, &url, &big, Mask::File(&mask), &["larger than this server accepts"]).await;
     c.close().await.unwrap();
     server.stop().await;
 
     // A long Eq. 6: a second user waits and sees their place; both cancel from the page.
-    cfg.eq6.rounds = 500;
+    cfg.eq6.rounds = 1_000_000; // never ends by itself: only Cancel stops it
     cfg.eq6.iterations = 50;
     let server = start(cfg).await.unwrap();
     let url = format!("http://{}/", server.addr);
     let c = browser(&driver).await;
     let first = c.window().await.unwrap();
-    submit_long(&c, &url, &photo, mask).await;
+    fill(&c, &url, &photo, Mask::File(&mask), MATERIAL, true).await;
+    run_edit(&c, "running", 60).await;
     let t = Instant::now();
-    loop {
-        let s = text(&c, "status").await;
-        let drawn = c
-            .execute(
-                "return !document.getElementById('energy').classList.contains('hidden')",
-                vec![],
-            )
-            .await
-            .unwrap();
-        if s.contains("post-optimising") && drawn == Value::Bool(true) {
-            break;
-        }
-        assert!(t.elapsed() < Duration::from_secs(60), "never saw Eq. 6 running: {s}");
+    while !(text(&c, "status").await.contains("post-optimising") && energy_drawn(&c).await) {
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "never saw Eq. 6 running: {}",
+            text(&c, "status").await
+        );
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     let second = c.new_window(true).await.unwrap();
     c.switch_to_window(second.handle).await.unwrap();
-    submit_long(&c, &url, &photo, mask).await;
-    wait_state(&c, "queued", 30).await;
+    fill(&c, &url, &photo, Mask::File(&mask), MATERIAL, true).await;
+    run_edit(&c, "queued", 30).await;
     let t = Instant::now();
     while !text(&c, "status").await.contains("place 1 in the queue") {
         assert!(t.elapsed() < Duration::from_secs(10), "{}", text(&c, "status").await);
@@ -546,20 +532,6 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     server.stop().await;
 }
 
-/// The mask: a file, or the photo's alpha.
-async fn give_mask(c: &Client, mask: Option<&Path>) {
-    match mask {
-        Some(m) => set_file(c, "mask", m).await,
-        None => c
-            .find(Locator::Css(r#"input[name="mask-mode"][value="alpha"]"#))
-            .await
-            .unwrap()
-            .click()
-            .await
-            .unwrap(),
-    }
-}
-
 /// The photo's alpha channel as a mask file.
 fn alpha_mask(photo: &Path) -> PathBuf {
     let img = image::open(photo).unwrap().to_rgba8();
@@ -567,19 +539,4 @@ fn alpha_mask(photo: &Path) -> PathBuf {
     let p = root().join("alpha-mask.png");
     m.save(&p).unwrap();
     p
-}
-
-async fn submit_long(c: &Client, url: &str, photo: &Path, mask: &Path) {
-    c.goto(url).await.unwrap();
-    set_file(c, "photo", photo).await;
-    set_file(c, "mask", mask).await;
-    c.wait()
-        .for_element(Locator::Css(".material"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
-    c.find(Locator::Id("optimize")).await.unwrap().click().await.unwrap();
-    c.find(Locator::Id("run")).await.unwrap().click().await.unwrap();
 }

@@ -1,6 +1,6 @@
 //! `trainer run` and `trainer eval` end to end on a tiny dataset rendered by datagen's library
 //! (16² images, 4×8 environments, two-region cars and an OBJ monitor, DSBRDF material files):
-//! a killed run resumes to the same loss sequence and metrics as an uninterrupted one, and
+//! a killed or signalled run resumes to the same loss sequence and metrics as an uninterrupted one, and
 //! refusals name their cause.
 
 use matedit_datagen::dataset::run::{RunOptions, Worker, load as load_manifest, run};
@@ -269,6 +269,51 @@ fn a_killed_run_resumes_to_the_same_losses_and_metrics() {
             .filter(|n| n.starts_with(".tmp") || n.starts_with(".old"))
             .collect();
         assert!(stray.is_empty(), "temporary checkpoints left: {stray:?}");
+    }
+
+    // A scheduler's notice (SIGTERM, SIGUSR1) mid-stage and right at a checkpoint: the run
+    // writes a checkpoint, exits with 75 (what scripts/train_slurm.sh requeues on) and resumes
+    // to the same losses and metrics. Without a terminal it logs plain progress lines.
+    for (k, (signal, after)) in [("TERM", 6usize), ("USR1", 16), ("TERM", 20)].into_iter().enumerate() {
+        let out = root().join(format!("signalled-{k}"));
+        let child = trainer()
+            .arg("run")
+            .arg(&m)
+            .arg("--out")
+            .arg(&out)
+            .env("MATEDIT_PROGRESS_SECS", "0")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let t0 = Instant::now();
+        while metric_lines(&out).len() < after && t0.elapsed() < Duration::from_secs(120) {
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        let sent = Command::new("kill")
+            .arg(format!("-{signal}"))
+            .arg(child.id().to_string())
+            .status()
+            .unwrap();
+        assert!(sent.success());
+        let o = child.wait_with_output().unwrap();
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(75), "SIG{signal} after {after} steps: {e}");
+        assert!(e.contains("continue with --resume"), "{e}");
+        assert!(
+            e.contains("pretrain steps: ") && e.contains(" elapsed, ETA "),
+            "no progress line: {e}"
+        );
+        let written = metric_lines(&out).len();
+        assert!(written < want.len(), "SIG{signal} came too late ({written} steps)");
+        let o = train(&m, &out, true);
+        assert!(o.status.success(), "resume {k}: {}", String::from_utf8_lossy(&o.stderr));
+        assert_eq!(
+            metric_lines(&out),
+            want,
+            "SIG{signal} after {after} steps: loss sequence differs"
+        );
+        assert_eq!(scores(&out), want_scores, "SIG{signal}: metrics differ");
     }
 
     // A finished run is not overwritten, and a changed manifest is not resumed.

@@ -6,8 +6,8 @@ use super::materials::{needed, peek_render, prepare_all};
 use super::plan::Plan;
 use super::sample::{Renderer, ZonalStatus};
 use super::store::{PlanRecord, join, read_plan, shard_done, shards_dir, write_plan, write_shard};
+use crate::progress::Progress;
 use anyhow::{Context, Result, bail};
-use indicatif::{ProgressBar, ProgressStyle};
 use matedit_physics::BrdfModel;
 use matedit_physics::shading::Quality;
 use matedit_physics::shading::zonal::{ZonalPlan, ZonalRefusal};
@@ -334,19 +334,13 @@ pub fn lock_output(dir: &Path, worker: Worker) -> Result<OutputLock> {
     }
 }
 
-fn bar(progress: bool, len: u64, what: &str) -> ProgressBar {
-    let b = if progress {
-        ProgressBar::new(len)
-    } else {
-        ProgressBar::hidden()
-    };
-    b.set_style(
-        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} ({per_sec}), {elapsed} elapsed, ETA {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
-    b.set_message(what.to_string());
-    b
+fn bar(progress: bool, len: u64, what: &str) -> Progress {
+    Progress::new(
+        progress,
+        len,
+        what,
+        "{msg} [{bar:40}] {pos}/{len} ({per_sec}), {elapsed} elapsed, ETA {eta}",
+    )
 }
 
 /// Renders the shards of `worker` that are not complete yet; the whole job (one worker) then

@@ -20,10 +20,12 @@ use anyhow::{Context, Result, bail};
 use burn::module::Module;
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::tensor::Device;
-use indicatif::{ProgressBar, ProgressStyle};
+use matedit_datagen::progress::Progress;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, OnceLock};
 
 /// A stream of training batches that can be positioned (for resume).
 pub trait BatchSource {
@@ -198,6 +200,27 @@ fn truncate_lines(path: &Path, lines: usize) -> Result<()> {
     matedit_datagen::io::write_atomically(path, |p| Ok(std::fs::write(p, kept)?))
 }
 
+/// Set when the run is asked to stop (by `trainer run`'s SIGTERM and SIGUSR1 handler: a
+/// scheduler's notice before preemption or the time limit). The run finishes the step in
+/// progress, writes a checkpoint and stops with [`Preempted`]; `--resume` continues it to the
+/// same losses as an uninterrupted run.
+pub fn stop_requested() -> &'static Arc<AtomicBool> {
+    static FLAG: OnceLock<Arc<AtomicBool>> = OnceLock::new();
+    FLAG.get_or_init(|| Arc::new(AtomicBool::new(false)))
+}
+
+/// The run stopped at [`stop_requested`] after writing a checkpoint.
+#[derive(Debug, thiserror::Error)]
+#[error("stopped on request after stage {stage}, step {step}: checkpoint {checkpoint} written; continue with --resume")]
+pub struct Preempted {
+    /// The stage.
+    pub stage: String,
+    /// Its last step done.
+    pub step: usize,
+    /// The checkpoint's folder name.
+    pub checkpoint: String,
+}
+
 /// Runs (or, with `resume`, continues) the manifest's stages into `out`.
 pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet: bool) -> Result<RunSummary> {
     let _lock =
@@ -311,17 +334,13 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
             }
         };
         let mut data = open(plan, si, position)?;
-        let bar = if quiet {
-            ProgressBar::hidden()
-        } else {
-            ProgressBar::new(st.steps as u64)
-        };
-        bar.set_style(
-            ProgressStyle::with_template("{prefix:>10} [{bar:30}] {pos}/{len} steps  {msg}  ETA {eta}")
-                .unwrap_or_else(|_| ProgressStyle::default_bar())
-                .progress_chars("=> "),
+        let bar = Progress::new(
+            !quiet,
+            st.steps as u64,
+            &format!("{} steps", st.name),
+            "{prefix:>10} [{bar:30}] {pos}/{len} steps  {msg}  ETA {eta}",
         );
-        bar.set_prefix(st.name.clone());
+        bar.bar().set_prefix(st.name.clone());
         bar.set_position(step as u64);
         while step < st.steps {
             let lr = st.lr_at(step);
@@ -355,7 +374,8 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
             bar.set_message(format!("loss {:.4e}", losses.total));
             bar.inc(1);
             let done = step == st.steps;
-            if done || (st.checkpoint_every > 0 && step % st.checkpoint_every == 0) {
+            let stop = stop_requested().load(Ordering::SeqCst);
+            if done || stop || (st.checkpoint_every > 0 && step % st.checkpoint_every == 0) {
                 metrics.sync_data()?;
                 let state = State {
                     version: checkpoint::VERSION,
@@ -378,6 +398,15 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
                 checkpoint::save(out, &name, &net, &optim, state)?;
                 // Keep the stage ends and the newest intermediate checkpoint only.
                 remove_older_intermediates(out, &st.name, &name)?;
+                if stop {
+                    bar.finish();
+                    return Err(Preempted {
+                        stage: st.name.clone(),
+                        step,
+                        checkpoint: name,
+                    }
+                    .into());
+                }
             }
         }
         bar.finish();

@@ -1,0 +1,252 @@
+#!/usr/bin/env bash
+# The cluster scripts on a real scheduler: starts a one-node Slurm here (Debian's slurm-wlm and
+# munge, installed when missing and apt works), renders a small dataset as job arrays of several
+# shapes (0-3, 1-4, stepped 0-6:2, throttled %2, a requeued task, a failed index re-submitted
+# alone) and checks each joined dataset is byte-identical to a single-process run; then trains
+# under scripts/train_slurm.sh, signals the job mid-run (as a time limit would) and checks the
+# requeued job resumes to the same metrics.jsonl as an uninterrupted run. Stops only the daemons
+# it started. Skips (exit 0, with a message) where Slurm cannot be installed or started.
+#   scripts/test_slurm.sh            (as root; ~2 minutes on 2 cores after the build)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+repo=$(pwd)
+skip() { echo "test_slurm: skipped: $*" >&2; exit 0; }
+fail() { echo "test_slurm: FAILED: $*" >&2; exit 1; }
+
+if ! command -v slurmctld >/dev/null || ! command -v munged >/dev/null; then
+  command -v apt-get >/dev/null && [ "$(id -u)" = 0 ] || skip "no slurm-wlm/munge and no apt as root"
+  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq slurm-wlm munge) \
+    >/tmp/matedit-apt-slurm.log 2>&1 || skip "could not install slurm-wlm and munge (see /tmp/matedit-apt-slurm.log)"
+fi
+[ "$(id -u)" = 0 ] || skip "needs root to start slurmd"
+cargo build --release --quiet --bin datagen --bin trainer
+dg=$repo/target/release/datagen
+tr=$repo/target/release/trainer
+
+root=$(mktemp -d /tmp/matedit-slurm.XXXXXX)
+pids=()
+cleanup() {
+  for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
+  sleep 1
+  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null || true; done
+  [ -n "${KEEP:-}" ] || rm -rf "$root"
+}
+trap cleanup EXIT
+
+# --- a one-node cluster ------------------------------------------------------------------------
+host=$(hostname -s)
+mkdir -p "$root"/{state,spool,munge,run}
+chmod 700 "$root/munge"
+dd if=/dev/urandom of="$root/munge/munge.key" bs=1024 count=1 status=none
+chmod 400 "$root/munge/munge.key"
+munged --force --key-file="$root/munge/munge.key" --socket="$root/run/munge.socket" \
+  --pid-file="$root/run/munged.pid" --log-file="$root/munge/munged.log" --seed-file="$root/munge/seed" \
+  || skip "munged did not start"
+pids+=("$(cat "$root/run/munged.pid")")
+mem=$(( $(awk '/MemTotal/ {print $2}' /proc/meminfo) / 1024 - 1024 ))
+port=$(( 17000 + RANDOM % 2000 ))
+cat > "$root/slurm.conf" <<CONF
+ClusterName=matedit-test
+SlurmctldHost=$host
+SlurmUser=root
+SlurmdUser=root
+AuthType=auth/munge
+AuthInfo=socket=$root/run/munge.socket
+CredType=cred/munge
+StateSaveLocation=$root/state
+SlurmdSpoolDir=$root/spool
+SlurmctldPidFile=$root/run/slurmctld.pid
+SlurmdPidFile=$root/run/slurmd.pid
+SlurmctldPort=$port
+SlurmdPort=$((port + 1))
+SlurmctldLogFile=$root/slurmctld.log
+SlurmdLogFile=$root/slurmd.log
+ProctrackType=proctrack/linuxproc
+TaskPlugin=task/none
+SelectType=select/cons_tres
+SelectTypeParameters=CR_Core
+MpiDefault=none
+ReturnToService=2
+JobRequeue=1
+KillWait=30
+MinJobAge=600
+SchedulerParameters=defer
+NodeName=$host CPUs=$(nproc) RealMemory=$mem State=UNKNOWN
+PartitionName=test Nodes=$host Default=YES MaxTime=INFINITE State=UP
+CONF
+export SLURM_CONF=$root/slurm.conf
+slurmctld -f "$SLURM_CONF" || skip "slurmctld did not start ($root/slurmctld.log)"
+sleep 1
+pids+=("$(cat "$root/run/slurmctld.pid")")
+slurmd -f "$SLURM_CONF" || skip "slurmd did not start ($root/slurmd.log)"
+sleep 1
+pids+=("$(cat "$root/run/slurmd.pid")")
+for _ in $(seq 60); do
+  sinfo -h -o %T 2>/dev/null | grep -qE '^(idle|mixed)' && break
+  sleep 1
+done
+sinfo -h -o %T | grep -qE '^(idle|mixed)' || fail "the node never became idle: $(sinfo 2>&1)"
+echo "test_slurm: one-node Slurm up ($host, $(nproc) CPUs)" >&2
+
+# --- a small dataset, rendered once in one process -------------------------------------------------
+cat > "$root/data.toml" <<'TOML'
+[dataset]
+name = "slurm-test"
+seed = 11
+output = "unused"
+shard_size = 3
+
+[render]
+resolution = 16
+env_resolution = "4x8"
+quality = "fast"
+
+[views]
+azimuths = 6
+elevation_deg = 20.0
+per_combination = 2
+
+[[shapes]]
+source = "procedural"
+category = "car"
+count = 3
+
+[[materials]]
+source = "library"
+families = ["rubber", "plastic"]
+
+[[environments]]
+source = "procedural"
+family = "sunsky"
+count = 1
+
+[[splits]]
+name = "train"
+shapes = { car = 2 }
+materials = 3
+
+[[splits]]
+name = "test"
+shapes = { car = 1 }
+materials = 2
+TOML
+"$dg" run "$root/data.toml" --out "$root/ref" >"$root/ref.log" 2>&1 || fail "single-process run ($root/ref.log)"
+
+# Every file of a dataset but logs and locks, with its hash.
+digest() { (cd "$1" && find . -type f ! -path './logs/*' ! -name '*.lock' ! -name '.lock*' -print0 | sort -z | xargs -0 sha256sum); }
+digest "$root/ref" > "$root/ref.sha"
+same() {
+  digest "$1" > "$1.sha"
+  diff -q "$root/ref.sha" "$1.sha" >/dev/null || { diff "$root/ref.sha" "$1.sha" | head -5 >&2; fail "$2: the dataset differs from the single-process run"; }
+  echo "test_slurm: $2: byte-identical to the single-process run" >&2
+}
+wait_job() {  # waits until job $1 (and its array tasks) left the queue
+  for _ in $(seq 600); do
+    [ -z "$(squeue -h -j "$1" 2>/dev/null)" ] && return 0
+    sleep 1
+  done
+  fail "job $1 still queued after 10 minutes: $(squeue -j "$1")"
+}
+join() {  # join job for array $1 over $2; waits; checks it succeeded
+  local j
+  j=$(sbatch --parsable --output="$2/logs/join-%j.log" --dependency="afterany:$1" --kill-on-invalid-dep=yes \
+      --wrap "'$dg' join '$2' && '$dg' verify '$2'")
+  wait_job "$j"
+  [ "$(sacct_state "$j")" = COMPLETED ] || fail "join of $2 did not succeed: $(cat "$2"/logs/join-*.log | tail -5)"
+}
+sacct_state() { scontrol show job "$1" 2>/dev/null | grep -o 'JobState=[A-Z_]*' | head -1 | cut -d= -f2; }
+array() {  # name, sbatch options...: submits scripts/datagen_slurm.sh over OUT=$root/NAME, joins, compares
+  local name=$1; shift
+  local out=$root/$name
+  mkdir -p "$out/logs"
+  local jid
+  jid=$(DATAGEN=$dg sbatch --parsable --output="$out/logs/%x-%A_%a.log" "$@" scripts/datagen_slurm.sh "$root/data.toml" "$out")
+  echo "${jid%%;*}"
+}
+
+for spec in 0-3 1-4 0-6:2 0-3%2; do
+  name=array-${spec//[:%]/_}
+  jid=$(array "$name" --array="$spec")
+  wait_job "$jid"
+  join "$jid" "$root/$name"
+  same "$root/$name" "--array=$spec"
+done
+
+# A task cancelled while it runs and requeued: the afterany join still runs, the data are whole.
+jid=$(array requeue --array=0-3)
+for _ in $(seq 120); do
+  [ "$(sacct_state "${jid}_2")" = RUNNING ] && break
+  sleep 0.5
+done
+scontrol requeue "${jid}_2" || fail "could not requeue ${jid}_2"
+wait_job "$jid"
+join "$jid" "$root/requeue"
+same "$root/requeue" "--array=0-3 with task 2 requeued while running"
+
+# A failed index re-submitted alone into the same run.
+jid=$(WORKERS=4 array resubmit --array=0,1,3)
+wait_job "$jid"
+jid2=$(WORKERS=4 array resubmit --array=2)
+wait_job "$jid2"
+join "$jid2" "$root/resubmit"
+same "$root/resubmit" "--array=0,1,3 then --array=2 (WORKERS=4)"
+
+# A one-task array without WORKERS is refused, not rendered as the whole run.
+jid=$(array refused --array=2)
+wait_job "$jid"
+grep -q "WORKERS=N" "$root"/refused/logs/*.log || fail "a one-task array without WORKERS was not refused"
+
+# --- preemptible training -------------------------------------------------------------------------
+cat > "$root/train.toml" <<TOML
+[run]
+name = "slurm-train"
+seed = 4
+output = "unused"
+
+[model]
+input_size = 16
+env_height = 4
+widths = { base_channels = 4, max_channels = 16, hidden = 32, normal_channels = 8 }
+
+[data]
+dataset = "$root/ref"
+workers = 1
+
+[[stages]]
+name = "pretrain"
+kind = "pretrain"
+steps = 30
+batch_size = 4
+learning_rate = [[0, 1e-3]]
+checkpoint_every = 10
+
+[[stages]]
+name = "joint"
+kind = "joint"
+steps = 30
+batch_size = 4
+learning_rate = [[0, 1e-4]]
+checkpoint_every = 10
+
+[eval]
+split = "test"
+TOML
+"$tr" run "$root/train.toml" --out "$root/train-ref" --quiet >"$root/train-ref.log" 2>&1 || fail "uninterrupted training ($root/train-ref.log)"
+for at in 7 38; do
+  out=$root/train-$at
+  jid=$(TRAINER=$tr MATEDIT_PROGRESS_SECS=1 sbatch --parsable --output="$root/train-$at.log" scripts/train_slurm.sh "$root/train.toml" "$out")
+  for _ in $(seq 600); do
+    [ -f "$out/metrics.jsonl" ] && [ "$(wc -l < "$out/metrics.jsonl")" -ge "$at" ] && break
+    sleep 0.1
+  done
+  scancel --batch --signal=USR1 "$jid"
+  wait_job "$jid"
+  [ "$(sacct_state "$jid")" = COMPLETED ] || fail "training job $jid: $(sacct_state "$jid"); $(tail -5 "$root/train-$at.log")"
+  grep -q "requeueing" "$root/train-$at.log" || fail "training job $jid was not requeued ($root/train-$at.log)"
+  restarts=$(scontrol show job "$jid" | grep -o 'Restarts=[0-9]*' | cut -d= -f2)
+  [ "${restarts:-0}" -ge 1 ] || fail "training job $jid did not restart"
+  cmp -s "$root/train-ref/metrics.jsonl" "$out/metrics.jsonl" || fail "signal after $at steps: metrics.jsonl differs from the uninterrupted run"
+  grep -q "steps: .*/s, .* elapsed" "$root/train-$at.log" || fail "no plain progress line in the batch log"
+  echo "test_slurm: training signalled after $at steps, requeued, resumed: metrics.jsonl identical" >&2
+done
+echo "test_slurm: all passed" >&2
