@@ -19,7 +19,7 @@ if ! command -v slurmctld >/dev/null || ! command -v munged >/dev/null; then
     >/tmp/matedit-apt-slurm.log 2>&1 || skip "could not install slurm-wlm and munge (see /tmp/matedit-apt-slurm.log)"
 fi
 [ "$(id -u)" = 0 ] || skip "needs root to start slurmd"
-cargo build --release --quiet --bin datagen --bin trainer
+cargo build --release --quiet -p matedit-datagen -p matedit-trainer --bins
 dg=$repo/target/release/datagen
 tr=$repo/target/release/trainer
 
@@ -155,6 +155,19 @@ join() {  # join job for array $1 over $2; waits; checks it succeeded
   [ "$(sacct_state "$j")" = COMPLETED ] || fail "join of $2 did not succeed: $(cat "$2"/logs/join-*.log | tail -5)"
 }
 sacct_state() { scontrol show job "$1" 2>/dev/null | grep -o 'JobState=[A-Z_]*' | head -1 | cut -d= -f2; }
+# Slurm holds a requeued job back for a while (Reason=BeginTime); a test need not wait for that.
+release_requeued() {
+  for _ in $(seq 600); do
+    local info
+    info=$(scontrol show job "$1" 2>/dev/null || true)
+    if grep -q 'JobState=PENDING' <<<"$info" && grep -q 'Reason=BeginTime' <<<"$info"; then
+      scontrol update JobId="$1" StartTime=now
+      return 0
+    fi
+    grep -qE 'JobState=(COMPLETED|FAILED|CANCELLED|TIMEOUT)' <<<"$info" && return 0
+    sleep 0.2
+  done
+}
 array() {  # name, sbatch options...: submits scripts/datagen_slurm.sh over OUT=$root/NAME, joins, compares
   local name=$1; shift
   local out=$root/$name
@@ -172,16 +185,32 @@ for spec in 0-3 1-4 0-6:2 0-3%2; do
   same "$root/$name" "--array=$spec"
 done
 
-# A task cancelled while it runs and requeued: the afterany join still runs, the data are whole.
-jid=$(array requeue --array=0-3)
-for _ in $(seq 120); do
+# A task requeued while it runs (held up by a wrapper that sleeps first, so that it is caught
+# running): the afterany join still runs, and the data are whole.
+cat > "$root/slow-datagen" <<SLOW
+#!/bin/sh
+sleep 4
+exec '$dg' "\$@"
+SLOW
+chmod +x "$root/slow-datagen"
+out=$root/requeue
+mkdir -p "$out/logs"
+jid=$(DATAGEN=$root/slow-datagen sbatch --parsable --output="$out/logs/%x-%A_%a.log" --array=0-3 \
+      scripts/datagen_slurm.sh "$root/data.toml" "$out")
+jid=${jid%%;*}
+for _ in $(seq 300); do
   [ "$(sacct_state "${jid}_2")" = RUNNING ] && break
-  sleep 0.5
+  sleep 0.1
 done
+[ "$(sacct_state "${jid}_2")" = RUNNING ] || fail "task ${jid}_2 was never seen running"
+sleep 1
 scontrol requeue "${jid}_2" || fail "could not requeue ${jid}_2"
+release_requeued "${jid}_2"
 wait_job "$jid"
-join "$jid" "$root/requeue"
-same "$root/requeue" "--array=0-3 with task 2 requeued while running"
+restarts=$(scontrol show job "${jid}_2" | grep -o 'Restarts=[0-9]*' | cut -d= -f2)
+[ "${restarts:-0}" -ge 1 ] || fail "task ${jid}_2 did not restart"
+join "$jid" "$out"
+same "$out" "--array=0-3 with task 2 requeued while running"
 
 # A failed index re-submitted alone into the same run.
 jid=$(WORKERS=4 array resubmit --array=0,1,3)
@@ -215,24 +244,24 @@ workers = 1
 [[stages]]
 name = "pretrain"
 kind = "pretrain"
-steps = 30
+steps = 150
 batch_size = 4
 learning_rate = [[0, 1e-3]]
-checkpoint_every = 10
+checkpoint_every = 50
 
 [[stages]]
 name = "joint"
 kind = "joint"
-steps = 30
+steps = 150
 batch_size = 4
 learning_rate = [[0, 1e-4]]
-checkpoint_every = 10
+checkpoint_every = 50
 
 [eval]
 split = "test"
 TOML
 "$tr" run "$root/train.toml" --out "$root/train-ref" --quiet >"$root/train-ref.log" 2>&1 || fail "uninterrupted training ($root/train-ref.log)"
-for at in 7 38; do
+for at in 7 180; do
   out=$root/train-$at
   jid=$(TRAINER=$tr MATEDIT_PROGRESS_SECS=1 sbatch --parsable --output="$root/train-$at.log" scripts/train_slurm.sh "$root/train.toml" "$out")
   for _ in $(seq 600); do
@@ -240,6 +269,7 @@ for at in 7 38; do
     sleep 0.1
   done
   scancel --batch --signal=USR1 "$jid"
+  release_requeued "$jid"
   wait_job "$jid"
   [ "$(sacct_state "$jid")" = COMPLETED ] || fail "training job $jid: $(sacct_state "$jid"); $(tail -5 "$root/train-$at.log")"
   grep -q "requeueing" "$root/train-$at.log" || fail "training job $jid was not requeued ($root/train-$at.log)"

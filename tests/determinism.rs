@@ -26,6 +26,7 @@ fn render_with_threads(threads: usize, shape: &str, out: &std::path::Path) -> Ve
             shadows: Shadows::On,
             quality: Quality::Fast,
             progress: false,
+            accel: Default::default(),
         })
         .unwrap();
         r.write_exr(out).unwrap();

@@ -49,6 +49,7 @@ fn every_eval_mesh_renders_or_is_refused_by_name() {
             shadows: Shadows::Off,
             quality: Quality::Fast,
             progress: false,
+            accel: Default::default(),
         });
         match r {
             Ok(r) => {

@@ -59,6 +59,7 @@ fn shadows_on_a_convex_mesh_change_little_and_a_wall_casts_a_shadow() {
         shadows,
         quality: Quality::Fast,
         progress: false,
+        accel: Default::default(),
     };
     let off = render(&opts(obj.to_str().unwrap(), Shadows::Off)).unwrap();
     let on = render(&opts(obj.to_str().unwrap(), Shadows::On)).unwrap();

@@ -2,6 +2,7 @@
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
+use matedit_datagen::accel::Accel;
 use matedit_datagen::dataset::run::Worker;
 use matedit_datagen::render::{EnvRes, RenderOptions, Shadows, render};
 use matedit_datagen::shapes::UpAxis;
@@ -300,6 +301,9 @@ struct RenderArgs {
     /// docs/PERFORMANCE.md for their speed and error.
     #[arg(long, default_value = "fast")]
     quality: Quality,
+    /// Ray queries: obvhs, or embree in a build with `--features embree`.
+    #[arg(long, value_enum, default_value_t = Accel::Obvhs)]
+    accel: Accel,
     /// Output EXR: R, G, B radiance, normal.X/Y/Z (camera space), mask and region id.
     #[arg(long)]
     out: PathBuf,
@@ -328,6 +332,7 @@ fn run_render(a: RenderArgs) -> Result<()> {
         shadows: a.shadows,
         quality: a.quality,
         progress: std::io::stderr().is_terminal(),
+        accel: a.accel,
     };
     let r = render(&opts)?;
     r.write_exr(&a.out)?;

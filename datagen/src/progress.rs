@@ -91,6 +91,12 @@ impl Progress {
         self.maybe_log(true);
     }
 
+    /// Stopped before the end: the bar keeps its position; the log gets its last line.
+    pub fn abandon(&self) {
+        self.bar.abandon();
+        self.maybe_log(true);
+    }
+
     /// Done: the bar disappears; the log gets its last line.
     pub fn finish_and_clear(&self) {
         self.bar.finish_and_clear();
@@ -151,6 +157,8 @@ mod tests {
             "{line}"
         );
         assert!(!p.line("samples", "", true).contains("ETA"));
+        p.abandon();
+        assert_eq!(p.bar().position(), 5, "stopped early, the count stays");
         p.finish();
         let q = Progress::new(false, 10, "samples", "{msg}");
         assert!(q.log.is_none());

@@ -84,6 +84,8 @@ pub struct RenderOptions {
     pub quality: Quality,
     /// Show a progress bar on stderr.
     pub progress: bool,
+    /// Ray-query backend.
+    pub accel: crate::accel::Accel,
 }
 
 /// What was measured while rendering.
@@ -145,7 +147,7 @@ pub fn render(opts: &RenderOptions) -> Result<Rendered> {
     let env = src.resampled(rows, opts.env_rotation_deg);
     let shape = Shape::load(&opts.shape, opts.up)?.posed(opts.yaw_deg, opts.pitch_deg);
     let scene = match &shape {
-        Shape::Mesh(m) => Some(Scene::new(m)),
+        Shape::Mesh(m) => Some(Scene::with_accel(m, opts.accel)?),
         Shape::Sphere => None,
     };
     let mut stats = RenderStats {

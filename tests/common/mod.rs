@@ -21,6 +21,7 @@ pub fn render_scene(shape: &str, brdf: &str, env: &str, env_res: EnvRes, res: us
         shadows: Shadows::Off,
         quality,
         progress: false,
+        accel: Default::default(),
     })
     .expect("render")
 }

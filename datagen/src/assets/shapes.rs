@@ -43,6 +43,7 @@ pub fn write_category_set(dir: &Path, count: usize, seed: u64) -> Result<Vec<Pat
                 shadows: Shadows::Off,
                 quality: Quality::Fast,
                 progress: false,
+                accel: Default::default(),
             })?;
             let g = &r.gbuffer;
             let tile = (0..RES * RES)

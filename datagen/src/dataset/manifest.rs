@@ -121,6 +121,9 @@ pub struct RenderSection {
     /// `dsbrdf` (render the fitted 108-parameter material) or `measured` (render the source).
     #[serde(default = "default_ground_truth")]
     pub ground_truth: Spanned<String>,
+    /// Ray queries: `obvhs` or `embree` (a build with `--features embree`).
+    #[serde(default = "default_accel")]
+    pub accel: Spanned<String>,
 }
 
 fn default_resolution() -> Spanned<usize> {
@@ -138,6 +141,9 @@ fn default_shadows() -> Spanned<String> {
 fn default_ground_truth() -> Spanned<String> {
     Spanned::new(0..0, "dsbrdf".into())
 }
+fn default_accel() -> Spanned<String> {
+    Spanned::new(0..0, "obvhs".into())
+}
 
 impl Default for RenderSection {
     fn default() -> Self {
@@ -147,6 +153,7 @@ impl Default for RenderSection {
             quality: default_quality(),
             shadows: default_shadows(),
             ground_truth: default_ground_truth(),
+            accel: default_accel(),
         }
     }
 }

@@ -12,6 +12,7 @@
 //! groups are dealt whole. Groups of one member are dealt exactly as single items were, so a
 //! catalogue without duplicates gets the same deal as before fingerprints existed.
 
+use crate::accel::Accel;
 use super::catalogue::Catalogue;
 use super::manifest::{ManifestError, ManifestFile};
 use crate::assets::random::Draw;
@@ -77,6 +78,9 @@ pub struct Settings {
     pub shadows: ShadowPolicy,
     /// Which BRDF renders.
     pub ground_truth: GroundTruth,
+    /// Ray-query backend (recorded only when not the default, so obvhs datasets keep their bytes).
+    #[serde(skip_serializing_if = "is_obvhs")]
+    pub accel: Accel,
     /// Preset azimuths.
     pub azimuths: usize,
     /// Camera elevation, degrees.
@@ -91,6 +95,10 @@ pub struct Settings {
     pub per_region: bool,
     /// Samples per shard.
     pub shard_size: usize,
+}
+
+fn is_obvhs(a: &Accel) -> bool {
+    *a == Accel::Obvhs
 }
 
 fn ser_quality<S: serde::Serializer>(q: &Quality, s: S) -> Result<S::Ok, S::Error> {
@@ -246,6 +254,10 @@ fn settings(mf: &ManifestFile) -> Result<Settings, ManifestError> {
         "dsbrdf" => GroundTruth::Dsbrdf,
         _ => GroundTruth::Measured,
     };
+    let accel = Accel::from_name(choice(mf, &r.accel, "render.accel", &["obvhs", "embree"])?).unwrap_or_default();
+    if let Some(why) = accel.unavailable_reason() {
+        return Err(mf.invalid(r.accel.span(), "render.accel", format!("\"{}\": {why}", accel.name())));
+    }
     let v = &m.views;
     let azimuths = *v.azimuths.get_ref();
     if !(1..=3600).contains(&azimuths) {
@@ -306,6 +318,7 @@ fn settings(mf: &ManifestFile) -> Result<Settings, ManifestError> {
         quality,
         shadows,
         ground_truth,
+        accel,
         azimuths,
         elevation_deg,
         views_per_combination: per,

@@ -235,7 +235,10 @@ impl<'a> Renderer<'a> {
             let item: &ShapeItem = &self.plan.catalogue.shapes[k];
             let shape = Shape::load(&item.spec, item.up).with_context(|| format!("shape {}", item.id))?;
             let (scene, convex) = match &shape {
-                Shape::Mesh(m) => (Some(Scene::new(m)), is_convex(m, 200_000_000)),
+                Shape::Mesh(m) => (
+                    Some(Scene::with_accel(m, self.plan.settings.accel)?),
+                    is_convex(m, 200_000_000),
+                ),
                 Shape::Sphere => (None, true),
             };
             Ok(LoadedShape { shape, scene, convex })

@@ -399,7 +399,7 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
                 // Keep the stage ends and the newest intermediate checkpoint only.
                 remove_older_intermediates(out, &st.name, &name)?;
                 if stop {
-                    bar.finish();
+                    bar.abandon();
                     return Err(Preempted {
                         stage: st.name.clone(),
                         step,
