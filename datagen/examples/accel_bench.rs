@@ -62,7 +62,7 @@ fn main() -> anyhow::Result<()> {
     println!("| mesh | triangles | obvhs primary Mrays/s | embree | ratio | obvhs shadow Mrays/s | embree | ratio |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|");
     for spec in &specs {
-        let Shape::Mesh(m) = Shape::load(spec, UpAxis::Y)? else {
+        let Shape::Mesh(m) = Shape::load(spec, UpAxis::PosY)? else {
             continue;
         };
         let o = measure(&Scene::new(&m));

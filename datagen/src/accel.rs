@@ -107,38 +107,37 @@ impl Scene {
     /// triangle index, so the result does not depend on the BVH's layout (Embree picks one of
     /// the tied triangles the same way whatever the thread count).
     pub fn intersect(&self, origin: Vec3, dir: Vec3, tmin: f32) -> Option<Hit> {
-        let bvh = match &self.backend {
-            Backend::Obvhs(bvh) => bvh,
+        let ray = Ray::new(origin.into(), dir.into(), tmin, f32::INFINITY);
+        let (prim, t) = match &self.backend {
+            Backend::Obvhs(bvh) => {
+                let mut best = (f32::INFINITY, u32::MAX);
+                let mut hit = obvhs::ray::RayHit::none();
+                bvh.ray_traverse(ray, &mut hit, |r, id| {
+                    let prim = bvh.primitive_indices[id];
+                    let t = self.tris[prim as usize].intersect(r);
+                    if t < best.0 || (t == best.0 && prim < best.1) {
+                        best = (t, prim);
+                    }
+                    t
+                });
+                if !best.0.is_finite() {
+                    return None;
+                }
+                (best.1, best.0)
+            }
             #[cfg(feature = "embree")]
             Backend::Embree(e) => {
                 let (prim, t_embree) = e.closest(origin, dir, tmin)?;
-                let ray = Ray::new(origin.into(), dir.into(), tmin, f32::INFINITY);
-                // obvhs's own triangle test gives t, as the obvhs path does; Embree's t where
-                // that test misses the triangle Embree hit (on its edge).
+                // obvhs's own triangle test gives t, as on the obvhs path; Embree's t where that
+                // test misses the triangle Embree hit (on its edge).
                 let t = self.tris[prim as usize].intersect(&ray);
-                let t = if t.is_finite() { t } else { t_embree };
-                let (u, v) = barycentrics(&self.tris[prim as usize], origin, dir);
-                return Some(Hit { triangle: prim, t, u, v });
+                (prim, if t.is_finite() { t } else { t_embree })
             }
         };
-        let ray = Ray::new(origin.into(), dir.into(), tmin, f32::INFINITY);
-        let mut best = (f32::INFINITY, u32::MAX);
-        let mut hit = obvhs::ray::RayHit::none();
-        bvh.ray_traverse(ray, &mut hit, |r, id| {
-            let prim = bvh.primitive_indices[id];
-            let t = self.tris[prim as usize].intersect(r);
-            if t < best.0 || (t == best.0 && prim < best.1) {
-                best = (t, prim);
-            }
-            t
-        });
-        if !best.0.is_finite() {
-            return None;
-        }
-        let (u, v) = barycentrics(&self.tris[best.1 as usize], origin, dir);
+        let (u, v) = barycentrics(&self.tris[prim as usize], origin, dir);
         Some(Hit {
-            triangle: best.1,
-            t: best.0,
+            triangle: prim,
+            t,
             u,
             v,
         })
@@ -152,7 +151,7 @@ impl Scene {
                 !bvh.ray_traverse_miss(ray, |r, id| self.tris[bvh.primitive_indices[id] as usize].intersect(r))
             }
             #[cfg(feature = "embree")]
-            Backend::Embree(e) => e.closest(origin, dir, tmin).is_some(),
+            Backend::Embree(e) => e.occluded(origin, dir, tmin),
         }
     }
 }
@@ -169,57 +168,145 @@ fn triangles(mesh: &Mesh) -> Vec<Triangle> {
 
 #[cfg(feature = "embree")]
 mod embree {
-    //! The Embree 4 scene. embree4-rs 0.0.16 offers closest-hit queries only (its scene handle
-    //! is private), so shadow rays are closest-hit queries too.
+    //! The Embree 4 scene, through the embree4-sys bindings that embree4-rs is built on.
+    //! embree4-rs 0.0.16 keeps its device and scene handles private, so it cannot issue occlusion
+    //! queries (`rtcOccluded1`, what shadow rays want), and it asks for the device's error after
+    //! every ray; measured on the same rays, that costs 1.5–2× (docs/PERFORMANCE.md). The calls
+    //! here are the ones it makes, plus `rtcOccluded1`.
 
     use crate::shapes::Mesh;
-    use anyhow::Result;
-    use embree4_rs::geometry::TriangleMeshGeometry;
-    use embree4_rs::{CommittedScene, Device, Scene, SceneOptions};
-    use embree4_sys::{RTCBuildQuality, RTCRay, RTCSceneFlags};
+    use anyhow::{Result, bail};
+    use embree4_sys as sys;
     use glam::Vec3;
+    use std::ptr::null_mut;
 
-    pub struct EmbreeScene(CommittedScene);
+    pub struct EmbreeScene {
+        device: sys::RTCDevice,
+        scene: sys::RTCScene,
+    }
 
-    // Safety: a committed Embree scene is immutable and Embree documents concurrent queries from
-    // any thread as safe; the handles are plain pointers owned by this value.
+    // Safety: a committed scene is immutable; Embree allows queries from any number of threads
+    // at once. The two handles are owned by this value and released once, in `drop`.
     unsafe impl Send for EmbreeScene {}
+    unsafe impl Sync for EmbreeScene {}
+
+    fn check(device: sys::RTCDevice, what: &str) -> Result<()> {
+        let e = unsafe { sys::rtcGetDeviceError(device) };
+        if e != sys::RTCError::NONE {
+            bail!("Embree: {what}: {e:?}");
+        }
+        Ok(())
+    }
 
     impl EmbreeScene {
         pub fn new(mesh: &Mesh) -> Result<Self> {
-            // `Some(config)` would pass a string without its NUL terminator.
-            let device = Device::try_new(None)?;
-            let vertices: Vec<(f32, f32, f32)> = mesh.positions.iter().map(|p| (p.x, p.y, p.z)).collect();
-            let indices: Vec<(u32, u32, u32)> = mesh.triangles.iter().map(|t| (t[0], t[1], t[2])).collect();
-            let geometry = TriangleMeshGeometry::try_new(&device, &vertices, &indices)?;
-            let scene = Scene::try_new(
-                device,
-                SceneOptions {
-                    build_quality: RTCBuildQuality::HIGH,
-                    flags: RTCSceneFlags::ROBUST,
-                },
-            )?;
-            scene.attach_geometry(&geometry)?;
-            Ok(Self(scene.commit()?))
+            unsafe {
+                let device = sys::rtcNewDevice(null_mut());
+                if device.is_null() {
+                    bail!(
+                        "Embree: cannot create a device ({:?})",
+                        sys::rtcGetDeviceError(null_mut())
+                    );
+                }
+                // From here on `drop` releases what exists.
+                let mut out = Self {
+                    device,
+                    scene: null_mut(),
+                };
+                out.scene = sys::rtcNewScene(device);
+                check(device, "new scene")?;
+                sys::rtcSetSceneBuildQuality(out.scene, sys::RTCBuildQuality::HIGH);
+                sys::rtcSetSceneFlags(out.scene, sys::RTCSceneFlags::ROBUST);
+                let geometry = sys::rtcNewGeometry(device, sys::RTCGeometryType::TRIANGLE);
+                check(device, "new geometry")?;
+                let n_v = mesh.positions.len().max(1);
+                let v = sys::rtcSetNewGeometryBuffer(
+                    geometry,
+                    sys::RTCBufferType::VERTEX,
+                    0,
+                    sys::RTCFormat::FLOAT3,
+                    3 * 4,
+                    n_v,
+                ) as *mut f32;
+                let n_t = mesh.triangles.len();
+                let t = sys::rtcSetNewGeometryBuffer(
+                    geometry,
+                    sys::RTCBufferType::INDEX,
+                    0,
+                    sys::RTCFormat::UINT3,
+                    3 * 4,
+                    n_t,
+                ) as *mut u32;
+                if v.is_null() || (t.is_null() && n_t > 0) {
+                    sys::rtcReleaseGeometry(geometry);
+                    check(device, "geometry buffers")?;
+                    bail!("Embree: cannot allocate the geometry's buffers");
+                }
+                let vs = std::slice::from_raw_parts_mut(v, 3 * n_v);
+                for (k, p) in mesh.positions.iter().enumerate() {
+                    vs[3 * k..3 * k + 3].copy_from_slice(&[p.x, p.y, p.z]);
+                }
+                if n_t > 0 {
+                    let ts = std::slice::from_raw_parts_mut(t, 3 * n_t);
+                    for (k, tri) in mesh.triangles.iter().enumerate() {
+                        ts[3 * k..3 * k + 3].copy_from_slice(tri);
+                    }
+                }
+                sys::rtcCommitGeometry(geometry);
+                sys::rtcAttachGeometry(out.scene, geometry);
+                sys::rtcReleaseGeometry(geometry);
+                sys::rtcCommitScene(out.scene);
+                check(device, "building the scene")?;
+                Ok(out)
+            }
+        }
+
+        fn ray(origin: Vec3, dir: Vec3, tmin: f32) -> sys::RTCRay {
+            sys::RTCRay {
+                org_x: origin.x,
+                org_y: origin.y,
+                org_z: origin.z,
+                tnear: tmin,
+                dir_x: dir.x,
+                dir_y: dir.y,
+                dir_z: dir.z,
+                time: 0.0,
+                tfar: f32::INFINITY,
+                mask: u32::MAX,
+                id: 0,
+                flags: 0,
+            }
         }
 
         /// The closest triangle hit at t > `tmin`, and its t.
         pub fn closest(&self, origin: Vec3, dir: Vec3, tmin: f32) -> Option<(u32, f32)> {
-            let ray = RTCRay {
-                org_x: origin.x,
-                org_y: origin.y,
-                org_z: origin.z,
-                dir_x: dir.x,
-                dir_y: dir.y,
-                dir_z: dir.z,
-                tnear: tmin,
-                tfar: f32::INFINITY,
-                mask: u32::MAX,
-                flags: 0,
-                ..Default::default()
+            let mut rh = sys::RTCRayHit {
+                ray: Self::ray(origin, dir, tmin),
+                hit: sys::RTCHit {
+                    geomID: sys::RTC_INVALID_GEOMETRY_ID,
+                    ..Default::default()
+                },
             };
-            let hit = self.0.intersect_1(ray, None).ok()??;
-            Some((hit.hit.primID, hit.ray.tfar))
+            unsafe { sys::rtcIntersect1(self.scene, &mut rh, null_mut()) };
+            (rh.hit.geomID != sys::RTC_INVALID_GEOMETRY_ID).then_some((rh.hit.primID, rh.ray.tfar))
+        }
+
+        /// Whether anything is hit at t > `tmin` (Embree sets tfar to −∞ then).
+        pub fn occluded(&self, origin: Vec3, dir: Vec3, tmin: f32) -> bool {
+            let mut r = Self::ray(origin, dir, tmin);
+            unsafe { sys::rtcOccluded1(self.scene, &mut r, null_mut()) };
+            r.tfar == f32::NEG_INFINITY
+        }
+    }
+
+    impl Drop for EmbreeScene {
+        fn drop(&mut self) {
+            unsafe {
+                if !self.scene.is_null() {
+                    sys::rtcReleaseScene(self.scene);
+                }
+                sys::rtcReleaseDevice(self.device);
+            }
         }
     }
 }
@@ -285,12 +372,10 @@ mod tests {
     #[test]
     fn embree_without_the_feature_is_a_clear_error() {
         let m = two_triangles();
-        match Scene::with_accel(&m, Accel::Embree) {
-            Ok(_) => assert!(cfg!(feature = "embree")),
-            Err(e) => {
-                assert!(!cfg!(feature = "embree"));
-                assert!(e.to_string().contains("--features embree"), "{e}");
-            }
+        let built = Scene::with_accel(&m, Accel::Embree);
+        assert_eq!(built.is_ok(), Accel::Embree.available());
+        if let Err(e) = built {
+            assert!(e.to_string().contains("--features embree"), "{e}");
         }
         assert_eq!(Accel::from_name("embree"), Some(Accel::Embree));
         assert_eq!(Accel::from_name("optix"), None);
@@ -309,14 +394,23 @@ mod tests {
             .collect();
         // Real meshes when the evaluation assets are beside the checkout.
         let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/eval-assets/meshes");
-        for f in ["common-3d-test-models/teapot.obj", "common-3d-test-models/bunny.obj"] {
+        for f in [
+            "common-3d-test-models/teapot.obj",
+            "common-3d-test-models/stanford-bunny.obj",
+            "codeyeJR-Models/chair.obj",
+            "Azdepredador-binvox/sofa.obj",
+        ] {
             if assets.join(f).is_file() {
                 specs.push(assets.join(f).display().to_string());
             }
         }
-        let lights = [Vec3::new(0.3, 0.9, 0.2), Vec3::new(-0.7, 0.4, 0.6), Vec3::new(0.1, 0.2, -1.0)];
+        let lights = [
+            Vec3::new(0.3, 0.9, 0.2),
+            Vec3::new(-0.7, 0.4, 0.6),
+            Vec3::new(0.1, 0.2, -1.0),
+        ];
         for spec in &specs {
-            let Ok(Shape::Mesh(m)) = Shape::load(spec, UpAxis::Y) else {
+            let Ok(Shape::Mesh(m)) = Shape::load(spec, UpAxis::PosY) else {
                 panic!("{spec}")
             };
             let (o, e) = (Scene::new(&m), Scene::with_accel(&m, Accel::Embree).unwrap());
@@ -346,11 +440,69 @@ mod tests {
                     }
                 }
             }
-            assert!(differ * 1000 <= rays, "{spec}: {differ} of {rays} primary rays hit different triangles");
+            assert!(
+                differ * 1000 <= rays,
+                "{spec}: {differ} of {rays} primary rays hit different triangles"
+            );
             assert!(
                 shadow_differ * 1000 <= shadow,
                 "{spec}: {shadow_differ} of {shadow} shadow rays disagree"
             );
+        }
+    }
+
+    /// Whole renders with shadows: masks and regions equal but for 0.1 % of the pixels, radiance
+    /// equal wherever the normals are (the same triangle), and Embree's images the same bits on
+    /// one and two threads.
+    #[cfg(feature = "embree")]
+    #[test]
+    fn embree_renders_agree_with_obvhs_and_do_not_depend_on_threads() {
+        use crate::render::{EnvRes, RenderOptions, Shadows, render};
+        let opts = |shape: &str, accel| RenderOptions {
+            shape: shape.into(),
+            up: Default::default(),
+            yaw_deg: 30.0,
+            pitch_deg: 10.0,
+            brdf: "plastic:0.2:0.7,0.3,0.2".parse().unwrap(),
+            env: "builtin:sky".into(),
+            env_rotation_deg: 20.0,
+            env_res: EnvRes::Rows(16),
+            res: 96,
+            shadows: Shadows::On,
+            quality: matedit_physics::shading::Quality::Fast,
+            progress: false,
+            accel,
+        };
+        for shape in ["procedural:chair:5", "procedural:sofa:6", "procedural:car:7"] {
+            let a = render(&opts(shape, Accel::Obvhs)).unwrap();
+            let b = render(&opts(shape, Accel::Embree)).unwrap();
+            let (ga, gb) = (&a.gbuffer, &b.gbuffer);
+            let px = ga.mask.len();
+            let mask_differ = (0..px)
+                .filter(|&k| ga.mask[k] != gb.mask[k] || ga.region[k] != gb.region[k])
+                .count();
+            assert!(
+                mask_differ * 1000 <= px,
+                "{shape}: {mask_differ} of {px} pixels differ in mask or region"
+            );
+            let same_triangle: Vec<usize> = (0..px)
+                .filter(|&k| ga.mask[k] > 0.0 && ga.normal[k] == gb.normal[k] && ga.position[k] == gb.position[k])
+                .collect();
+            let shaded_differ = same_triangle
+                .iter()
+                .filter(|&&k| a.radiance[k] != b.radiance[k])
+                .count();
+            assert!(
+                shaded_differ * 1000 <= px,
+                "{shape}: {shaded_differ} of {} pixels on the same triangle shade differently",
+                same_triangle.len()
+            );
+            let bits = |threads: usize| {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                let r = pool.install(|| render(&opts(shape, Accel::Embree)).unwrap());
+                r.radiance.iter().flatten().map(|v| v.to_bits()).collect::<Vec<u32>>()
+            };
+            assert_eq!(bits(1), bits(2), "{shape}: Embree's image depends on the thread count");
         }
     }
 }

@@ -12,9 +12,9 @@
 //! groups are dealt whole. Groups of one member are dealt exactly as single items were, so a
 //! catalogue without duplicates gets the same deal as before fingerprints existed.
 
-use crate::accel::Accel;
 use super::catalogue::Catalogue;
 use super::manifest::{ManifestError, ManifestFile};
+use crate::accel::Accel;
 use crate::assets::random::Draw;
 use crate::render::Shadows;
 use matedit_physics::shading::Quality;
