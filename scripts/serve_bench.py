@@ -27,6 +27,8 @@ def request(base, path, body=None, ctype=None):
     req = urllib.request.Request(base + path, data=body, method="POST" if body is not None else "GET")
     if ctype:
         req.add_header("Content-Type", ctype)
+    if body is not None:
+        req.add_header("x-matedit-page", "1")  # what the page sends with every change
     try:
         with urllib.request.urlopen(req, timeout=600) as r:
             return r.status, r.read()

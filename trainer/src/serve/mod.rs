@@ -26,7 +26,7 @@ use crate::edit::{Composite, EditRequest, Model};
 use anyhow::{Context, Result, bail};
 use axum::Router;
 use axum::extract::{DefaultBodyLimit, Multipart, Path as UrlPath, Query, State};
-use axum::http::{StatusCode, header};
+use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
 use jobs::{Job, Queue, Work};
@@ -92,7 +92,9 @@ struct App {
     counter: AtomicU64,
     secret: [u8; 32],
     /// Uploads being decoded and checked at once (each may hold a large photo in memory).
-    checking: tokio::sync::Semaphore,
+    checking: Arc<tokio::sync::Semaphore>,
+    /// Uploads being received at once (each is held whole).
+    reading: tokio::sync::Semaphore,
 }
 
 /// A running server.
@@ -196,7 +198,8 @@ pub async fn start(cfg: ServeConfig) -> Result<Server> {
         max_pixels: cfg.max_pixels,
         eq6: cfg.eq6.clone(),
         counter: AtomicU64::new(0),
-        checking: tokio::sync::Semaphore::new(2),
+        checking: Arc::new(tokio::sync::Semaphore::new(2)),
+        reading: tokio::sync::Semaphore::new(4),
         secret: *blake3::hash(format!("{}:{}:{:?}", std::process::id(), nanos(), work).as_bytes()).as_bytes(),
     });
     let router = router(app, cfg.max_upload_bytes);
@@ -301,13 +304,7 @@ async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
                         "source" => "source",
                         _ => "source_mask",
                     };
-                    f.files.insert(
-                        role,
-                        Part {
-                            name: file_name,
-                            bytes: bytes.to_vec(),
-                        },
-                    );
+                    f.files.insert(role, Part { name: file_name, bytes });
                 }
             }
             "material" => f.material = Some(text()).filter(|s| !s.is_empty()),
@@ -345,48 +342,79 @@ fn multipart_error(e: axum::extract::multipart::MultipartError) -> Response {
     error(status, msg)
 }
 
-async fn submit(State(app): State<Arc<App>>, mp: Multipart) -> Response {
+async fn submit(State(app): State<Arc<App>>, headers: HeaderMap, mp: Multipart) -> Response {
+    if let Some(r) = from_the_page(&headers) {
+        return r;
+    }
     if let Err(full) = app.queue.has_room() {
         return error(StatusCode::SERVICE_UNAVAILABLE, full.to_string());
     }
+    // A few uploads are read at a time: each is held in memory whole.
+    let Ok(_reading) = app.reading.acquire().await else {
+        return error(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping");
+    };
     let fields = match read_fields(mp).await {
         Ok(f) => f,
         Err(r) => return r,
     };
-    let Ok(_permit) = app.checking.acquire().await else {
+    let Ok(permit) = app.checking.clone().acquire_owned().await else {
         return error(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping");
     };
     let n = app.counter.fetch_add(1, Ordering::Relaxed);
     let mut h = blake3::Hasher::new_keyed(&app.secret);
     h.update(&n.to_le_bytes());
     let id = h.finalize().to_hex()[..24].to_string();
-    let dir = app.work.join(&id);
+    // Checking and queueing finish even if the client goes away meanwhile: the permit and the
+    // clean-up live in the blocking task, not in this future.
     let app2 = app.clone();
-    let dir2 = dir.clone();
-    let prepared = tokio::task::spawn_blocking(move || prepare(&app2, &dir2, fields)).await;
-    let (work, names) = match prepared {
-        Ok(Ok(w)) => w,
-        Ok(Err(e)) => {
+    let done = tokio::task::spawn_blocking(move || {
+        let _permit = permit;
+        let dir = app2.work.join(&id);
+        let prepared = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| prepare(&app2, &dir, fields)));
+        let answer = match prepared {
+            Ok(Ok((work, names))) => match app2.queue.submit(Job::new(id.clone(), dir.clone(), work, names)) {
+                Ok((_, place)) => Ok((id.clone(), place)),
+                Err(full) => Err((StatusCode::SERVICE_UNAVAILABLE, full.to_string())),
+            },
+            Ok(Err(e)) => Err((
+                StatusCode::UNPROCESSABLE_ENTITY,
+                format!("{e:#}").replace(&format!("{}/in/", dir.display()), ""),
+            )),
+            Err(_) => Err((
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "the upload could not be read (its decoder failed)".to_string(),
+            )),
+        };
+        if answer.is_err() {
             let _ = std::fs::remove_dir_all(&dir);
-            let msg = format!("{e:#}").replace(&format!("{}/in/", dir.display()), "");
-            return error(StatusCode::UNPROCESSABLE_ENTITY, msg);
         }
-        Err(_) => {
-            let _ = std::fs::remove_dir_all(&dir);
-            return error(StatusCode::INTERNAL_SERVER_ERROR, "the upload could not be checked");
-        }
-    };
-    match app.queue.submit(Job::new(id.clone(), dir.clone(), work, names)) {
-        Ok((_, place)) => (
+        answer
+    })
+    .await;
+    match done {
+        Ok(Ok((id, place))) => (
             StatusCode::ACCEPTED,
             axum::Json(json!({ "id": id, "place": place, "url": format!("/api/jobs/{id}") })),
         )
             .into_response(),
-        Err(full) => {
-            let _ = std::fs::remove_dir_all(&dir);
-            error(StatusCode::SERVICE_UNAVAILABLE, full.to_string())
-        }
+        Ok(Err((status, msg))) => error(status, msg),
+        Err(_) => error(StatusCode::INTERNAL_SERVER_ERROR, "the upload could not be checked"),
     }
+}
+
+/// The header the page sends with every request that changes something. A page of another
+/// origin cannot add it without a CORS preflight, which this server never grants, so other
+/// sites the user visits cannot queue or cancel edits.
+pub const PAGE_HEADER: &str = "x-matedit-page";
+
+/// `None` when the request came from the page; otherwise the refusal.
+fn from_the_page(headers: &HeaderMap) -> Option<Response> {
+    (!headers.contains_key(PAGE_HEADER)).then(|| {
+        error(
+            StatusCode::FORBIDDEN,
+            format!("requests that change something must carry the {PAGE_HEADER} header (the page sends it)"),
+        )
+    })
 }
 
 /// Saves and checks the uploads (decoding them as `matedit edit` does) and describes the job.
@@ -463,7 +491,10 @@ async fn status(State(app): State<Arc<App>>, UrlPath(id): UrlPath<String>) -> Re
     }
 }
 
-async fn cancel(State(app): State<Arc<App>>, UrlPath(id): UrlPath<String>) -> Response {
+async fn cancel(State(app): State<Arc<App>>, headers: HeaderMap, UrlPath(id): UrlPath<String>) -> Response {
+    if let Some(r) = from_the_page(&headers) {
+        return r;
+    }
     if app.queue.cancel(&id).is_none() {
         return no_such_job();
     }

@@ -70,7 +70,7 @@ fn http(addr: SocketAddr, method: &str, path: &str, content_type: Option<&str>, 
     let mut s = TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
     let mut head = format!(
-        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Length: {}\r\n",
+        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Length: {}\r\n{PAGE_HEADER}: 1\r\n",
         body.len()
     );
     if let Some(t) = content_type {
@@ -354,6 +354,14 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
     let crc = crc32(&huge[12..29]);
     huge[29..33].copy_from_slice(&crc.to_be_bytes());
     let truncated = photo[..photo.len() / 2].to_vec();
+    // An EXR photo of many channels (each would be decoded in full).
+    let many = {
+        let p = dir("exr").join("many.exr");
+        let names: Vec<String> = (0..40).map(|k| format!("c{k:02}")).collect();
+        let ch: Vec<(&str, Vec<f32>)> = names.iter().map(|n| (n.as_str(), vec![0.5; 2400])).collect();
+        matedit_datagen::io::write_exr_channels(&p, 60, 40, ch).unwrap();
+        std::fs::read(&p).unwrap()
+    };
     let gold: &[u8] = b"library:gold-polished";
     let cases: Vec<(Parts, u16, &str)> = vec![
         (vec![("material", None, gold)], 422, "no photo"),
@@ -411,6 +419,15 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
             ],
             422,
             "100000×100000 is 10000.0 megapixels, more than this server's limit of 1.0",
+        ),
+        (
+            vec![
+                ("photo", Some("many.exr"), &many),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
+            ],
+            422,
+            "with 40 channels",
         ),
         (
             vec![
@@ -504,6 +521,26 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
     let (s, v) = post_edit(addr, &[("photo", Some("p.png"), &big)]);
     assert_eq!(s, 413, "{v}");
     assert!(v["error"].as_str().unwrap().contains("larger than this server accepts"));
+    // Without the page's header (what another site's page would send): refused.
+    let mut raw = TcpStream::connect(addr).unwrap();
+    let body = multipart(&[
+        ("photo", Some("p.png"), &photo),
+        ("mask", Some("m.png"), &mask),
+        ("material", None, gold),
+    ]);
+    write!(
+        raw,
+        "POST /api/edit HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Type: multipart/form-data; boundary={BOUNDARY}\r\nContent-Length: {}\r\n\r\n",
+        body.len()
+    )
+    .unwrap();
+    let _ = raw.write_all(&body);
+    let mut answer = String::new();
+    let _ = raw.read_to_string(&mut answer);
+    assert!(
+        answer.starts_with("HTTP/1.1 403") && answer.contains(PAGE_HEADER),
+        "{answer}"
+    );
     let (s, _) = http(addr, "GET", "/api/jobs/nope", None, b"");
     assert_eq!(s, 404);
     let (s, _) = http(addr, "POST", "/api/jobs/nope/cancel", None, b"");

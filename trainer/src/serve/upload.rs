@@ -23,12 +23,24 @@ pub fn sniff(bytes: &[u8]) -> Option<&'static str> {
     }
 }
 
+/// The most channels an uploaded EXR photo may have (each is decoded in full).
+pub const MAX_EXR_CHANNELS: usize = 16;
+
 /// Width and height from an image's header.
 pub fn dimensions(bytes: &[u8], format: &str) -> Result<(u64, u64)> {
     if format == "exr" {
         let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
             .map_err(|e| anyhow::anyhow!("not a readable EXR image ({e})"))?;
-        let h = meta.headers.first().context("an EXR image without a layer")?;
+        let [h] = meta.headers.as_slice() else {
+            bail!("an EXR photo must have one layer, this one has {}", meta.headers.len());
+        };
+        // Every channel is decoded: a photo needs R, G, B (and A); a few more are tolerated.
+        if h.channels.list.len() > MAX_EXR_CHANNELS {
+            bail!(
+                "an EXR photo with {} channels (at most {MAX_EXR_CHANNELS} are read: R, G, B, A)",
+                h.channels.list.len()
+            );
+        }
         let s = h.layer_size;
         return Ok((s.0 as u64, s.1 as u64));
     }
@@ -46,7 +58,7 @@ pub struct Part {
     /// The name the user's browser gave (for messages only).
     pub name: String,
     /// Its bytes.
-    pub bytes: Vec<u8>,
+    pub bytes: axum::body::Bytes,
 }
 
 /// Checks an uploaded image (`role` says what it is for: photo, mask) and saves it as
