@@ -149,6 +149,12 @@ impl Drop for Driver {
     fn drop(&mut self) {
         let _ = self.0.kill();
         let _ = self.0.wait();
+        // The browsers chromedriver started outlive it when a test fails before closing them:
+        // they are the ones with this process's profiles.
+        let _ = Command::new("pkill")
+            .arg("-f")
+            .arg(format!("user-data-dir={}", root().join("chrome-").display()))
+            .status();
     }
 }
 
