@@ -78,10 +78,21 @@ impl GBuffer {
         let ng = Vec3::from(self.geometric_normal[p]);
         let ns = Vec3::from(self.normal[p]);
         let origin = to_object * (Vec3::from(self.position[p]) + ng * 1e-4);
-        for (o, d) in out.iter_mut().zip(dirs) {
+        // The rays worth tracing, traced together (Embree takes them in packets).
+        let mut traced = Vec::with_capacity(dirs.len());
+        let mut rays = Vec::with_capacity(dirs.len());
+        for (t, d) in dirs.iter().enumerate() {
             let d = Vec3::from(*d);
-            let open = d.dot(ng) > 0.0 && d.dot(ns) > 0.0 && !scene.occluded(origin, to_object * d, 0.0);
-            *o = if open { 1.0 } else { 0.0 };
+            out[t] = 0.0;
+            if d.dot(ng) > 0.0 && d.dot(ns) > 0.0 {
+                traced.push(t);
+                rays.push(to_object * d);
+            }
+        }
+        let mut blocked = vec![false; rays.len()];
+        scene.occluded_from(origin, &rays, 0.0, &mut blocked);
+        for (&t, b) in traced.iter().zip(blocked) {
+            out[t] = if b { 0.0 } else { 1.0 };
         }
     }
 
