@@ -572,7 +572,7 @@ pub fn edit(model: &Path, req: &EditRequest, out: &Path) -> Result<EditReport> {
     check_request(req)?;
     output::refuse_overwriting_inputs(out, &[Some(&req.photo), req.mask.as_deref(), req.regions.as_deref()])?;
     let model = Model::load(model)?;
-    edit_with(&model, req, out, None, t0)
+    edit_checked(&model, req, out, None, t0)
 }
 
 fn check_request(req: &EditRequest) -> Result<()> {
@@ -593,6 +593,17 @@ pub fn edit_with(
 ) -> Result<EditReport> {
     check_request(req)?;
     output::refuse_overwriting_inputs(out, &[Some(&req.photo), req.mask.as_deref(), req.regions.as_deref()])?;
+    edit_checked(model, req, out, watcher, t0)
+}
+
+/// [`edit_with`] once the request and the output folder were checked.
+fn edit_checked(
+    model: &Model,
+    req: &EditRequest,
+    out: &Path,
+    watcher: Option<&Arc<Progress>>,
+    t0: Instant,
+) -> Result<EditReport> {
     enter(watcher.map(|w| w.as_ref()), "reading")?;
     let read = read_photo(&req.photo, req.mask.as_deref(), req.regions.as_deref())?;
     let regions = read.labels.as_ref().map_or(1, |l| l.1);
@@ -634,7 +645,7 @@ pub fn transfer(
     let t0 = Instant::now();
     output::refuse_overwriting_inputs(out, &[Some(from.0), from.1, Some(to.0), to.1])?;
     let model = Model::load(model)?;
-    transfer_with(&model, from, to, optimize, how, out, None, t0)
+    transfer_checked(&model, from, to, optimize, how, out, None, t0)
 }
 
 /// [`transfer`] with a loaded model, watched as [`edit_with`].
@@ -650,6 +661,21 @@ pub fn transfer_with(
     t0: Instant,
 ) -> Result<EditReport> {
     output::refuse_overwriting_inputs(out, &[Some(from.0), from.1, Some(to.0), to.1])?;
+    transfer_checked(model, from, to, optimize, how, out, watcher, t0)
+}
+
+/// [`transfer_with`] once the output folder was checked.
+#[allow(clippy::too_many_arguments)]
+fn transfer_checked(
+    model: &Model,
+    from: (&Path, Option<&Path>),
+    to: (&Path, Option<&Path>),
+    optimize: Option<&optimize::Eq6Config>,
+    how: Composite,
+    out: &Path,
+    watcher: Option<&Arc<Progress>>,
+    t0: Instant,
+) -> Result<EditReport> {
     enter(watcher.map(|w| w.as_ref()), "reading")?;
     let read_from = read_photo(from.0, from.1, None)?;
     let read_to = read_photo(to.0, to.1, None)?;

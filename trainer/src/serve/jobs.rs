@@ -2,6 +2,7 @@
 //! them in order through the same functions as `matedit edit` and `matedit transfer`, and what
 //! every job did, kept for the last few so their files can be downloaded.
 
+use super::upload::name_uploads;
 use crate::edit::optimize::Eq6Config;
 use crate::edit::progress::{Cancelled, Progress};
 use crate::edit::{Composite, EditReport, EditRequest, Model, edit_with, transfer_with};
@@ -97,26 +98,23 @@ impl Job {
 
     /// A message with the job's internal paths replaced by the names the user gave.
     pub fn user_message(&self, text: &str) -> String {
-        let mut t = text.to_string();
-        for (path, name) in &self.names {
-            t = t.replace(&path.display().to_string(), name);
-        }
-        t.replace(&self.dir.display().to_string(), "the job")
+        name_uploads(text, &self.names).replace(&self.dir.display().to_string(), "the job")
     }
 
     /// A report with the job's internal paths named as the user named the uploads.
     fn user_report(&self, r: &EditReport) -> Value {
-        let text = serde_json::to_string(r).unwrap_or_default();
-        let mut t = text;
-        for (path, name) in &self.names {
-            // Paths and names as JSON strings write them (escaped, without the quotes).
-            let quoted = |s: String| {
-                let q = json!(s).to_string();
-                q[1..q.len() - 1].to_string()
-            };
-            t = t.replace(&quoted(path.display().to_string()), &quoted(name.clone()));
-        }
-        serde_json::from_str(&t).unwrap_or(Value::Null)
+        // Paths and names as JSON strings write them (escaped, without the quotes).
+        let escaped = |s: String| {
+            let q = json!(s).to_string();
+            q[1..q.len() - 1].to_string()
+        };
+        let names: Vec<(PathBuf, String)> = self
+            .names
+            .iter()
+            .map(|(p, n)| (PathBuf::from(escaped(p.display().to_string())), escaped(n.clone())))
+            .collect();
+        let text = name_uploads(&serde_json::to_string(r).unwrap_or_default(), &names);
+        serde_json::from_str(&text).unwrap_or(Value::Null)
     }
 
     /// A finished job's file by the name its report lists (nothing else is reachable).

@@ -436,13 +436,9 @@ fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result<(Work, Vec
     let source_mask = save("source_mask", &mut f)?;
     // Messages name the uploads as the user called them, not by where they were saved.
     let check = |photo: &std::path::Path, mask: Option<&std::path::Path>| -> Result<()> {
-        crate::edit::read_photo(photo, mask, None).map(|_| ()).map_err(|e| {
-            let mut t = format!("{e:#}");
-            for (path, name) in &names {
-                t = t.replace(&path.display().to_string(), name);
-            }
-            anyhow::anyhow!(t)
-        })
+        crate::edit::read_photo(photo, mask, None)
+            .map(|_| ())
+            .map_err(|e| anyhow::anyhow!(upload::name_uploads(&format!("{e:#}"), &names)))
     };
     check(&photo, mask.as_deref())?;
     let optimize = f.optimize.then(|| app.eq6.clone());

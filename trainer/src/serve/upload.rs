@@ -96,6 +96,14 @@ pub fn save(dir: &Path, role: &str, part: &Part, max_pixels: u64) -> Result<(Pat
     Ok((path, shown))
 }
 
+/// `text` with every saved upload's path replaced by the name messages give it (`names`:
+/// `(saved path, shown name)`), so no server path reaches the user.
+pub fn name_uploads(text: &str, names: &[(PathBuf, String)]) -> String {
+    names.iter().fold(text.to_string(), |t, (path, name)| {
+        t.replace(&path.display().to_string(), name)
+    })
+}
+
 /// A file name as a message may show it: its last component, printable, at most 60 characters.
 pub fn display_name(name: &str) -> String {
     let last = name.rsplit(['/', '\\']).next().unwrap_or("");
