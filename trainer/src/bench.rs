@@ -1,5 +1,6 @@
 //! `trainer bench`: the rendering layer's forward + backward time and peak memory (fused against
-//! the tensor reference), and training images/s per network configuration.
+//! the tensor reference on the CPU; the GPU kernels on a GPU device), and training images/s per
+//! network configuration and device.
 
 use crate::alloc::PeakAlloc;
 use crate::model::Widths;
@@ -88,9 +89,86 @@ pub fn rendering_layer(
     Ok((fused, Some(reference)))
 }
 
-/// Training images/s of a joint step for a network configuration.
-pub fn training(name: &str, widths: Widths, size: usize, batch: usize, steps: usize) -> Result<Measure> {
-    let device = Device::flex().autodiff();
+/// Forward + backward of the rendering layer's GPU kernels on `device` (a CubeCL device), like
+/// [`rendering_layer`]: each run waits for the device. The peak is the device memory the pool
+/// has reserved (its high-water mark: pools keep pages for reuse).
+#[cfg(feature = "wgpu")]
+pub fn rendering_layer_on_device(
+    device: &Device,
+    batch: usize,
+    size: usize,
+    env_height: usize,
+    runs: usize,
+) -> Result<Measure> {
+    use burn::tensor::{Tensor, TensorData};
+    let host_layer = RenderingLayer::new(env_height);
+    let hb = sphere_batch(batch, size, env_height, 1, &host_layer);
+    let layer = crate::render::gpu::DeviceLayer::new(env_height, device);
+    let (p, t) = (size * size, 2 * env_height * env_height);
+    let n = Tensor::<4>::from_data(TensorData::new(hb.normals.clone(), [batch, 3, size, size]), device);
+    let m = Tensor::<3>::from_data(
+        TensorData::new(hb.materials.clone(), [batch, 1, hb.materials.len() / batch]),
+        device,
+    );
+    let e = Tensor::<4>::from_data(
+        TensorData::new(hb.env.clone(), [batch, 3, env_height, 2 * env_height]),
+        device,
+    );
+    let up: Vec<f32> = hb.input.iter().map(|v| 0.5 - v.min(1.0)).collect();
+    let g = Tensor::<4>::from_data(TensorData::new(up, [batch, 3, size, size]), device);
+    debug_assert_eq!(hb.env.len(), batch * 3 * t);
+    debug_assert_eq!(hb.normals.len(), batch * 3 * p);
+    let mut peak = 0u64;
+    let mut failure = None;
+    let mut run = || -> Result<()> {
+        let image = layer.render(n.clone(), &hb.region_map, m.clone(), e.clone())?;
+        let (gn, gm, ge) = layer.vjp(n.clone(), &hb.region_map, m.clone(), e.clone(), g.clone());
+        device.sync().map_err(|e| anyhow::anyhow!("the device failed: {e:?}"))?;
+        if let Some(u) = device.memory_pool_usage() {
+            peak = peak.max(u.bytes_reserved);
+        }
+        std::hint::black_box((image, gn, gm, ge));
+        Ok(())
+    };
+    // One warm-up run compiles the kernels.
+    run()?;
+    let mut m = measure("GPU kernels", runs, None, || {
+        if let Err(e) = run() {
+            failure = Some(e);
+        }
+    });
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    m.peak_bytes = peak as usize;
+    Ok(m)
+}
+
+/// The autodiff device `trainer bench --device NAME` measures on: a training device, or `wgpu`
+/// for the rendering layer's GPU kernels (the network cannot train there yet: `training` says why).
+pub fn device(name: &str) -> Result<Device> {
+    #[cfg(feature = "wgpu")]
+    if name == "wgpu" {
+        return Ok(crate::render::gpu::wgpu_device()
+            .map_err(|e| anyhow::anyhow!(e))?
+            .autodiff());
+    }
+    crate::train::run::device_for(name)
+}
+
+/// Training images/s of a joint step for a network configuration on `device` (with autodiff).
+pub fn training(
+    device: &Device,
+    name: &str,
+    widths: Widths,
+    size: usize,
+    batch: usize,
+    steps: usize,
+) -> Result<Measure> {
+    if crate::render::on_device(device, 64).is_some() {
+        anyhow::bail!("{}", crate::train::run::WGPU_TRAINING);
+    }
+    let device = device.clone();
     device.seed(1);
     let layer = RenderingLayer::new(64);
     let net_cfg = NetConfig::new(size, widths);
@@ -114,15 +192,20 @@ pub fn training(name: &str, widths: Widths, size: usize, batch: usize, steps: us
     let (n, _) = train_step(net, &mut optim, 1e-4, &hb, StepKind::JOINT, &ctx)?;
     net = n;
     let mut times = Vec::new();
+    let mut peak = 0u64;
     for _ in 0..steps.max(1) {
         let t = Instant::now();
         let (n, _) = train_step(net, &mut optim, 1e-4, &hb, StepKind::JOINT, &ctx)?;
         net = n;
+        // The step reads its losses back, so the device has finished its work here.
         times.push(t.elapsed().as_secs_f64());
+        if let Some(u) = device.memory_pool_usage() {
+            peak = peak.max(u.bytes_reserved);
+        }
     }
     Ok(Measure {
         name: format!("{name} {size}² batch {batch}"),
         seconds: median(times),
-        peak_bytes: 0,
+        peak_bytes: peak as usize,
     })
 }

@@ -134,6 +134,9 @@ enum Command {
         /// Training configurations to time: NAME:SIZE:BATCH with NAME cpu-small or paper.
         #[arg(long, value_delimiter = ',', default_value = "cpu-small:64:8,cpu-small:128:8")]
         train: Vec<String>,
+        /// The device: cpu (the fused CPU layer), wgpu (the GPU kernels; `--features wgpu`).
+        #[arg(long, default_value = "cpu")]
+        device: String,
     },
 }
 
@@ -271,26 +274,17 @@ fn run(cli: Cli) -> Result<()> {
             runs,
             no_reference,
             train,
+            device,
         } => {
-            println!("# trainer bench ({} threads)", rayon::current_num_threads());
-            let (fused, reference) = bench::rendering_layer(batch, size, 64, runs, !no_reference, Some(&ALLOC))?;
-            println!("rendering layer, batch {batch} at {size}², 64x128 environment, forward+backward:");
+            let dev = bench::device(&device)?;
             println!(
-                "  fused             {:9.3} s  peak {:9.1} MB",
-                fused.seconds,
-                fused.peak_bytes as f64 / 1e6
+                "# trainer bench (device {device}: {dev:?}; {} threads)",
+                rayon::current_num_threads()
             );
-            if let Some(r) = reference {
-                println!(
-                    "  tensor reference  {:9.3} s  peak {:9.1} MB",
-                    r.seconds,
-                    r.peak_bytes as f64 / 1e6
-                );
-                println!(
-                    "  ratio             {:9.1}x faster, {:.1}x less peak memory",
-                    r.seconds / fused.seconds,
-                    r.peak_bytes as f64 / fused.peak_bytes.max(1) as f64
-                );
+            bench_layer(&dev, batch, size, runs, no_reference)?;
+            if matedit_trainer::render::on_device(&dev, 64).is_some() {
+                println!("training: not measured: {}", matedit_trainer::train::run::WGPU_TRAINING);
+                return Ok(());
             }
             for spec in train {
                 let parts: Vec<&str> = spec.split(':').collect();
@@ -303,15 +297,57 @@ fn run(cli: Cli) -> Result<()> {
                     other => anyhow::bail!("--train {spec}: unknown configuration {other} (cpu-small, paper)"),
                 };
                 let (s, b): (usize, usize) = (s.parse()?, b.parse()?);
-                let m = bench::training(name, widths, s, b, 3)?;
+                let m = bench::training(&dev, name, widths, s, b, 3)?;
+                let memory = if m.peak_bytes > 0 {
+                    format!(", device memory reserved {:.1} MB", m.peak_bytes as f64 / 1e6)
+                } else {
+                    String::new()
+                };
                 println!(
-                    "training (joint step) {:24} {:7.2} images/s ({:.3} s/step)",
+                    "training (joint step) {:24} {:7.2} images/s ({:.3} s/step{memory})",
                     m.name,
                     b as f64 / m.seconds,
                     m.seconds
                 );
             }
         }
+    }
+    Ok(())
+}
+
+/// `trainer bench`'s rendering-layer lines: the fused CPU layer (and the tensor reference) on
+/// the CPU device, the GPU kernels on a GPU device.
+fn bench_layer(dev: &burn::tensor::Device, batch: usize, size: usize, runs: usize, no_reference: bool) -> Result<()> {
+    #[cfg(feature = "wgpu")]
+    if matedit_trainer::render::on_device(dev, 64).is_some() {
+        let m = bench::rendering_layer_on_device(dev, batch, size, 64, runs)?;
+        println!("rendering layer, batch {batch} at {size}², 64x128 environment, forward+backward:");
+        println!(
+            "  GPU kernels       {:9.3} s  device memory reserved {:9.1} MB",
+            m.seconds,
+            m.peak_bytes as f64 / 1e6
+        );
+        return Ok(());
+    }
+    let _ = dev;
+    let (fused, reference) = bench::rendering_layer(batch, size, 64, runs, !no_reference, Some(&ALLOC))?;
+    println!("rendering layer, batch {batch} at {size}², 64x128 environment, forward+backward:");
+    println!(
+        "  fused             {:9.3} s  peak {:9.1} MB",
+        fused.seconds,
+        fused.peak_bytes as f64 / 1e6
+    );
+    if let Some(r) = reference {
+        println!(
+            "  tensor reference  {:9.3} s  peak {:9.1} MB",
+            r.seconds,
+            r.peak_bytes as f64 / 1e6
+        );
+        println!(
+            "  ratio             {:9.1}x faster, {:.1}x less peak memory",
+            r.seconds / fused.seconds,
+            r.peak_bytes as f64 / fused.peak_bytes.max(1) as f64
+        );
     }
     Ok(())
 }

@@ -21,6 +21,8 @@
 //! or negative radiance counts as 0, a NaN material parameter as 0, and a non-finite upstream
 //! gradient as 0; radiance is capped at [`MAX_RADIANCE`].
 
+#[cfg(feature = "wgpu")]
+pub mod gpu;
 pub mod kernel;
 pub mod material;
 pub mod op;
@@ -28,6 +30,7 @@ pub mod reference;
 mod simd;
 #[cfg(test)]
 mod tests;
+
 pub mod texels;
 
 use kernel::TexelGrads;
@@ -45,6 +48,55 @@ const TILE: usize = 32;
 /// Backward groups per (image, region): fixed, so that the summation order, and therefore every
 /// bit of the gradients, does not depend on the thread count.
 const GROUPS: usize = 16;
+
+/// The rendering layer on a GPU device ([`gpu::DeviceLayer`]; builds with `--features wgpu`).
+#[cfg(feature = "wgpu")]
+pub use gpu::DeviceLayer as DeviceRendering;
+
+/// No GPU layer in this build: [`on_device`] never returns one.
+#[cfg(not(feature = "wgpu"))]
+pub enum DeviceRendering {}
+
+#[cfg(not(feature = "wgpu"))]
+impl DeviceRendering {
+    /// Uncallable: there is no value of this type.
+    pub fn render(
+        &self,
+        _normals: burn::tensor::Tensor<4>,
+        _region_map: &[u8],
+        _materials: burn::tensor::Tensor<3>,
+        _env: burn::tensor::Tensor<4>,
+    ) -> Result<burn::tensor::Tensor<4>, RenderError> {
+        match *self {}
+    }
+}
+
+/// The rendering layer on `device` when it is a GPU device this build has kernels for; `None`
+/// means the fused CPU layer renders (on the host, whatever the device of the network).
+pub fn on_device(device: &burn::tensor::Device, env_height: usize) -> Option<DeviceRendering> {
+    #[cfg(feature = "wgpu")]
+    {
+        use std::sync::Mutex;
+        let inner = device.clone().inner();
+        if !matches!(inner.as_dispatch(), burn::backend::DispatchDevice::Cube(_)) {
+            return None;
+        }
+        // The texel table is uploaded once per device and environment height.
+        static LAYERS: Mutex<Vec<(burn::tensor::Device, DeviceRendering)>> = Mutex::new(Vec::new());
+        let mut layers = LAYERS.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, l)) = layers.iter().find(|(d, l)| *d == inner && l.env_height() == env_height) {
+            return Some(l.clone());
+        }
+        let layer = DeviceRendering::new(env_height, &inner);
+        layers.push((inner, layer.clone()));
+        Some(layer)
+    }
+    #[cfg(not(feature = "wgpu"))]
+    {
+        let _ = (device, env_height);
+        None
+    }
+}
 
 /// Why a batch cannot be rendered.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -81,6 +133,22 @@ pub enum RenderError {
         /// The batch's.
         got: usize,
     },
+}
+
+impl RenderError {
+    /// `Ok` when `got` values are the `expected` of the input `name` of shape `shape`.
+    pub(crate) fn expect(name: &'static str, shape: String, expected: usize, got: usize) -> Result<(), RenderError> {
+        if expected == got {
+            Ok(())
+        } else {
+            Err(RenderError::Shape {
+                name,
+                shape,
+                expected,
+                got,
+            })
+        }
+    }
 }
 
 /// One batch of rendering-layer inputs (layouts in the module docs).
@@ -151,18 +219,7 @@ impl RenderingLayer {
         let (h, w) = b.size;
         let p = h * w;
         let t = self.tex.count();
-        let shape = |name, shape: String, expected, got| {
-            if expected == got {
-                Ok(())
-            } else {
-                Err(RenderError::Shape {
-                    name,
-                    shape,
-                    expected,
-                    got,
-                })
-            }
-        };
+        let shape = RenderError::expect;
         shape(
             "normals",
             format!("[{}, 3, {h}, {w}]", b.batch),

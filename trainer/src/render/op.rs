@@ -1,7 +1,8 @@
 //! The fused rendering layer inside a Burn autodiff graph.
 //!
-//! Burn 0.22's dispatch API offers no user-level hook to register a backward closure for a
-//! tensor, so the layer joins the graph through its vector–Jacobian product instead:
+//! The fused layer runs on the host, outside Burn's backends (the GPU layer, `render::gpu`, is a
+//! backend extension with its own backward), so it joins the graph through its vector–Jacobian
+//! product:
 //!
 //! 1. [`Rendered::new`] reads n, m and L off their (tracked) tensors, runs the fused forward pass,
 //!    and hands out the image as a fresh leaf ([`Rendered::image`]) that requires a gradient;

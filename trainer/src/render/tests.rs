@@ -9,14 +9,14 @@ use matedit_physics::envmap::EnvMap;
 use matedit_physics::shading::exact::ExactShader;
 use matedit_physics::shading::shading_normal;
 
-struct Scene {
-    size: usize,
-    regions: usize,
-    normals: Vec<f32>,
-    region_map: Vec<u8>,
-    materials: Vec<f32>,
-    env: Vec<f32>,
-    env_height: usize,
+pub(super) struct Scene {
+    pub(super) size: usize,
+    pub(super) regions: usize,
+    pub(super) normals: Vec<f32>,
+    pub(super) region_map: Vec<u8>,
+    pub(super) materials: Vec<f32>,
+    pub(super) env: Vec<f32>,
+    pub(super) env_height: usize,
 }
 
 impl Scene {
@@ -34,9 +34,9 @@ impl Scene {
 }
 
 /// Deterministic pseudo-random numbers in [0, 1) (a 64-bit LCG; good enough for test data).
-struct Lcg(u64);
+pub(super) struct Lcg(pub(super) u64);
 impl Lcg {
-    fn next(&mut self) -> f32 {
+    pub(super) fn next(&mut self) -> f32 {
         self.0 = self
             .0
             .wrapping_mul(6364136223846793005)
@@ -84,7 +84,7 @@ fn environment(height: usize, rng: &mut Lcg) -> Vec<f32> {
     env
 }
 
-fn sphere(size: usize, regions: usize, env_height: usize, sharp: bool, seed: u64) -> Scene {
+pub(super) fn sphere(size: usize, regions: usize, env_height: usize, sharp: bool, seed: u64) -> Scene {
     let mut rng = Lcg(seed);
     let (n, mask) = unit_sphere_normals(size);
     let p = size * size;
@@ -147,7 +147,7 @@ fn rel_rmse(a: &[f32], b: &[f32]) -> f64 {
     (num / den.max(1e-300)).sqrt()
 }
 
-fn upstream(s: &Scene, seed: u64) -> Vec<f32> {
+pub(super) fn upstream(s: &Scene, seed: u64) -> Vec<f32> {
     let mut rng = Lcg(seed);
     (0..3 * s.size * s.size).map(|_| rng.next() - 0.3).collect()
 }

@@ -41,7 +41,8 @@ pub struct RunSection {
     pub seed: u64,
     /// Output folder (relative to the working directory); `trainer run --out` overrides.
     pub output: String,
-    /// `cpu` (Burn's flex backend) or `cuda` (needs the `cuda` feature).
+    /// `cpu` (Burn's flex backend), `wgpu` (the rendering layer as a GPU kernel; needs the `wgpu`
+    /// feature) or `cuda` (needs the `cuda` feature).
     #[serde(default = "default_device")]
     pub device: Spanned<String>,
     /// Start from the weights of this checkpoint folder (another run's stage) instead of a fresh
@@ -422,23 +423,8 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
             e,
         ));
     }
-    match m.run.device.get_ref().as_str() {
-        "cpu" => {}
-        "cuda" if cfg!(feature = "cuda") => {}
-        "cuda" => {
-            return Err(bad(
-                m.run.device.span(),
-                "run.device",
-                "this build has no CUDA backend: build with `--features cuda`".into(),
-            ));
-        }
-        other => {
-            return Err(bad(
-                m.run.device.span(),
-                "run.device",
-                format!("unknown device {other:?} (cpu, cuda)"),
-            ));
-        }
+    if let Err(e) = crate::train::run::check_device_name(m.run.device.get_ref()) {
+        return Err(bad(m.run.device.span(), "run.device", e));
     }
     let skip_corrupt = match m.data.on_corrupt.get_ref().as_str() {
         "stop" => false,

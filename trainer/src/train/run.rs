@@ -172,13 +172,40 @@ fn step_seed(seed: u64, stage: usize, step: usize) -> u64 {
     u64::from_le_bytes(h.as_bytes()[..8].try_into().unwrap_or([0; 8]))
 }
 
-/// The Burn device of a run.
-pub fn device_for(name: &str) -> Result<Device> {
+/// The devices a training manifest (or `trainer bench --device`) can name.
+pub const DEVICES: &str = "cpu, wgpu, cuda";
+
+/// Why the network cannot train on the wgpu device yet (measured on lavapipe, 2026-11-25).
+pub const WGPU_TRAINING: &str = "the network cannot train on the wgpu device yet: Burn 0.22.1's CubeCL backend \
+     has no backward for the bilinear upsampling of the normal module (\"Bilinear interpolation backward is not \
+     supported by JIT backend\"), and its fused convolutions gave wrong SSIM values on lavapipe. The rendering \
+     layer's GPU kernels are built and tested: `trainer bench --device wgpu` times them";
+
+/// Whether this build can train on the device `name`, and if not, why.
+pub fn check_device_name(name: &str) -> std::result::Result<(), String> {
+    let missing = |feature: &str, what: &str| {
+        Err(format!(
+            "this build has no {what} backend: build the trainer with `--features {feature}`"
+        ))
+    };
     match name {
-        "cpu" => Ok(Device::flex().autodiff()),
+        "cpu" => Ok(()),
+        "wgpu" if cfg!(feature = "wgpu") => Err(WGPU_TRAINING.into()),
+        "wgpu" => missing("wgpu", "wgpu (Vulkan, Metal, DX12)"),
+        "cuda" if cfg!(feature = "cuda") => Ok(()),
+        "cuda" => missing("cuda", "CUDA"),
+        other => Err(format!("unknown device {other:?} ({DEVICES})")),
+    }
+}
+
+/// The Burn device of a run, with autodiff. A GPU device that this build has but the machine
+/// lacks is an error that says so.
+pub fn device_for(name: &str) -> Result<Device> {
+    check_device_name(name).map_err(|e| anyhow::anyhow!(e))?;
+    match name {
         #[cfg(feature = "cuda")]
         "cuda" => Ok(Device::cuda(0).autodiff()),
-        other => bail!("device {other:?} is not available in this build"),
+        _ => Ok(Device::flex().autodiff()),
     }
 }
 

@@ -249,57 +249,21 @@ pub fn train_step(
         total = total + ll.mul_scalar(w.illumination);
     }
     if step.joint() {
-        let pick = Source::learns_through_layer;
-        let normals = rw.normals.input(Some(&p.normals), &b.normals);
-        let materials = rw.material.input(Some(&p.materials), &b.materials);
-        let env = rw.illumination.input(p.env.as_ref(), &b.env);
-        let regions = &host_batch.region_map;
-        let i_r = Rendered::new(ctx.layer, &normals, &materials, &env, regions).context("rendering I'")?;
-        // O' = R(n, m_t, L) trains the network only through n or L, when they learn through the layer.
-        let o_r = if pick(rw.normals) || pick(rw.illumination) {
-            Some(Rendered::new(ctx.layer, &normals, &b.target_materials, &env, regions).context("rendering O'")?)
-        } else {
-            None
+        let inputs = LayerInputs {
+            normals: rw.normals.input(Some(&p.normals), &b.normals),
+            materials: rw.material.input(Some(&p.materials), &b.materials),
+            env: rw.illumination.input(p.env.as_ref(), &b.env),
+            region_map: &host_batch.region_map,
         };
-        // The perceptual loss on leaves: its backward gives ∂l/∂I' and ∂l/∂O'.
-        let ip = i_r.image(device);
-        let op = o_r.as_ref().map(|o| o.image(device));
-        let mut lp = ctx.perceptual.loss(ip.clone(), b.input.clone(), b.mask.clone());
-        if let Some(op) = &op {
-            lp = lp + ctx.perceptual.loss(op.clone(), b.target.clone(), b.mask.clone());
-        }
-        losses.perceptual = scalar(&lp);
-        let mut image_loss = lp.mul_scalar(w.perceptual);
-        if w.ssim > 0.0 {
-            let mut ls = ssim_loss(ip.clone(), b.input.clone(), b.mask.clone());
-            if let Some(op) = &op {
-                ls = ls + ssim_loss(op.clone(), b.target.clone(), b.mask.clone());
-            }
-            losses.ssim = scalar(&ls);
-            image_loss = image_loss + ls.mul_scalar(w.ssim);
-        }
-        let grads = image_loss.backward();
-        let upstream = |t: &Tensor<4>, n: usize| t.grad(&grads).map(|g| host(&g)).unwrap_or_else(|| vec![0.0; n]);
-        let tracked = |s: Source, t: &Tensor<4>| pick(s).then(|| t.clone());
-        let g_i = upstream(&ip, i_r.values().len());
-        let si = i_r.pullback(
-            ctx.layer,
-            &g_i,
-            tracked(rw.normals, &normals),
-            pick(rw.material).then(|| materials.clone()),
-            tracked(rw.illumination, &env),
-        )?;
-        total = si.map_or(total.clone(), |s| total.clone() + s);
-        if let (Some(o_r), Some(op)) = (&o_r, &op) {
-            let g_o = upstream(op, o_r.values().len());
-            let so = o_r.pullback(
-                ctx.layer,
-                &g_o,
-                tracked(rw.normals, &normals),
-                None,
-                tracked(rw.illumination, &env),
-            )?;
-            total = so.map_or(total.clone(), |s| total.clone() + s);
+        let on_device = crate::render::on_device(ctx.device, ctx.layer.texels().height());
+        let (terms, image) = match on_device {
+            Some(layer) => joint_on_device(&layer, inputs, rw, &b, ctx)?,
+            None => joint_on_host(inputs, rw, &b, ctx)?,
+        };
+        losses.perceptual = image.perceptual;
+        losses.ssim = image.ssim;
+        for term in terms {
+            total = total + term;
         }
     }
     losses.total = w.normal * losses.normal
@@ -313,6 +277,125 @@ pub fn train_step(
     let grads = GradientsParams::from_grads(total.backward(), &net);
     let net = optim.step(lr, net, grads);
     Ok((net, losses))
+}
+
+/// The rendering layer's inputs in a joint step (each the prediction or the truth).
+struct LayerInputs<'a> {
+    normals: Tensor<4>,
+    materials: Tensor<3>,
+    env: Tensor<4>,
+    region_map: &'a [u8],
+}
+
+/// The unweighted image losses of a joint step, for the log.
+struct ImageLosses {
+    perceptual: f64,
+    ssim: f64,
+}
+
+/// w_p·(perceptual loss) + w_s·(1 − SSIM) on I' against I and, when rendered, O' against O.
+fn image_loss(ip: &Tensor<4>, op: Option<&Tensor<4>>, b: &TensorBatch, ctx: &StepContext) -> (Tensor<1>, ImageLosses) {
+    let w = ctx.weights;
+    let mut lp = ctx.perceptual.loss(ip.clone(), b.input.clone(), b.mask.clone());
+    if let Some(op) = op {
+        lp = lp + ctx.perceptual.loss(op.clone(), b.target.clone(), b.mask.clone());
+    }
+    let mut losses = ImageLosses {
+        perceptual: scalar(&lp),
+        ssim: 0.0,
+    };
+    let mut image_loss = lp.mul_scalar(w.perceptual);
+    if w.ssim > 0.0 {
+        let mut ls = ssim_loss(ip.clone(), b.input.clone(), b.mask.clone());
+        if let Some(op) = op {
+            ls = ls + ssim_loss(op.clone(), b.target.clone(), b.mask.clone());
+        }
+        losses.ssim = scalar(&ls);
+        image_loss = image_loss + ls.mul_scalar(w.ssim);
+    }
+    (image_loss, losses)
+}
+
+/// Whether O' = R(n, m_t, L) trains anything: only through n or L, when they learn through the
+/// layer (m_t is the target, not a prediction).
+fn renders_target(rw: RenderWith) -> bool {
+    rw.normals.learns_through_layer() || rw.illumination.learns_through_layer()
+}
+
+/// The joint step's image terms through the fused CPU layer: I' and O' are rendered on the host,
+/// the image losses back-propagate to ∂l/∂I' and ∂l/∂O', and the layer's VJP joins the graph as
+/// the surrogate scalars of [`crate::render::op`] (the terms to add to the step's loss).
+fn joint_on_host(
+    x: LayerInputs,
+    rw: RenderWith,
+    b: &TensorBatch,
+    ctx: &StepContext,
+) -> Result<(Vec<Tensor<1>>, ImageLosses)> {
+    let pick = Source::learns_through_layer;
+    let (normals, materials, env) = (&x.normals, &x.materials, &x.env);
+    let i_r = Rendered::new(ctx.layer, normals, materials, env, x.region_map).context("rendering I'")?;
+    let o_r = if renders_target(rw) {
+        Some(Rendered::new(ctx.layer, normals, &b.target_materials, env, x.region_map).context("rendering O'")?)
+    } else {
+        None
+    };
+    // The image losses on leaves: their backward gives ∂l/∂I' and ∂l/∂O'.
+    let ip = i_r.image(ctx.device);
+    let op = o_r.as_ref().map(|o| o.image(ctx.device));
+    let (loss, losses) = image_loss(&ip, op.as_ref(), b, ctx);
+    let grads = loss.backward();
+    let upstream = |t: &Tensor<4>, n: usize| t.grad(&grads).map(|g| host(&g)).unwrap_or_else(|| vec![0.0; n]);
+    let tracked = |s: Source, t: &Tensor<4>| pick(s).then(|| t.clone());
+    let g_i = upstream(&ip, i_r.values().len());
+    let si = i_r.pullback(
+        ctx.layer,
+        &g_i,
+        tracked(rw.normals, normals),
+        pick(rw.material).then(|| materials.clone()),
+        tracked(rw.illumination, env),
+    )?;
+    let mut terms: Vec<Tensor<1>> = si.into_iter().collect();
+    if let (Some(o_r), Some(op)) = (&o_r, &op) {
+        let g_o = upstream(op, o_r.values().len());
+        let so = o_r.pullback(
+            ctx.layer,
+            &g_o,
+            tracked(rw.normals, normals),
+            None,
+            tracked(rw.illumination, env),
+        )?;
+        terms.extend(so);
+    }
+    Ok((terms, losses))
+}
+
+/// The joint step's image terms through the rendering layer on the GPU: I' and O' stay on the
+/// device and the image losses join the step's graph directly; an input that does not learn
+/// through the layer is detached.
+fn joint_on_device(
+    layer: &crate::render::DeviceRendering,
+    x: LayerInputs,
+    rw: RenderWith,
+    b: &TensorBatch,
+    ctx: &StepContext,
+) -> Result<(Vec<Tensor<1>>, ImageLosses)> {
+    fn through<const D: usize>(s: Source, t: Tensor<D>) -> Tensor<D> {
+        if s.learns_through_layer() { t } else { t.detach() }
+    }
+    let normals = through(rw.normals, x.normals);
+    let env = through(rw.illumination, x.env);
+    let materials = through(rw.material, x.materials);
+    let ip = layer
+        .render(normals.clone(), x.region_map, materials, env.clone())
+        .context("rendering I'")?;
+    let op = if renders_target(rw) {
+        let o = layer.render(normals, x.region_map, b.target_materials.clone(), env);
+        Some(o.context("rendering O'")?)
+    } else {
+        None
+    };
+    let (loss, losses) = image_loss(&ip, op.as_ref(), b, ctx);
+    Ok((vec![loss], losses))
 }
 
 /// One step of Baseline 1: f_m against m (Eq. 4), O' = D(f_o, E(m_t)) against O.

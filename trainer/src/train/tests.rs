@@ -577,3 +577,24 @@ fn the_ssim_loss_trains_through_the_rendering_layer() {
         }
     }
 }
+
+/// A device a manifest names is checked before anything runs, and a refusal says why.
+#[test]
+fn device_names_are_checked_with_their_reason() {
+    use super::run::check_device_name;
+    assert!(check_device_name("cpu").is_ok());
+    let e = check_device_name("tpu").unwrap_err();
+    assert!(
+        e.contains("unknown device \"tpu\"") && e.contains("cpu, wgpu, cuda"),
+        "{e}"
+    );
+    let e = check_device_name("wgpu").unwrap_err();
+    if cfg!(feature = "wgpu") {
+        assert!(e.contains("Bilinear interpolation backward"), "{e}");
+    } else {
+        assert!(e.contains("--features wgpu"), "{e}");
+    }
+    if !cfg!(feature = "cuda") {
+        assert!(check_device_name("cuda").unwrap_err().contains("--features cuda"));
+    }
+}
