@@ -144,18 +144,6 @@ pub fn rendering_layer_on_device(
     Ok(m)
 }
 
-/// The autodiff device `trainer bench --device NAME` measures on: a training device, or `wgpu`
-/// for the rendering layer's GPU kernels (the network cannot train there yet: `training` says why).
-pub fn device(name: &str) -> Result<Device> {
-    #[cfg(feature = "wgpu")]
-    if name == "wgpu" {
-        return Ok(crate::render::gpu::wgpu_device()
-            .map_err(|e| anyhow::anyhow!(e))?
-            .autodiff());
-    }
-    crate::train::run::device_for(name)
-}
-
 /// Training images/s of a joint step for a network configuration on `device` (with autodiff).
 pub fn training(
     device: &Device,
@@ -165,9 +153,6 @@ pub fn training(
     batch: usize,
     steps: usize,
 ) -> Result<Measure> {
-    if crate::render::on_device(device, 64).is_some() {
-        anyhow::bail!("{}", crate::train::run::WGPU_TRAINING);
-    }
     let device = device.clone();
     device.seed(1);
     let layer = RenderingLayer::new(64);

@@ -134,7 +134,8 @@ enum Command {
         /// Training configurations to time: NAME:SIZE:BATCH with NAME cpu-small or paper.
         #[arg(long, value_delimiter = ',', default_value = "cpu-small:64:8,cpu-small:128:8")]
         train: Vec<String>,
-        /// The device: cpu (the fused CPU layer), wgpu (the GPU kernels; `--features wgpu`).
+        /// The device of both measurements, as in a training manifest: cpu (the fused CPU layer),
+        /// wgpu (`--features wgpu`: the layer's GPU kernels, the whole training step on the GPU).
         #[arg(long, default_value = "cpu")]
         device: String,
     },
@@ -276,16 +277,12 @@ fn run(cli: Cli) -> Result<()> {
             train,
             device,
         } => {
-            let dev = bench::device(&device)?;
+            let dev = matedit_trainer::train::run::device_for(&device)?;
             println!(
                 "# trainer bench (device {device}: {dev:?}; {} threads)",
                 rayon::current_num_threads()
             );
             bench_layer(&dev, batch, size, runs, no_reference)?;
-            if matedit_trainer::render::on_device(&dev, 64).is_some() {
-                println!("training: not measured: {}", matedit_trainer::train::run::WGPU_TRAINING);
-                return Ok(());
-            }
             for spec in train {
                 let parts: Vec<&str> = spec.split(':').collect();
                 let [name, s, b] = parts.as_slice() else {

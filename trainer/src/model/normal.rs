@@ -28,11 +28,45 @@ fn same(cin: usize, cout: usize, init: Init, device: &Device) -> Conv2d {
     c.init(device)
 }
 
+/// Bilinear resampling of `x` (`[B, C, h, w]`) to `side`², corners aligned (Burn's default).
 fn upsample(x: Tensor<4>, side: usize) -> Tensor<4> {
+    if crate::render::on_cube(&x.device()) {
+        // Burn 0.22.1's CubeCL backend has no backward for its bilinear kernel.
+        return upsample_by_products(x, side);
+    }
     interpolate(
         x,
         InterpolateOptions::new(InterpolateMode::Bilinear).with_output_size([side, side]),
     )
+}
+
+/// [`upsample`] as `R · x · Cᵀ` with the 1-D interpolation matrices: matrix products, whose
+/// backward every backend has. Equal to Burn's bilinear kernel up to rounding.
+fn upsample_by_products(x: Tensor<4>, side: usize) -> Tensor<4> {
+    let [b, c, h, w] = x.dims();
+    let device = x.device();
+    let rows = interpolation(h, side, &device).unsqueeze::<4>().expand([b, c, side, h]);
+    let cols = interpolation(w, side, &device)
+        .transpose()
+        .unsqueeze::<4>()
+        .expand([b, c, w, side]);
+    rows.matmul(x).matmul(cols)
+}
+
+/// The `[out, n]` matrix of 1-D linear interpolation from `n` samples to `out`, corners aligned,
+/// with Burn's sample positions (`o · (n − 1) / max(out − 1, 1)`).
+fn interpolation(n: usize, out: usize, device: &Device) -> Tensor<2> {
+    let ratio = (n as f64 - 1.0) / out.saturating_sub(1).max(1) as f64;
+    let mut m = vec![0.0f32; out * n];
+    for o in 0..out {
+        let y = o as f64 * ratio;
+        let lo = (y.floor().max(0.0) as usize).min(n - 1);
+        let hi = (lo + 1).min(n - 1);
+        let t = (y - lo as f64).clamp(0.0, 1.0) as f32;
+        m[o * n + lo] += 1.0 - t;
+        m[o * n + hi] += t;
+    }
+    Tensor::from_data(burn::tensor::TensorData::new(m, [out, n]), device)
 }
 
 /// The normal module.
@@ -124,4 +158,76 @@ impl NormalNet {
 pub fn normalize(n: Tensor<4>) -> Tensor<4> {
     let len = n.clone().powi_scalar(2).sum_dim(1).add_scalar(1e-12).sqrt();
     n / len
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::TensorData;
+
+    fn noise(n: usize, seed: u32) -> Vec<f32> {
+        let mut x = seed.wrapping_mul(2_654_435_761).max(1);
+        (0..n)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 17;
+                x ^= x << 5;
+                (x as f32 / u32::MAX as f32) * 2.0 - 1.0
+            })
+            .collect()
+    }
+
+    /// The product form of the upsampling (what a GPU device runs) agrees with Burn's bilinear
+    /// kernel, values and gradients, for every size the network uses and the degenerate ones
+    /// (one sample, no change of size, non-square inputs).
+    #[test]
+    fn upsampling_by_products_equals_burns_bilinear_kernel() {
+        let device = Device::flex().autodiff();
+        for (i, &(h, w, side)) in [
+            (1, 1, 4),
+            (1, 2, 3),
+            (2, 2, 4),
+            (2, 3, 8),
+            (4, 4, 8),
+            (4, 4, 4),
+            (8, 8, 32),
+            (16, 16, 64),
+            (3, 5, 1),
+        ]
+        .iter()
+        .enumerate()
+        {
+            let (b, c) = (2, 3);
+            let data = noise(b * c * h * w, i as u32 + 1);
+            let weights = Tensor::<4>::from_data(
+                TensorData::new(noise(b * c * side * side, 99 + i as u32), [b, c, side, side]),
+                &device,
+            );
+            let run = |products: bool| {
+                let x = Tensor::<4>::from_data(TensorData::new(data.clone(), [b, c, h, w]), &device).require_grad();
+                let y = if products {
+                    upsample_by_products(x.clone(), side)
+                } else {
+                    interpolate(
+                        x.clone(),
+                        InterpolateOptions::new(InterpolateMode::Bilinear).with_output_size([side, side]),
+                    )
+                };
+                let values: Vec<f32> = y.clone().into_data().try_to_vec::<f32>().expect("f32");
+                let grads = (y * weights.clone()).sum().backward();
+                let g: Vec<f32> = x
+                    .grad(&grads)
+                    .expect("x learns")
+                    .into_data()
+                    .try_to_vec::<f32>()
+                    .expect("f32");
+                (values, g)
+            };
+            let ((v0, g0), (v1, g1)) = (run(false), run(true));
+            assert_eq!(v0.len(), v1.len());
+            for (a, b) in v0.iter().zip(&v1).chain(g0.iter().zip(&g1)) {
+                assert!((a - b).abs() <= 1e-5 * (1.0 + a.abs()), "{h}x{w} -> {side}: {a} vs {b}");
+            }
+        }
+    }
 }

@@ -71,16 +71,34 @@ impl DeviceRendering {
     }
 }
 
+/// Whether `device` is a CubeCL (GPU) device. The few operations whose Burn 0.22.1 kernels are
+/// missing or wrong there (the normal module's upsampling, the SSIM window) take a formulation
+/// that runs correctly on it; the host keeps Burn's own, bit for bit.
+pub fn on_cube(device: &burn::tensor::Device) -> bool {
+    #[cfg(feature = "wgpu")]
+    {
+        matches!(
+            device.clone().inner().as_dispatch(),
+            burn::backend::DispatchDevice::Cube(_)
+        )
+    }
+    #[cfg(not(feature = "wgpu"))]
+    {
+        let _ = device;
+        false
+    }
+}
+
 /// The rendering layer on `device` when it is a GPU device this build has kernels for; `None`
 /// means the fused CPU layer renders (on the host, whatever the device of the network).
 pub fn on_device(device: &burn::tensor::Device, env_height: usize) -> Option<DeviceRendering> {
     #[cfg(feature = "wgpu")]
     {
         use std::sync::Mutex;
-        let inner = device.clone().inner();
-        if !matches!(inner.as_dispatch(), burn::backend::DispatchDevice::Cube(_)) {
+        if !on_cube(device) {
             return None;
         }
+        let inner = device.clone().inner();
         // The texel table is uploaded once per device and environment height.
         static LAYERS: Mutex<Vec<(burn::tensor::Device, DeviceRendering)>> = Mutex::new(Vec::new());
         let mut layers = LAYERS.lock().unwrap_or_else(|e| e.into_inner());

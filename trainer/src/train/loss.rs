@@ -130,27 +130,63 @@ pub fn perceptual_fallback(pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -
 
 /// Gaussian local means of the SSIM window, as the evaluation computes them
 /// (`eval::metrics::ssim`): 11 × 11 taps of σ = 1.5 pixels, the window cut at the image border
-/// and renormalised over the pixels it keeps. Two 1-D passes with zero padding, then a division
-/// by the same passes over an all-ones image (the kept weight, a constant).
-struct SsimWindow {
-    row: Tensor<4>,
-    col: Tensor<4>,
-    kept: Tensor<4>,
+/// and renormalised over the pixels it keeps.
+#[allow(clippy::large_enum_variant)] // one short-lived value per loss evaluation
+enum SsimWindow {
+    /// On the host: two 1-D passes with zero padding, then a division by the same passes over an
+    /// all-ones image (the kept weight, a constant).
+    Convolutions {
+        row: Tensor<4>,
+        col: Tensor<4>,
+        kept: Tensor<4>,
+    },
+    /// On a CubeCL device, where Burn 0.22.1's fused convolutions gave wrong SSIM values (on
+    /// lavapipe): `R · x · Cᵀ` with the two 1-D windows as banded matrices whose rows are already
+    /// renormalised. The kept weight is separable (a row sum times a column sum), so this is the
+    /// same mean up to rounding.
+    Products { rows: Tensor<2>, cols: Tensor<2> },
 }
 
 impl SsimWindow {
     fn new(h: usize, w: usize, device: &burn::tensor::Device) -> Self {
+        if crate::render::on_cube(device) {
+            Self::products(h, w, device)
+        } else {
+            Self::convolutions(h, w, device)
+        }
+    }
+
+    fn products(h: usize, w: usize, device: &burn::tensor::Device) -> Self {
+        Self::Products {
+            rows: Self::band(h, device),
+            cols: Self::band(w, device).transpose(),
+        }
+    }
+
+    fn convolutions(h: usize, w: usize, device: &burn::tensor::Device) -> Self {
         let n = 2 * SSIM_RADIUS + 1;
-        let taps: Vec<f32> = (0..n)
-            .map(|i| {
-                let d = i as f64 - SSIM_RADIUS as f64;
-                (-d * d / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp() as f32
-            })
-            .collect();
+        let taps: Vec<f32> = (0..n).map(|i| Self::tap(i as f64 - SSIM_RADIUS as f64)).collect();
         let row = Tensor::<4>::from_data(TensorData::new(taps.clone(), [1, 1, 1, n]), device);
         let col = Tensor::<4>::from_data(TensorData::new(taps, [1, 1, n, 1]), device);
         let kept = Self::pass(&row, &col, Tensor::ones([1, 1, h, w], device)).detach();
-        Self { row, col, kept }
+        Self::Convolutions { row, col, kept }
+    }
+
+    fn tap(d: f64) -> f32 {
+        (-d * d / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp() as f32
+    }
+
+    /// The `[n, n]` matrix of the 1-D window over `n` samples, each row divided by its sum.
+    fn band(n: usize, device: &burn::tensor::Device) -> Tensor<2> {
+        let mut m = vec![0.0f32; n * n];
+        for i in 0..n {
+            let (lo, hi) = (i.saturating_sub(SSIM_RADIUS), (i + SSIM_RADIUS).min(n - 1));
+            let sum: f32 = (lo..=hi).map(|j| Self::tap(j as f64 - i as f64)).sum();
+            for j in lo..=hi {
+                m[i * n + j] = Self::tap(j as f64 - i as f64) / sum;
+            }
+        }
+        Tensor::from_data(TensorData::new(m, [n, n]), device).detach()
     }
 
     /// The two 1-D passes over each plane of `x` (`[N, 1, H, W]`), zero padded.
@@ -162,7 +198,15 @@ impl SsimWindow {
 
     /// Window-weighted mean of each plane of `x` (`[N, 1, H, W]`).
     fn mean(&self, x: Tensor<4>) -> Tensor<4> {
-        Self::pass(&self.row, &self.col, x) / self.kept.clone()
+        match self {
+            Self::Convolutions { row, col, kept } => Self::pass(row, col, x) / kept.clone(),
+            Self::Products { rows, cols } => {
+                let [n, _, h, w] = x.dims();
+                let rows = rows.clone().unsqueeze::<4>().expand([n, 1, h, h]);
+                let cols = cols.clone().unsqueeze::<4>().expand([n, 1, w, w]);
+                rows.matmul(x).matmul(cols)
+            }
+        }
     }
 }
 
@@ -199,4 +243,39 @@ pub fn ssim_loss(pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -> Tensor<1
             .mul_scalar(c as f64)
             .add_scalar(1e-6);
     per_image.mean()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The SSIM window as matrix products (what a GPU device runs) gives the convolutions' local
+    /// means, for images smaller than the window, non-square ones and a typical size.
+    #[test]
+    fn the_ssim_window_as_products_equals_the_convolutions() {
+        let device = burn::tensor::Device::flex();
+        for (k, &(h, w)) in [(1, 1), (1, 7), (3, 20), (9, 14), (11, 11), (32, 24)]
+            .iter()
+            .enumerate()
+        {
+            let n = 2;
+            let mut x = 0x9e37_79b9u32 ^ k as u32;
+            let data: Vec<f32> = (0..n * h * w)
+                .map(|_| {
+                    x ^= x << 13;
+                    x ^= x >> 17;
+                    x ^= x << 5;
+                    x as f32 / u32::MAX as f32 * 255.0
+                })
+                .collect();
+            let plane = || Tensor::<4>::from_data(TensorData::new(data.clone(), [n, 1, h, w]), &device);
+            let values = |t: Tensor<4>| -> Vec<f32> { t.into_data().try_to_vec::<f32>().expect("f32") };
+            let a = values(SsimWindow::convolutions(h, w, &device).mean(plane()));
+            let b = values(SsimWindow::products(h, w, &device).mean(plane()));
+            assert_eq!(a.len(), b.len());
+            for (p, q) in a.iter().zip(&b) {
+                assert!((p - q).abs() <= 1e-4 * (1.0 + p.abs()), "{h}x{w}: {p} vs {q}");
+            }
+        }
+    }
 }

@@ -175,12 +175,6 @@ fn step_seed(seed: u64, stage: usize, step: usize) -> u64 {
 /// The devices a training manifest (or `trainer bench --device`) can name.
 pub const DEVICES: &str = "cpu, wgpu, cuda";
 
-/// Why the network cannot train on the wgpu device yet (measured on lavapipe, 2026-11-25).
-pub const WGPU_TRAINING: &str = "the network cannot train on the wgpu device yet: Burn 0.22.1's CubeCL backend \
-     has no backward for the bilinear upsampling of the normal module (\"Bilinear interpolation backward is not \
-     supported by JIT backend\"), and its fused convolutions gave wrong SSIM values on lavapipe. The rendering \
-     layer's GPU kernels are built and tested: `trainer bench --device wgpu` times them";
-
 /// Whether this build can train on the device `name`, and if not, why.
 pub fn check_device_name(name: &str) -> std::result::Result<(), String> {
     let missing = |feature: &str, what: &str| {
@@ -190,7 +184,7 @@ pub fn check_device_name(name: &str) -> std::result::Result<(), String> {
     };
     match name {
         "cpu" => Ok(()),
-        "wgpu" if cfg!(feature = "wgpu") => Err(WGPU_TRAINING.into()),
+        "wgpu" if cfg!(feature = "wgpu") => Ok(()),
         "wgpu" => missing("wgpu", "wgpu (Vulkan, Metal, DX12)"),
         "cuda" if cfg!(feature = "cuda") => Ok(()),
         "cuda" => missing("cuda", "CUDA"),
@@ -203,6 +197,10 @@ pub fn check_device_name(name: &str) -> std::result::Result<(), String> {
 pub fn device_for(name: &str) -> Result<Device> {
     check_device_name(name).map_err(|e| anyhow::anyhow!(e))?;
     match name {
+        #[cfg(feature = "wgpu")]
+        "wgpu" => Ok(crate::render::gpu::wgpu_device()
+            .map_err(|e| anyhow::anyhow!(e))?
+            .autodiff()),
         #[cfg(feature = "cuda")]
         "cuda" => Ok(Device::cuda(0).autodiff()),
         _ => Ok(Device::flex().autodiff()),
@@ -312,8 +310,14 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
         Some(w) => Perceptual::vgg16(w, plan.manifest.loss.vgg16_layers.get_ref(), &device)?,
         None => Perceptual::Fallback,
     };
-    // Which perceptual loss trains the network is never silent, not even with --quiet.
+    // Which perceptual loss trains the network, and where, is never silent, not even with --quiet.
     eprintln!("{}", perceptual.description());
+    let layer_on = if crate::render::on_device(&device, plan.net.env_height).is_some() {
+        "the rendering layer's GPU kernels"
+    } else {
+        "the fused CPU rendering layer"
+    };
+    eprintln!("device {} ({device:?}), {layer_on}", m.run.device.get_ref());
     let ctx = StepContext {
         layer: &layer,
         weights: &plan.weights,

@@ -13,7 +13,7 @@
 
 mod kernels;
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 use super::texels::TexelTable;
 use super::{MAX_RADIANCE, RenderError, material::log_affine};

@@ -10,7 +10,7 @@ use super::super::{Batch, RenderingLayer, material};
 use super::*;
 use burn::tensor::Tensor;
 
-fn device() -> Option<Device> {
+pub(crate) fn device() -> Option<Device> {
     match wgpu_device() {
         Ok(d) => Some(d),
         Err(e) if std::env::var("MATEDIT_REQUIRE_GPU").as_deref() == Ok("1") => {
