@@ -6,6 +6,7 @@ use crate::shapes::{Mesh, Shape};
 use glam::{Mat3, Vec3};
 use matedit_physics::camera::pixel_center;
 use rayon::prelude::*;
+use std::sync::{Arc, Mutex, OnceLock};
 
 /// Per-pixel geometry of an `res × res` view, row-major from the top row.
 #[derive(Clone, Debug)]
@@ -102,6 +103,70 @@ impl GBuffer {
     }
 }
 
+/// The shadow rays of one G-buffer, traced once per pixel and set of light directions and then
+/// reused: visibility does not depend on the material, and a dataset sample shades each pixel
+/// under the same directions for I and for O. What it hands out is
+/// [`GBuffer::shadow_visibility`]'s result, bit for bit.
+pub struct SharedVisibility<'a> {
+    g: &'a GBuffer,
+    scene: &'a Scene,
+    to_object: Mat3,
+    /// One table per distinct direction set (a measured material's exact shader keeps the
+    /// zero-radiance texels that the fast shader drops): per pixel, one bit per direction, set
+    /// where the direction is open.
+    tables: Mutex<Vec<Arc<VisibilityTable>>>,
+}
+
+struct VisibilityTable {
+    dirs: Vec<[f32; 3]>,
+    open: Vec<OnceLock<Box<[u64]>>>,
+}
+
+impl<'a> SharedVisibility<'a> {
+    /// No ray is traced until a pixel asks.
+    pub fn new(g: &'a GBuffer, scene: &'a Scene, to_object: Mat3) -> Self {
+        Self {
+            g,
+            scene,
+            to_object,
+            tables: Mutex::new(Vec::new()),
+        }
+    }
+
+    /// [`GBuffer::shadow_visibility`] for pixel `p` towards `dirs`, traced on the first request.
+    pub fn fill(&self, p: usize, dirs: &[[f32; 3]], out: &mut [f32]) {
+        let table = self.table(dirs);
+        let open = table.open[p].get_or_init(|| {
+            self.g.shadow_visibility(self.scene, self.to_object, p, dirs, out);
+            let mut bits = vec![0u64; dirs.len().div_ceil(64)];
+            for (t, &v) in out.iter().enumerate() {
+                if v > 0.0 {
+                    bits[t / 64] |= 1 << (t % 64);
+                }
+            }
+            bits.into_boxed_slice()
+        });
+        for (t, o) in out.iter_mut().enumerate() {
+            *o = if (open[t / 64] >> (t % 64)) & 1 == 1 { 1.0 } else { 0.0 };
+        }
+    }
+
+    /// The table of `dirs`, made on first sight. Directions are compared by value: each shader
+    /// owns its own copy.
+    fn table(&self, dirs: &[[f32; 3]]) -> Arc<VisibilityTable> {
+        let mut tables = self.tables.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(t) = tables.iter().find(|t| t.dirs.as_slice() == dirs) {
+            return t.clone();
+        }
+        let t = Arc::new(VisibilityTable {
+            dirs: dirs.to_vec(),
+            open: (0..self.g.mask.len()).map(|_| OnceLock::new()).collect(),
+        });
+        tables.push(t.clone());
+        t
+    }
+}
+
 /// Position, geometric normal, shading normal, region.
 type PixelHit = Option<(Vec3, Vec3, Vec3, u32)>;
 
@@ -142,6 +207,51 @@ fn mesh_pixel(mesh: &Mesh, scene: &Scene, x: f32, y: f32, rotation: Mat3) -> Pix
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The shared table hands out what each pixel's own shadow rays give, for two direction sets
+    /// (one a subset, as a fast and an exact shader of the same light), on first and repeated
+    /// requests, from several threads, in a rotated view of a shape that shadows itself.
+    #[test]
+    fn shared_visibility_equals_tracing_each_request() {
+        use crate::shapes::UpAxis;
+        let Ok(Shape::Mesh(mesh)) = Shape::load("procedural:chair:3", UpAxis::PosY) else {
+            panic!("procedural chair")
+        };
+        let scene = Scene::new(&mesh);
+        let rotation = Mat3::from_rotation_x(0.35) * Mat3::from_rotation_y(-0.8);
+        let g = GBuffer::trace_rotated(&Shape::Mesh(mesh.clone()), Some(&scene), 24, rotation);
+        let all: Vec<[f32; 3]> = (0..48)
+            .map(|k| {
+                let (a, z) = (k as f32 * 2.4, 1.0 - 2.0 * (k as f32 + 0.5) / 48.0);
+                let r = (1.0 - z * z).sqrt();
+                [r * a.cos(), r * a.sin(), z]
+            })
+            .collect();
+        let some: Vec<[f32; 3]> = all.iter().step_by(3).copied().collect();
+        let shared = SharedVisibility::new(&g, &scene, rotation.transpose());
+        let covered: Vec<usize> = (0..g.mask.len()).filter(|&p| g.mask[p] > 0.0).collect();
+        assert!(covered.len() > 100);
+        let mut blocked = 0;
+        for round in 0..2 {
+            for dirs in [&all, &some] {
+                let seen: Vec<(Vec<f32>, Vec<f32>)> = covered
+                    .par_iter()
+                    .map(|&p| {
+                        let (mut a, mut b) = (vec![0.5; dirs.len()], vec![0.5; dirs.len()]);
+                        shared.fill(p, dirs, &mut a);
+                        g.shadow_visibility(&scene, rotation.transpose(), p, dirs, &mut b);
+                        (a, b)
+                    })
+                    .collect();
+                for (a, b) in &seen {
+                    assert_eq!(a, b, "round {round}");
+                    blocked += b.iter().filter(|&&v| v == 0.0).count();
+                }
+            }
+        }
+        assert!(blocked > 0, "the chair shadows some directions");
+        assert_eq!(shared.tables.lock().unwrap().len(), 2, "one table per direction set");
+    }
 
     #[test]
     fn sphere_normals_are_unit_and_match_pixel_positions() {

@@ -8,8 +8,9 @@
 //!
 //! Shortcuts ("model only what a scene needs"), each measured in `docs/PERFORMANCE.md`:
 //! one BVH per shape serves all its views (rays are turned into object space instead);
-//! no shadow rays for convex shapes under `shadows = "auto"`; a region that no pixel shows gets
-//! no shader; the `zonal` quality shades a grid of normals per material instead of every pixel,
+//! no shadow rays for convex shapes under `shadows = "auto"`; a pixel's shadow rays traced once for
+//! I and O (visibility does not depend on the material); a region that no pixel shows gets no
+//! shader; the `zonal` quality shades a grid of normals per material instead of every pixel,
 //! and shares one set of environment spectra between all materials on the same grid.
 
 use super::catalogue::ShapeItem;
@@ -17,7 +18,7 @@ use super::materials::MaterialEntry;
 use super::plan::{Plan, RotationMode, SplitPlan};
 use crate::accel::Scene;
 use crate::assets::random::Draw;
-use crate::gbuffer::GBuffer;
+use crate::gbuffer::{GBuffer, SharedVisibility};
 use crate::io::{encode_env_exr, encode_exr_channels, load_env};
 use crate::render::Shadows;
 use crate::shapes::{Mesh, Shape};
@@ -328,10 +329,13 @@ impl<'a> Renderer<'a> {
         let env = self.env(combo.env)?.tilted(st.env_rows, azimuth - rotation, -elevation);
 
         let shadows = st.shadows.for_shape(loaded.convex) == Shadows::On && loaded.scene.is_some();
-        let to_object = rot.transpose();
+        let shared = loaded
+            .scene
+            .as_ref()
+            .map(|scene| SharedVisibility::new(&g, scene, rot.transpose()));
         let visibility = |p: usize, dirs: &[[f32; 3]], out: &mut [f32]| {
-            if let Some(scene) = loaded.scene.as_ref() {
-                g.shadow_visibility(scene, to_object, p, dirs, out);
+            if let Some(s) = &shared {
+                s.fill(p, dirs, out);
             }
         };
         let vis: Option<&VisibilityFn<'_>> = if shadows { Some(&visibility) } else { None };
