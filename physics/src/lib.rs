@@ -15,7 +15,8 @@
 //!   power-preserving resampling;
 //! * [`brdf`]: the [`brdf::Brdf`] trait and the reference BRDFs (Lambert, GGX, plastic) and the
 //!   108-parameter Directional Statistics BRDF ([`brdf::dsbrdf`]);
-//! * [`shading`]: Eq. 2 itself, as an exact `f64` reference path and a fast `f32` path;
+//! * [`shading`]: Eq. 2 itself, three ways: an exact `f64` reference path, a fast `f32` path
+//!   (SIMD over texels), and the zonal path (a convolution about the view axis, without shadows);
 //! * [`tonemap`]: the display transform used for PNG previews and image metrics;
 //! * [`fastmath`]: branch-free `exp`/`ln`/`expm1` that vectorise, used by the fast path.
 //!

@@ -6,8 +6,8 @@ use anyhow::{Result, bail};
 use burn::optim::AdamConfig;
 use burn::tensor::Device;
 use matedit_trainer::model::Widths;
+use matedit_trainer::model::network::NetConfig;
 use matedit_trainer::train::checkpoint::{State, save};
-use matedit_trainer::train::network::NetConfig;
 
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();

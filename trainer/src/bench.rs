@@ -4,8 +4,8 @@
 
 use crate::alloc::PeakAlloc;
 use crate::model::Widths;
+use crate::model::network::NetConfig;
 use crate::render::{Batch, RenderingLayer, reference};
-use crate::train::network::NetConfig;
 use crate::train::perceptual::Perceptual;
 use crate::train::step::{LossWeights, StepContext, StepKind, train_step};
 use crate::train::synthetic::sphere_batch;

@@ -3,7 +3,7 @@
 //! The network of Fig. 2 of the paper and everything around it: reading the factory's datasets
 //! (`data`), the prediction modules and Baseline 1's encoder–decoder (`model`), the
 //! differentiable rendering layer (`render`), losses, steps, stages and checkpoints (`train`),
-//! the metrics and Tables 1–3 (`eval`), the comparison methods that are not networks
+//! the paper's metrics, shared by losses and evaluation (`metrics`), Tables 1–3 (`eval`), the comparison methods that are not networks
 //! (`baseline`), editing photos and the post-optimisation of Eq. 6 (`edit`), the editing web page
 //! (`serve`), and the material
 //! targets (`targets`): the 108 DSBRDF parameters normalised to the tanh range [−0.95, 0.95]
@@ -17,6 +17,7 @@ pub mod bench;
 pub mod data;
 pub mod edit;
 pub mod eval;
+pub mod metrics;
 pub mod model;
 pub mod render;
 pub mod serve;

@@ -16,9 +16,9 @@ use matedit_trainer::edit::load_model;
 use matedit_trainer::edit::photo::{load_mask, load_photo};
 use matedit_trainer::edit::target::load_regions;
 use matedit_trainer::model::Widths;
+use matedit_trainer::model::network::NetConfig;
 use matedit_trainer::train::checkpoint::{State, save};
 use matedit_trainer::train::manifest;
-use matedit_trainer::train::network::NetConfig;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 

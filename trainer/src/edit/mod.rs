@@ -16,12 +16,11 @@ pub mod target;
 #[cfg(test)]
 mod tests;
 
+use crate::model::network::Net;
 use crate::render::op::host;
 use crate::render::{Batch, RenderingLayer};
 use crate::train::batch::HostBatch;
 use crate::train::checkpoint;
-use crate::train::network::Net;
-use crate::train::step::predict;
 use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
 use matedit_physics::brdf::Dsbrdf;
@@ -182,7 +181,8 @@ pub fn network_prediction(net: &Net, env_height: usize, prep: &Prepared) -> Resu
         materials: vec![0.0; r * PARAMS],
         target_materials: vec![0.0; r * PARAMS],
     };
-    let p = predict(net, &hb.to_device(&device), true);
+    let tb = hb.to_device(&device);
+    let p = net.predict(&tb.input, &tb.mask, &tb.region_masks, true);
     let mut normals = host(&p.normals);
     for k in 0..s * s {
         if prep.mask[k] <= 0.0 {

@@ -246,7 +246,7 @@ pub fn write_all(
         ],
     )?;
     let all = vec![1.0_f32; ehw];
-    let env_exposure = crate::eval::metrics::metric_exposure(&pred.env, &all);
+    let env_exposure = crate::metrics::metric_exposure(&pred.env, &all);
     write_png_rgb(&out.join("env.png"), we, he, |k| {
         [0, 1, 2].map(|c| tonemap_u8(pred.env[c * ehw + k], env_exposure))
     })?;
@@ -328,7 +328,7 @@ fn write_sheet(out: &Path, prep: &Prepared, pred: &Predicted, targets: &[Dsbrdf]
     let (he, we) = (pred.env_height, 2 * pred.env_height);
     let ehw = he * we;
     let all = vec![1.0_f32; ehw];
-    let e = crate::eval::metrics::metric_exposure(&pred.env, &all);
+    let e = crate::metrics::metric_exposure(&pred.env, &all);
     columns.push("L'");
     tiles.push(scale_tile(he, we, &|k| {
         let c = |ch: usize| tonemap_u8(pred.env[ch * ehw + k], e);
@@ -344,7 +344,7 @@ fn write_sheet(out: &Path, prep: &Prepared, pred: &Predicted, targets: &[Dsbrdf]
     let ns = n.min(64);
     let sph = spheres(&mats, &pred.env, pred.env_height, ns)?;
     let sphere_tile = |img: &[f32], mask: &[f32]| {
-        let e = crate::eval::metrics::metric_exposure(img, mask);
+        let e = crate::metrics::metric_exposure(img, mask);
         scale_tile(ns, ns, &|k| {
             if mask[k] > 0.0 {
                 let c = |ch: usize| tonemap_u8(img[ch * ns * ns + k], e);

@@ -3,8 +3,8 @@
 use super::photo::{Framing, TRAINING_FILL, load_photo, srgb_decode};
 use super::*;
 use crate::model::Widths;
+use crate::model::network::NetConfig;
 use crate::train::checkpoint::{State, save};
-use crate::train::network::NetConfig;
 use burn::optim::AdamConfig;
 use matedit_physics::tonemap::tonemap_u8;
 use std::sync::OnceLock;

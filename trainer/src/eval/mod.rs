@@ -1,15 +1,16 @@
 //! Evaluation metrics of Sec. 4 and the Markdown tables of Tables 1–3.
 //!
-//! * [`metrics`]: the per-sample metrics on f32 slices — L2 and SSIM on tone-mapped [0, 255]
-//!   images, normal cosine, material L2 (raw and normalised scale), all on object pixels;
+//! * [`crate::metrics`] (shared with training's losses): the per-sample metrics on f32 slices —
+//!   L2 and SSIM on tone-mapped [0, 255] images, normal cosine, material L2 (raw and normalised
+//!   scale), all on object pixels;
 //! * [`Metrics`]: their averages over a split, per named output (`I'`, `O'`), serialisable;
 //! * [`tables`]: Markdown tables shaped like the paper's Tables 1, 2 and 3.
 
-pub mod metrics;
 pub mod run;
 pub mod sheet;
 pub mod tables;
 
+use crate::metrics;
 pub use metrics::{l2_tonemapped, material_l2, material_l2_normalised, normal_cosine, ssim};
 pub use run::{EvalOptions, EvalReport, evaluate};
 pub use tables::{TableRow, pipeline_markdown, table1_markdown, table2_markdown, table3_markdown};

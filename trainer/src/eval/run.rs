@@ -22,7 +22,6 @@ use crate::render::op::host;
 use crate::render::{Batch, RenderingLayer};
 use crate::train::batch::HostBatch;
 use crate::train::checkpoint;
-use crate::train::step::predict;
 use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
 use matedit_physics::brdf::dsbrdf::PARAMS;
@@ -301,7 +300,7 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
                 edits.push((row.name.clone(), o_p));
                 continue;
             }
-            let p = predict(net, &tb, true);
+            let p = net.predict(&tb.input, &tb.mask, &tb.region_masks, true);
             let (n_p, m_p) = (host(&p.normals), host(&p.materials));
             let l_p = p.env.as_ref().map(host).unwrap_or_default();
             let mean_mats: Vec<f32> = (0..hb.batch * hb.regions).flat_map(|_| mean).collect();

@@ -1,10 +1,10 @@
 //! The contact sheet of `trainer eval`: one row per shown sample, columns I, I', O, O', n, n',
 //! L, L' (the final checkpoint's predictions) under a header row naming them; and, when several
 //! methods are scored, the methods sheet: I, O and every method's O' side by side. Each pair shares
-//! the ground truth's exposure (the metrics' rule, [`super::metrics::metric_exposure`]), so a
+//! the ground truth's exposure (the metrics' rule, [`crate::metrics::metric_exposure`]), so a
 //! brightness error shows as one.
 
-use super::metrics::metric_exposure;
+use crate::metrics::metric_exposure;
 use anyhow::Result;
 use matedit_datagen::io::{SheetLabels, contact_sheet, normal_to_u8, write_labelled_contact_sheet};
 use matedit_physics::tonemap::tonemap_u8;

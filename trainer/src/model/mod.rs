@@ -19,6 +19,7 @@ pub mod encoder;
 pub mod encoder_decoder;
 pub mod illumination;
 pub mod material;
+pub mod network;
 pub mod normal;
 pub mod vgg16;
 

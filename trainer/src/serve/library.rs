@@ -4,7 +4,7 @@
 
 use crate::edit::output::spheres;
 use crate::edit::target::dsbrdf_of;
-use crate::eval::metrics::metric_exposure;
+use crate::metrics::metric_exposure;
 use anyhow::{Context, Result};
 use matedit_datagen::materials::library::{Split, library};
 use matedit_physics::tonemap::tonemap_u8;

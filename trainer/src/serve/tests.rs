@@ -4,8 +4,8 @@
 
 use super::*;
 use crate::model::Widths;
+use crate::model::network::NetConfig;
 use crate::train::checkpoint::{State as CkState, save};
-use crate::train::network::NetConfig;
 use burn::optim::AdamConfig;
 use burn::tensor::Device;
 use std::io::{Read, Write};

@@ -4,7 +4,7 @@
 //! `latest.json` is replaced atomically, so a kill at any moment leaves either the previous or the
 //! new checkpoint, never a partial one.
 
-use super::network::{Net, NetConfig};
+use crate::model::network::{Net, NetConfig};
 use anyhow::{Context, Result, bail};
 use burn::module::Module;
 use burn::optim::ModuleOptimizer;

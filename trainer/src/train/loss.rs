@@ -8,7 +8,7 @@
 //! pooling), the three mean squared errors summed. Its scale is that of the paper's image metric
 //! (L2 on [0, 255] images), so the Eq. 5 weights keep their meaning.
 //!
-//! [`display`] is a smooth version of the evaluation's tone map (`eval::metrics`): the ground
+//! [`display`] is a smooth version of the evaluation's tone map (`metrics`): the ground
 //! truth's exposure (its 99th-percentile channel value on the object becomes white), a soft clamp
 //! to [0, 1] instead of the hard one (so an over-bright prediction still has a gradient back),
 //! and a display gamma whose slope at black is bounded like sRGB's. The loss therefore weighs
@@ -16,7 +16,7 @@
 //!
 //! **Structural loss** (an option, not in the paper): [`ssim_loss`], 1 − the evaluation's SSIM
 //! on the same tone map, added to the perceptual loss with its own weight (`[loss] ssim`).
-use crate::eval::metrics::{SSIM_C1, SSIM_C2, SSIM_RADIUS, SSIM_SIGMA};
+use crate::metrics::{SSIM_C1, SSIM_C2, SSIM_RADIUS, SSIM_SIGMA};
 use burn::tensor::module::{avg_pool2d, conv2d};
 use burn::tensor::ops::{AvgPoolOptions, ConvOptions};
 use burn::tensor::{Tensor, TensorData};
@@ -61,7 +61,7 @@ pub fn display(x: Tensor<4>, exposure: Tensor<4>) -> Tensor<4> {
 }
 
 /// The evaluation's exposure of each ground-truth image (`[B, 3, H, W]`) on its mask
-/// (`[B, 1, H, W]`), as a `[B, 1, 1, 1]` constant: see `eval::metrics::metric_exposure`.
+/// (`[B, 1, H, W]`), as a `[B, 1, 1, 1]` constant: see `metrics::metric_exposure`.
 pub fn exposure(truth: &Tensor<4>, mask: &Tensor<4>) -> Tensor<4> {
     let [b, c, h, w] = truth.dims();
     let device = truth.device();
@@ -82,7 +82,7 @@ pub fn exposure(truth: &Tensor<4>, mask: &Tensor<4>) -> Tensor<4> {
                 mv.get(i * h * w..(i + 1) * h * w),
             );
             match (img, m) {
-                (Some(img), Some(m)) => crate::eval::metrics::metric_exposure(img, m),
+                (Some(img), Some(m)) => crate::metrics::metric_exposure(img, m),
                 _ => 1.0,
             }
         })
@@ -129,7 +129,7 @@ pub fn perceptual_fallback(pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -
 }
 
 /// Gaussian local means of the SSIM window, as the evaluation computes them
-/// (`eval::metrics::ssim`): 11 × 11 taps of σ = 1.5 pixels, the window cut at the image border
+/// (`metrics::ssim`): 11 × 11 taps of σ = 1.5 pixels, the window cut at the image border
 /// and renormalised over the pixels it keeps.
 #[allow(clippy::large_enum_variant)] // one short-lived value per loss evaluation
 enum SsimWindow {
@@ -212,7 +212,7 @@ impl SsimWindow {
 
 /// The structural loss (an option, not in the paper): 1 − SSIM between a rendered image and its
 /// ground truth (`[B, 3, H, W]`, linear), both through [`display`] at the truth's exposure, the
-/// SSIM map of `eval::metrics::ssim` (same window, constants and border rule) averaged over each
+/// SSIM map of `metrics::ssim` (same window, constants and border rule) averaged over each
 /// image's object pixels (`mask`, `[B, 1, H, W]`) and channels, then over the batch. In [0, 2];
 /// 0 for identical images and for an image without object pixels (the metric's "nothing wrong").
 ///

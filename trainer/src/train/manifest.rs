@@ -2,8 +2,8 @@
 //! Field reference: `manifests/README.md` (section "Training manifests"). Errors name the file,
 //! the line and the field, before any work starts.
 
-use super::network::NetConfig;
 use super::step::{LossWeights, RenderWith, StageKind};
+use crate::model::network::NetConfig;
 use crate::model::vgg16::Layer;
 use crate::model::{Init, Widths};
 use matedit_datagen::dataset::manifest::{ManifestError, expand_vars};

@@ -5,7 +5,6 @@ pub mod batch;
 pub mod checkpoint;
 pub mod loss;
 pub mod manifest;
-pub mod network;
 pub mod perceptual;
 pub mod plot;
 pub mod run;

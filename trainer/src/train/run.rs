@@ -11,10 +11,10 @@
 use super::batch::HostBatch;
 use super::checkpoint::{self, State};
 use super::manifest::TrainPlan;
-use super::network::Net;
 use super::perceptual::Perceptual;
 use super::step::{Losses, StepContext, StepKind, train_step};
 use crate::data::{Dataset, Epochs, Loader, LoaderConfig, OnCorrupt};
+use crate::model::network::Net;
 use crate::render::RenderingLayer;
 use anyhow::{Context, Result, bail};
 use burn::module::Module;

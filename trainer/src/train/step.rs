@@ -4,8 +4,8 @@
 
 use super::batch::{HostBatch, TensorBatch};
 use super::loss::{illumination_loss, material_loss, normal_loss, ssim_loss};
-use super::network::Net;
 use super::perceptual::Perceptual;
+use crate::model::network::Net;
 use crate::render::RenderingLayer;
 use crate::render::op::{Rendered, host};
 use anyhow::{Context, Result};
@@ -198,25 +198,6 @@ fn scalar(t: &Tensor<1>) -> f64 {
     host(t).first().copied().unwrap_or(f32::NAN) as f64
 }
 
-/// The predictions of a step.
-pub struct Predictions {
-    /// n'.
-    pub normals: Tensor<4>,
-    /// m'.
-    pub materials: Tensor<3>,
-    /// L' (`None` when the illumination module was not run).
-    pub env: Option<Tensor<4>>,
-}
-
-/// Predicts n', m' and, with `with_light`, L' for a batch.
-pub fn predict(net: &Net, b: &TensorBatch, with_light: bool) -> Predictions {
-    Predictions {
-        normals: net.normal.forward(b.input.clone(), b.mask.clone()),
-        materials: net.material.forward(b.input.clone(), b.region_masks.clone()),
-        env: with_light.then(|| net.illumination.forward(b.input.clone(), b.mask.clone())),
-    }
-}
-
 /// One step: forward, losses, backward (through the fused rendering layer's VJP), Adam update.
 pub fn train_step(
     net: Net,
@@ -234,7 +215,7 @@ pub fn train_step(
     let rw = step.render_with;
     let direct_light = w.illumination > 0.0;
     let light = (step.joint() && rw.illumination.reads_prediction()) || direct_light;
-    let p = predict(&net, &b, light);
+    let p = net.predict(&b.input, &b.mask, &b.region_masks, light);
     let ln = normal_loss(p.normals.clone(), b.normals.clone(), b.mask.clone());
     let lm = material_loss(p.materials.clone(), b.materials.clone());
     let mut losses = Losses {

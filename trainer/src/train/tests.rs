@@ -1,11 +1,11 @@
 //! Training steps on synthetic batches: finite, decreasing on a fixed batch, reproducible.
 
 use super::batch::HostBatch;
-use super::network::{Net, NetConfig};
 use super::perceptual::Perceptual;
 use super::step::{LossWeights, RenderWith, Source, StageKind, StepContext, StepKind, train_step};
 use super::synthetic::sphere_batch;
 use crate::model::Widths;
+use crate::model::network::{Net, NetConfig};
 use crate::render::RenderingLayer;
 use crate::render::op::host;
 use burn::optim::AdamConfig;
@@ -141,7 +141,6 @@ fn joint_steps_through_the_rendering_layer_are_finite_and_lower_the_loss() {
 /// 108-vector per region; and extreme inputs (huge radiance, an empty mask) stay finite.
 #[test]
 fn module_outputs_have_the_papers_shapes_and_ranges() {
-    use super::step::predict;
     use burn::tensor::TensorData;
     let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
     let device = Device::flex();
@@ -170,7 +169,8 @@ fn module_outputs_have_the_papers_shapes_and_ranges() {
     for scale in [1.0f32, 1e6] {
         let mut hb = hb.clone();
         hb.input.iter_mut().for_each(|v| *v *= scale);
-        let p = predict(&net, &hb.to_device(&device), true);
+        let tb = hb.to_device(&device);
+        let p = net.predict(&tb.input, &tb.mask, &tb.region_masks, true);
         assert_eq!(p.normals.dims(), [b, 3, s, s]);
         assert_eq!(p.materials.dims(), [b, 2, matedit_physics::brdf::dsbrdf::PARAMS]);
         let env = p.env.expect("the illumination module ran");
@@ -199,7 +199,8 @@ fn module_outputs_have_the_papers_shapes_and_ranges() {
     let mut empty = hb.clone();
     empty.mask.iter_mut().for_each(|v| *v = 0.0);
     empty.region_map.iter_mut().for_each(|v| *v = 0);
-    let p = predict(&net, &empty.to_device(&device), true);
+    let tb = empty.to_device(&device);
+    let p = net.predict(&tb.input, &tb.mask, &tb.region_masks, true);
     for v in values(p.normals.into_data())
         .iter()
         .chain(&values(p.materials.into_data()))
@@ -222,7 +223,7 @@ fn gradient(x: &burn::tensor::Tensor<4>, loss: burn::tensor::Tensor<1>) -> Vec<f
         .unwrap()
 }
 
-/// The fallback's tone map follows the evaluation's (eval::metrics) where that one is not
+/// The fallback's tone map follows the evaluation's (`metrics`) where that one is not
 /// clipped, is smooth above white, and stays finite on hard inputs.
 #[test]
 fn the_fallback_tone_map_follows_the_metrics_and_stays_finite() {
@@ -364,13 +365,13 @@ fn values(t: burn::tensor::Tensor<4>) -> Vec<f64> {
         .collect()
 }
 
-/// The structural loss is 1 − the evaluation's SSIM (`eval::metrics`, itself checked against
+/// The structural loss is 1 − the evaluation's SSIM (`metrics`, itself checked against
 /// scikit-image) on the fallback's tone map: same window, border rule and object-pixel mean,
 /// per image, then averaged over the batch. At 9 × 14 the 11-tap window is cut at every border.
 #[test]
 fn the_ssim_loss_is_one_minus_the_metrics_ssim_per_image() {
     use super::loss::{display, exposure, ssim_loss};
-    use crate::eval::metrics::ssim_of_display;
+    use crate::metrics::ssim_of_display;
     let device = Device::flex();
     let (b, h, w) = (2, 9, 14);
     let n = 3 * h * w;
@@ -457,7 +458,7 @@ fn the_ssim_loss_is_zero_at_the_truth_and_finite_on_hard_images() {
 #[test]
 fn descending_the_ssim_loss_raises_the_metrics_ssim() {
     use super::loss::ssim_loss;
-    use crate::eval::metrics::ssim;
+    use crate::metrics::ssim;
     let device = Device::flex().autodiff();
     let (h, w) = (16, 16);
     let truth: Vec<f32> = noise(3 * h * w, 5).iter().map(|v| 0.05 + 0.9 * v).collect();

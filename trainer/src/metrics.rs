@@ -1,4 +1,5 @@
-//! The per-sample metrics of Sec. 4 on plain f32 slices (no Burn).
+//! The per-sample metrics of Sec. 4 on plain f32 slices (no Burn), shared by the evaluation
+//! (`eval`) and the training losses (`train::loss` follows its tone map and SSIM window).
 //!
 //! Layouts: images and normals are channel-first `[3, H, W]`, the mask is `[H, W]` with a pixel on
 //! the object when its value is > 0.5 (the loader's rule; a non-finite mask value is "off").
@@ -15,7 +16,7 @@
 //! object pixels clipped to white, where every method looks alike.
 //!
 //! An empty mask gives the "nothing wrong" values: L2 0, SSIM 1, cosine 1. The
-//! [`Metrics`](super::Metrics) accumulator skips such samples instead of averaging them in.
+//! [`Metrics`](crate::eval::Metrics) accumulator skips such samples instead of averaging them in.
 
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::brdf::dsbrdf::PARAMS;

@@ -8,7 +8,7 @@ use crate::model::normal::NormalNet;
 use crate::model::{Init, Widths};
 use burn::config::Config;
 use burn::module::Module;
-use burn::tensor::Device;
+use burn::tensor::{Device, Tensor};
 
 /// Shape of the network: input resolution, environment resolution, widths, initialisation.
 #[derive(Config, Debug, PartialEq)]
@@ -94,6 +94,34 @@ impl NetConfig {
             encoder_decoder: self
                 .encoder_decoder
                 .then(|| EncoderDecoder::new(self.input_size, &self.widths, self.init, device)),
+        }
+    }
+}
+
+/// What the network predicts for a batch.
+pub struct Predictions {
+    /// n'.
+    pub normals: Tensor<4>,
+    /// m'.
+    pub materials: Tensor<3>,
+    /// L' (`None` when the illumination module was not run).
+    pub env: Option<Tensor<4>>,
+}
+
+impl Net {
+    /// Predicts n', m' and, with `with_light`, L' from input images `[B, 3, H, W]` (linear),
+    /// their object masks `[B, 1, H, W]` and region masks `[B, R, H, W]`.
+    pub fn predict(
+        &self,
+        input: &Tensor<4>,
+        mask: &Tensor<4>,
+        region_masks: &Tensor<4>,
+        with_light: bool,
+    ) -> Predictions {
+        Predictions {
+            normals: self.normal.forward(input.clone(), mask.clone()),
+            materials: self.material.forward(input.clone(), region_masks.clone()),
+            env: with_light.then(|| self.illumination.forward(input.clone(), mask.clone())),
         }
     }
 }
