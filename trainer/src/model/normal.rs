@@ -43,13 +43,11 @@ fn upsample(x: Tensor<4>, side: usize) -> Tensor<4> {
 /// [`upsample`] as `R · x · Cᵀ` with the 1-D interpolation matrices: matrix products, whose
 /// backward every backend has. Equal to Burn's bilinear kernel up to rounding.
 fn upsample_by_products(x: Tensor<4>, side: usize) -> Tensor<4> {
-    let [b, c, h, w] = x.dims();
+    let [_, _, h, w] = x.dims();
     let device = x.device();
-    let rows = interpolation(h, side, &device).unsqueeze::<4>().expand([b, c, side, h]);
-    let cols = interpolation(w, side, &device)
-        .transpose()
-        .unsqueeze::<4>()
-        .expand([b, c, w, side]);
+    // `[1, 1, ·, ·]` matrices: matmul broadcasts them over batch and channels.
+    let rows = interpolation(h, side, &device).unsqueeze::<4>();
+    let cols = interpolation(w, side, &device).transpose().unsqueeze::<4>();
     rows.matmul(x).matmul(cols)
 }
 

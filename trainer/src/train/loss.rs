@@ -200,12 +200,12 @@ impl SsimWindow {
     fn mean(&self, x: Tensor<4>) -> Tensor<4> {
         match self {
             Self::Convolutions { row, col, kept } => Self::pass(row, col, x) / kept.clone(),
-            Self::Products { rows, cols } => {
-                let [n, _, h, w] = x.dims();
-                let rows = rows.clone().unsqueeze::<4>().expand([n, 1, h, h]);
-                let cols = cols.clone().unsqueeze::<4>().expand([n, 1, w, w]);
-                rows.matmul(x).matmul(cols)
-            }
+            // `[1, 1, ·, ·]` matrices: matmul broadcasts them over the planes.
+            Self::Products { rows, cols } => rows
+                .clone()
+                .unsqueeze::<4>()
+                .matmul(x)
+                .matmul(cols.clone().unsqueeze::<4>()),
         }
     }
 }
