@@ -14,9 +14,10 @@ installed from the registries this project reaches):
      backoffLimit, with the same metrics.jsonl as an uninterrupted run, and its log must carry
      plain progress lines.
    - datagen_k8s_job.yaml (an Indexed Job): the worker count in the command must equal
-     `completions`; shrunk to 4 indices of a small manifest, index 2 is killed mid-run and
-     retried (backoffLimitPerIndex); the joined dataset must be byte-identical to a
-     single-process run.
+     `completions`; shrunk to 4 indices of a small manifest, run all at once (parallelism), and
+     again one at a time with index 2 killed between its shards and retried
+     (backoffLimitPerIndex); both joined datasets must be byte-identical to a single-process
+     run.
 
     python3 scripts/test_k8s_jobs.py [--trainer PATH] [--datagen PATH] [--keep]
 
@@ -294,8 +295,6 @@ def datagen_job(job, datagen, root):
     words = shlex.split(script)
     image_manifest = words[words.index("run") + 1]
     (mount,) = container["volumeMounts"]
-    volume = root / "dg-volume"
-    volume.mkdir()
     manifest = root / "data-k8s.toml"
     manifest.write_text(INDEXED)
     r = subprocess.run([str(datagen), "run", str(manifest), "--out", str(root / "indexed-ref")],
@@ -303,20 +302,49 @@ def datagen_job(job, datagen, root):
     if r.returncode != 0:
         fail(f"the single-process dataset: {r.stderr[-500:]}")
     n = 4
-    paths = [(image_manifest, str(manifest)), (mount["mountPath"], str(volume)),
-             ("datagen ", f"{shlex.quote(str(datagen))} "), (f"}}/{m.group(1)}", f"}}/{n}")]
-    sh = mapped(script, paths)
-    out = pathlib.Path(re.search(r"--out\s+(\S+)", sh).group(1))
+
+    def on_volume(name):
+        """The pods' shell command with the volume at `root/name`, and the output folder."""
+        volume = root / name
+        volume.mkdir()
+        paths = [(image_manifest, str(manifest)), (mount["mountPath"], str(volume)),
+                 ("datagen ", f"{shlex.quote(str(datagen))} "), (f"}}/{m.group(1)}", f"}}/{n}")]
+        sh = mapped(script, paths)
+        return sh, pathlib.Path(re.search(r"--out\s+(\S+)", sh).group(1))
+
+    def joined_equals_reference(out, what):
+        for verb in ("join", "verify"):
+            r = subprocess.run([str(datagen), verb, str(out)], capture_output=True, text=True)
+            if r.returncode != 0:
+                fail(f"{what}: datagen {verb}: {r.stderr[-500:]}")
+        if digest(out) != digest(root / "indexed-ref"):
+            fail(f"{what}: the joined dataset differs from the single-process run")
+
+    def start(sh, index):
+        env = dict(os.environ, JOB_COMPLETION_INDEX=str(index))
+        env.update({e["name"]: e["value"] for e in container.get("env", [])})
+        log = open(root / f"datagen-{index}.log", "a")
+        return subprocess.Popen(container["command"] + [sh], env=env, stdout=log, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+
+    # All indices at once, as the Job's parallelism runs them.
+    sh, out = on_volume("dg-volume-parallel")
+    pods = [start(sh, index) for index in range(min(n, spec.get("parallelism", 1)))]
+    for index, proc in enumerate(pods):
+        proc.wait()
+        teardown(proc)
+        if proc.returncode != 0:
+            fail(f"index {index} of the parallel run exited {exit_code(proc.returncode)}")
+    joined_equals_reference(out, "all indices at once")
+
+    # One index at a time, index 2 killed between its shards and retried.
+    sh, out = on_volume("dg-volume")
     limit = spec.get("backoffLimitPerIndex")
     if limit is None or limit < 1:
         fail("the datagen Job retries no index (backoffLimitPerIndex)")
 
     def pod(index, kill=False):
-        env = dict(os.environ, JOB_COMPLETION_INDEX=str(index))
-        env.update({e["name"]: e["value"] for e in container.get("env", [])})
-        log = open(root / f"datagen-{index}.log", "a")
-        proc = subprocess.Popen(container["command"] + [sh], env=env, stdout=log, stderr=subprocess.STDOUT,
-                                start_new_session=True)
+        proc = start(sh, index)
         if kill:
             # Killed once it has completed one shard of its own, before the next.
             done = len(list(out.glob("shards/*/shard.json")))
@@ -337,16 +365,9 @@ def datagen_job(job, datagen, root):
             code = pod(index)
     if failures != {2: 1}:
         fail(f"expected index 2 to fail once and be retried, got {failures}")
-    r = subprocess.run([str(datagen), "join", str(out)], capture_output=True, text=True)
-    if r.returncode != 0:
-        fail(f"datagen join: {r.stderr[-500:]}")
-    r = subprocess.run([str(datagen), "verify", str(out)], capture_output=True, text=True)
-    if r.returncode != 0:
-        fail(f"datagen verify: {r.stderr[-500:]}")
-    if digest(out) != digest(root / "indexed-ref"):
-        fail("the Indexed Job's joined dataset differs from the single-process run")
-    say(f"datagen Indexed Job: {n} indices, index 2 killed after its first shard and retried, joined dataset "
-        "byte-identical to a single-process run")
+    joined_equals_reference(out, "index 2 killed and retried")
+    say(f"datagen Indexed Job: {n} indices all at once, and one at a time with index 2 killed after its "
+        "first shard and retried: both joined datasets byte-identical to a single-process run")
 
 
 def main():

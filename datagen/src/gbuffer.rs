@@ -6,7 +6,7 @@ use crate::shapes::{Mesh, Shape};
 use glam::{Mat3, Vec3};
 use matedit_physics::camera::pixel_center;
 use rayon::prelude::*;
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, OnceLock, RwLock};
 
 /// Per-pixel geometry of an `res × res` view, row-major from the top row.
 #[derive(Clone, Debug)]
@@ -114,7 +114,7 @@ pub struct SharedVisibility<'a> {
     /// One table per distinct direction set (a measured material's exact shader keeps the
     /// zero-radiance texels that the fast shader drops): per pixel, one bit per direction, set
     /// where the direction is open.
-    tables: Mutex<Vec<Arc<VisibilityTable>>>,
+    tables: RwLock<Vec<Arc<VisibilityTable>>>,
 }
 
 struct VisibilityTable {
@@ -129,7 +129,7 @@ impl<'a> SharedVisibility<'a> {
             g,
             scene,
             to_object,
-            tables: Mutex::new(Vec::new()),
+            tables: RwLock::new(Vec::new()),
         }
     }
 
@@ -151,11 +151,22 @@ impl<'a> SharedVisibility<'a> {
         }
     }
 
-    /// The table of `dirs`, made on first sight. Directions are compared by value: each shader
-    /// owns its own copy.
+    /// The table of `dirs`, made on first sight. Directions are compared by value, bit for bit
+    /// (each shader owns its own copy), under a shared lock: pixels look up concurrently.
     fn table(&self, dirs: &[[f32; 3]]) -> Arc<VisibilityTable> {
-        let mut tables = self.tables.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(t) = tables.iter().find(|t| t.dirs.as_slice() == dirs) {
+        let same = |t: &&Arc<VisibilityTable>| {
+            t.dirs.len() == dirs.len()
+                && t.dirs
+                    .iter()
+                    .flatten()
+                    .zip(dirs.iter().flatten())
+                    .all(|(a, b)| a.to_bits() == b.to_bits())
+        };
+        if let Some(t) = self.tables.read().unwrap_or_else(|e| e.into_inner()).iter().find(same) {
+            return t.clone();
+        }
+        let mut tables = self.tables.write().unwrap_or_else(|e| e.into_inner());
+        if let Some(t) = tables.iter().find(same) {
             return t.clone();
         }
         let t = Arc::new(VisibilityTable {
@@ -250,7 +261,7 @@ mod tests {
             }
         }
         assert!(blocked > 0, "the chair shadows some directions");
-        assert_eq!(shared.tables.lock().unwrap().len(), 2, "one table per direction set");
+        assert_eq!(shared.tables.read().unwrap().len(), 2, "one table per direction set");
     }
 
     #[test]

@@ -75,14 +75,15 @@ impl DeviceRendering {
 /// missing or wrong there (the normal module's upsampling, the SSIM window) take a formulation
 /// that runs correctly on it; the host keeps Burn's own, bit for bit.
 pub fn on_cube(device: &burn::tensor::Device) -> bool {
-    #[cfg(feature = "wgpu")]
+    // CUDA is a CubeCL device too (its build is not possible on the development machine: README).
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
     {
         matches!(
             device.clone().inner().as_dispatch(),
             burn::backend::DispatchDevice::Cube(_)
         )
     }
-    #[cfg(not(feature = "wgpu"))]
+    #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
     {
         let _ = device;
         false
