@@ -4,10 +4,11 @@
 
 mod common;
 
-use matedit_datagen::dataset::run::{RunOptions, Worker, load, run};
-use matedit_datagen::dataset::verify::verify;
+use matedit_contract::io::read_exr_channels;
+use matedit_contract::lock::Worker;
+use matedit_contract::verify::verify;
+use matedit_datagen::dataset::run::{RunOptions, load, run};
 use matedit_datagen::gbuffer::GBuffer;
-use matedit_datagen::io::read_exr_channels;
 use matedit_datagen::shapes::{Shape, UpAxis};
 use serde_json::Value;
 use std::collections::{BTreeMap, BTreeSet};

@@ -4,7 +4,7 @@
 
 mod common;
 use common::*;
-use matedit_datagen::io::load_env;
+use matedit_assets::envfile::load_env;
 use matedit_datagen::render::{EnvRes, RenderOptions, Shadows, render};
 use matedit_physics::shading::Quality;
 use std::path::{Path, PathBuf};

@@ -11,9 +11,10 @@
 mod fuzz;
 
 use fuzz::{Counting, Reader, Verdict, copy_tree, dataset, eval_assets, fuzz, radiance, seed_file};
+use matedit_assets::envfile::load_env;
+use matedit_contract::io::{encode_env_exr, encode_exr_channels, read_exr_channels};
+use matedit_contract::verify::verify;
 use matedit_datagen::dataset::run::load as load_manifest;
-use matedit_datagen::dataset::verify::verify;
-use matedit_datagen::io::{encode_env_exr, encode_exr_channels, load_env, read_exr_channels};
 use matedit_datagen::shapes::{Shape, UpAxis};
 use matedit_physics::EnvMap;
 use matedit_physics::brdf::{Dsbrdf, Lambert, MerlBrdf};

@@ -9,7 +9,7 @@
 mod common;
 use common::rel_rmse;
 use glam::DVec3;
-use matedit_datagen::assets::envmaps::builtin;
+use matedit_assets::envmaps::builtin;
 use matedit_physics::EnvMap;
 use matedit_physics::brdf::merl::MerlLookup;
 use matedit_physics::brdf::{Brdf, BrdfModel, Fresnel, Ggx, Lambert, MerlBrdf};

@@ -3,7 +3,7 @@
 
 mod common;
 use glam::DVec3;
-use matedit_datagen::assets::envmaps::builtin;
+use matedit_assets::envmaps::builtin;
 use matedit_physics::EnvMap;
 use matedit_physics::brdf::dsbrdf::{GAMMA_RANGE, KAPPA_RANGE};
 use matedit_physics::brdf::{BrdfModel, Dsbrdf, Fresnel, Ggx, Lambert, Plastic};

@@ -1,10 +1,12 @@
 //! Split integrity by content: the same geometry, material or environment under other names must
 //! never sit on both sides of a split, whatever the manifest's sources call it.
 
+use matedit_contract::io::write_env_exr;
+use matedit_contract::lock::Worker;
+use matedit_contract::verify::verify;
 use matedit_datagen::dataset::content::{NEAR_DUPLICATE_L1, descriptor_distance, mesh_descriptor};
-use matedit_datagen::dataset::run::{RunOptions, Worker, describe, load, run};
-use matedit_datagen::dataset::verify::{verify, verify_sources};
-use matedit_datagen::io::write_env_exr;
+use matedit_datagen::dataset::run::{RunOptions, describe, load, run};
+use matedit_datagen::dataset::verify::verify_sources;
 use matedit_datagen::shapes::Mesh;
 use matedit_datagen::shapes::procedural::Category;
 use matedit_physics::brdf::Dsbrdf;

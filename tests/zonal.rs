@@ -6,7 +6,7 @@
 mod common;
 use common::*;
 use glam::DVec3;
-use matedit_datagen::assets::envmaps::builtin;
+use matedit_assets::envmaps::builtin;
 use matedit_physics::EnvMap;
 use matedit_physics::brdf::dsbrdf::{GAMMA_RANGE, KAPPA_RANGE};
 use matedit_physics::brdf::{BrdfModel, Dsbrdf, Fresnel, Ggx, Lambert, Plastic};
@@ -281,7 +281,7 @@ fn range_materials(count: usize) -> Vec<(String, BrdfModel)> {
 /// Maps with a sun or sharp-edged lights at the factory's 64×128: the bench's procedural
 /// families and, where the eval assets are present, real HDRIs (a sunny park, a studio).
 fn hard_maps() -> Vec<(String, EnvMap)> {
-    use matedit_datagen::assets::envmaps::Family;
+    use matedit_assets::envmaps::Family;
     let mut maps: Vec<(String, EnvMap)> = [(Family::SunSky, 1), (Family::Softbox, 2), (Family::Window, 3)]
         .iter()
         .map(|&(f, s)| (format!("{}:{s}", f.name()), f.generate(s, 64)))
@@ -290,7 +290,7 @@ fn hard_maps() -> Vec<(String, EnvMap)> {
         Some(dir) => {
             for name in ["rooitou_park_1k", "studio_small_03_1k"] {
                 let path = dir.join("envmaps").join(format!("{name}.hdr"));
-                let (map, _) = matedit_datagen::io::load_env(&path.display().to_string()).expect("eval asset");
+                let (map, _) = matedit_assets::envfile::load_env(&path.display().to_string()).expect("eval asset");
                 let map = map.resampled(128, 0.0);
                 // Turned 40° and, with its sun behind the object (rooitou_park's sun at 130°
                 // lights only a crescent), 130°.

@@ -5,14 +5,14 @@
 //!
 //! `cargo run --release -p matedit-datagen --example zonal_cost -- DIR`, DIR from
 //! `datagen assets materials --out DIR`.
-use matedit_datagen::assets::envmaps::Family;
+use matedit_assets::envmaps::Family;
 use matedit_physics::BrdfModel;
 use matedit_physics::shading::zonal::{PolarNormals, ZonalEnv, ZonalKernel, shade_image_zonal};
 use std::path::PathBuf;
 use std::time::Instant;
 
 fn main() {
-    use matedit_datagen::materials::{cache, library};
+    use matedit_assets::materials::{cache, library};
     let Some(dir) = std::env::args().nth(1).map(PathBuf::from) else {
         eprintln!("usage: zonal_cost DIR (fitted library from `datagen assets materials --out DIR`)");
         std::process::exit(2);

@@ -19,8 +19,8 @@
 //! worst probe error), `--sun-share` (the share
 //! of each map's power in its brightest texel).
 
-use matedit_datagen::assets::envmaps::Family;
-use matedit_datagen::io::load_env;
+use matedit_assets::envfile::load_env;
+use matedit_assets::envmaps::Family;
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::brdf::dsbrdf::{KNOTS, LobeParam, PARAMS, param_index};
 use matedit_physics::envmap::texel_solid_angle;
@@ -179,7 +179,7 @@ fn main() {
         return;
     }
     if let Some(dir) = flag("--library") {
-        use matedit_datagen::materials::{cache, library};
+        use matedit_assets::materials::{cache, library};
         let dir = PathBuf::from(dir);
         let lib: Vec<(String, String, BrdfModel)> = library::library()
             .into_iter()

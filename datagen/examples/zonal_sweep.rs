@@ -11,8 +11,8 @@
 //! the median kernel build time and size per material. `--per-material` prints the default
 //! setting's figures per material instead.
 
-use matedit_datagen::assets::envmaps::Family;
-use matedit_datagen::materials::{cache, library};
+use matedit_assets::envmaps::Family;
+use matedit_assets::materials::{cache, library};
 use matedit_physics::shading::zonal::{PolarNormals, ZonalEnv, ZonalKernel, ZonalParams, shade_image_zonal};
 use matedit_physics::shading::{Quality, make_shader, shade_image};
 use matedit_physics::{BrdfModel, EnvMap};

@@ -6,21 +6,18 @@
 //!   unit ball, with angle-weighted vertex normals where a file has none;
 //! * [`accel`]: the obvhs BVH for primary visibility and shadow rays;
 //! * [`gbuffer`]: per-pixel camera-space normals, mask and hit points of the orthographic view;
-//! * [`assets`]: embedded default data (procedural environment maps);
-//! * [`io`]: environment-map loading (.hdr, .exr), EXR and PNG writing, all writes atomic;
 //! * [`render`]: the one-scene preview renderer behind `datagen render`;
 //! * [`dataset`]: the manifest-driven dataset factory behind `datagen plan/run/verify/inspect/join`.
 //!
-//! The image formation itself (Eq. 2, BRDFs, environment maps) lives in `matedit-physics`.
+//! The image formation itself (Eq. 2, BRDFs, environment maps) lives in `matedit-physics`;
+//! what a dataset is on disk (records, layout, checker, file formats, locks) in
+//! `matedit-contract` (`datagen/contract`); the procedural environment maps and the material
+//! library with its fits in `matedit-assets` (`datagen/assets`).
 
 #![warn(missing_docs)]
 
 pub mod accel;
-pub mod assets;
 pub mod dataset;
 pub mod gbuffer;
-pub mod io;
-pub mod materials;
-pub mod progress;
 pub mod render;
 pub mod shapes;

@@ -2,8 +2,8 @@
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
+use matedit_contract::lock::Worker;
 use matedit_datagen::accel::Accel;
-use matedit_datagen::dataset::run::Worker;
 use matedit_datagen::render::{EnvRes, RenderOptions, Shadows, render};
 use matedit_datagen::shapes::UpAxis;
 use matedit_physics::BrdfSpec;
@@ -176,9 +176,9 @@ fn report_set(paths: &[PathBuf], out: &std::path::Path, sheet: &str) {
 }
 
 fn run_fit(spec: BrdfSpec, out: PathBuf) -> Result<()> {
-    let source = matedit_datagen::materials::cache::resolve(&spec, &matedit_datagen::materials::cache::default_dir())?;
+    let source = matedit_assets::materials::cache::resolve(&spec, &matedit_assets::materials::cache::default_dir())?;
     let t = std::time::Instant::now();
-    let (m, report) = matedit_datagen::materials::fit::fit_and_report(&source);
+    let (m, report) = matedit_assets::materials::fit::fit_and_report(&source);
     let rendered: Vec<String> = report
         .rendered
         .iter()
@@ -190,14 +190,14 @@ fn run_fit(spec: BrdfSpec, out: PathBuf) -> Result<()> {
         report.brdf_log_rmse,
         rendered.join(", ")
     );
-    matedit_datagen::io::write_atomically(&out, |tmp| Ok(std::fs::write(tmp, m.to_json())?))?;
+    matedit_contract::io::write_atomically(&out, |tmp| Ok(std::fs::write(tmp, m.to_json())?))?;
     let json = serde_json::json!({
         "source": format!("{spec:?}"),
         "brdf_log_rmse": report.brdf_log_rmse,
         "rendered_rel_rmse": report.rendered.iter().map(|(e, v)| (e.clone(), *v)).collect::<std::collections::BTreeMap<_, _>>(),
     });
     let report_path = out.with_extension("fit.json");
-    matedit_datagen::io::write_atomically(&report_path, |tmp| Ok(std::fs::write(tmp, format!("{json:#}\n"))?))?;
+    matedit_contract::io::write_atomically(&report_path, |tmp| Ok(std::fs::write(tmp, format!("{json:#}\n"))?))?;
     eprintln!("wrote {} and {}", out.display(), report_path.display());
     Ok(())
 }
@@ -221,7 +221,7 @@ fn run_assets(c: AssetsCommand) -> Result<()> {
             eprintln!("{} shapes", entries.len());
         }
         AssetsCommand::Materials { out, list } => {
-            use matedit_datagen::materials::{cache, library};
+            use matedit_assets::materials::{cache, library};
             if list {
                 for m in library::library() {
                     println!("{}\t{}\t{}\t{:?}", m.name, m.family, m.group, m.split());
@@ -230,7 +230,7 @@ fn run_assets(c: AssetsCommand) -> Result<()> {
             }
             let dir = out.unwrap_or_else(cache::default_dir);
             let lib = library::library();
-            let bar = matedit_datagen::progress::Progress::new(
+            let bar = matedit_contract::progress::Progress::new(
                 true,
                 lib.len() as u64,
                 "fitting",
@@ -249,14 +249,14 @@ fn run_assets(c: AssetsCommand) -> Result<()> {
             );
         }
         AssetsCommand::Shapes { set } => {
-            let paths = matedit_datagen::assets::shapes::write_category_set(&set.out, set.count, set.seed)?;
+            let paths = matedit_datagen::shapes::sets::write_category_set(&set.out, set.count, set.seed)?;
             report_set(&paths, &set.out, "shapes.png");
         }
         AssetsCommand::Envmaps { set, height } => {
             if height == 0 || height > 8192 {
                 anyhow::bail!("--height {height}: expected 1 to 8192 rows");
             }
-            let paths = matedit_datagen::assets::envmaps::write_family_set(&set.out, set.count, set.seed, height)?;
+            let paths = matedit_assets::envmaps::write_family_set(&set.out, set.count, set.seed, height)?;
             report_set(&paths, &set.out, "envmaps.png");
         }
     }
@@ -455,7 +455,7 @@ mod dataset {
     }
 
     pub fn verify(dir: &std::path::Path, sources: Option<&std::path::Path>) -> ExitCode {
-        let report = v::verify(dir).and_then(|mut rep| {
+        let report = matedit_contract::verify::verify(dir).and_then(|mut rep| {
             if let Some(m) = sources {
                 rep.problems.extend(v::verify_sources(dir, m)?);
             }

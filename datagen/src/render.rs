@@ -2,10 +2,11 @@
 
 use crate::accel::Scene;
 use crate::gbuffer::GBuffer;
-use crate::io::{EnvSource, load_env, write_env_exr, write_exr_channels, write_png_preview};
 use crate::shapes::{Shape, UpAxis};
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
+use matedit_assets::envfile::{EnvSource, load_env};
+use matedit_contract::io::{write_env_exr, write_exr_channels, write_png_preview};
 use matedit_physics::shading::{Quality, VisibilityFn, make_shader, shade_image, shade_with};
 use matedit_physics::{BrdfSpec, EnvMap};
 use std::path::Path;
@@ -138,7 +139,7 @@ pub fn render(opts: &RenderOptions) -> Result<Rendered> {
         bail!("--env-rotation must be finite");
     }
     let t0 = Instant::now();
-    let brdf = crate::materials::cache::resolve(&opts.brdf, &crate::materials::cache::default_dir())?;
+    let brdf = matedit_assets::materials::cache::resolve(&opts.brdf, &matedit_assets::materials::cache::default_dir())?;
     let (src, env_source) = load_env(&opts.env)?;
     let rows = match opts.env_res {
         EnvRes::Full => src.height(),

@@ -38,7 +38,7 @@ fn render_writes_an_exr_with_radiance_normals_and_mask_and_a_png() {
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let (w, h, ch) = matedit_datagen::io::read_exr_channels(&exr).unwrap();
+    let (w, h, ch) = matedit_contract::io::read_exr_channels(&exr).unwrap();
     assert_eq!((w, h), (32, 32));
     for name in ["R", "G", "B", "normal.X", "normal.Y", "normal.Z", "mask", "region"] {
         assert!(ch.contains_key(name), "missing channel {name}");
@@ -48,7 +48,7 @@ fn render_writes_an_exr_with_radiance_normals_and_mask_and_a_png() {
     assert!(covered > 700 && covered < 820, "{covered}");
     let img = image::open(&png).unwrap();
     assert_eq!((img.width(), img.height()), (32, 32));
-    let (ew, eh, _) = matedit_datagen::io::read_exr_channels(&env).unwrap();
+    let (ew, eh, _) = matedit_contract::io::read_exr_channels(&env).unwrap();
     assert_eq!((ew, eh), (128, 64));
     let log = String::from_utf8_lossy(&out.stderr);
     assert!(log.contains("time:") && log.contains("wrote"), "{log}");
@@ -127,7 +127,7 @@ fn a_dsbrdf_material_file_renders_and_nan_in_an_hdr_is_refused_by_name() {
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let (_, _, ch) = matedit_datagen::io::read_exr_channels(&d.join("m.exr")).unwrap();
+    let (_, _, ch) = matedit_contract::io::read_exr_channels(&d.join("m.exr")).unwrap();
     let centre = 8 * 16 + 8;
     assert!((ch["R"][centre] - 0.5).abs() < 0.01, "{}", ch["R"][centre]);
 
@@ -181,7 +181,7 @@ fn assets_envmaps_writes_deterministic_exrs_and_a_contact_sheet() {
         "softbox_6.exr",
         "window_5.exr",
     ] {
-        let (w, h, ch) = matedit_datagen::io::read_exr_channels(&a.join(name)).unwrap();
+        let (w, h, ch) = matedit_contract::io::read_exr_channels(&a.join(name)).unwrap();
         assert_eq!((w, h), (64, 32));
         assert!(ch["R"].iter().all(|v| v.is_finite() && *v >= 0.0));
         assert_eq!(
@@ -243,7 +243,7 @@ fn assets_shapes_writes_region_tagged_objs_that_render() {
     let log = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{log}");
     assert!(log.contains("regions: 0=frame, 1=cushions"), "{log}");
-    let (_, _, ch) = matedit_datagen::io::read_exr_channels(&d.join("sofa.exr")).unwrap();
+    let (_, _, ch) = matedit_contract::io::read_exr_channels(&d.join("sofa.exr")).unwrap();
     let seen: std::collections::BTreeSet<u32> = ch["region"]
         .iter()
         .zip(&ch["mask"])
@@ -319,7 +319,7 @@ fn every_quality_renders_and_the_table_qualities_stay_close_to_fast() {
             "{quality}: {}",
             String::from_utf8_lossy(&out.stderr)
         );
-        let (_, _, ch) = matedit_datagen::io::read_exr_channels(&exr).unwrap();
+        let (_, _, ch) = matedit_contract::io::read_exr_channels(&exr).unwrap();
         ["R", "G", "B"]
             .iter()
             .flat_map(|c| ch[*c].clone())

@@ -2,10 +2,11 @@
 //! environments, the same dataset always gives the same sheet, and the sheet names its columns
 //! and captions its rows.
 
+use matedit_contract::io::SheetLabels;
+use matedit_contract::lock::Worker;
+use matedit_contract::records::SampleRecord;
 use matedit_datagen::dataset::inspect::{COLUMNS, TILE, caption, inspect, pick};
-use matedit_datagen::dataset::run::{RunOptions, Worker, load, run};
-use matedit_datagen::dataset::sample::SampleRecord;
-use matedit_datagen::io::SheetLabels;
+use matedit_datagen::dataset::run::{RunOptions, load, run};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 

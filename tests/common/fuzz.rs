@@ -729,7 +729,7 @@ materials = 2
             &l,
             &matedit_datagen::dataset::run::RunOptions {
                 out: Some(out.clone()),
-                worker: matedit_datagen::dataset::run::Worker::ALL,
+                worker: matedit_contract::lock::Worker::ALL,
                 progress: false,
             },
         )

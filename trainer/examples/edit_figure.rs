@@ -3,7 +3,7 @@
 //! `cargo run --release -p matedit-trainer --example edit_figure -- OUT.png|OUT.jpg "COL1,COL2,..." ROW...`
 //! where each ROW is the comma-separated image files of one row (see `scripts/edit_cars.sh`).
 use anyhow::{Context, Result, bail};
-use matedit_datagen::io::{SheetLabels, contact_sheet, write_atomically, write_labelled_contact_sheet};
+use matedit_contract::io::{SheetLabels, contact_sheet, write_atomically, write_labelled_contact_sheet};
 
 /// Tile size: photos are letterboxed into it.
 const TILE: (usize, usize) = (320, 240);

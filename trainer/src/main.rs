@@ -158,7 +158,7 @@ fn eval_to(checkpoints: &[PathBuf], opts: &EvalOptions, out: &std::path::Path) -
     matedit_trainer::eval::run::write_report(&report, out)?;
     let md = report.markdown();
     let md_path = out.with_extension("md");
-    matedit_datagen::io::write_atomically(&md_path, |p| Ok(std::fs::write(p, &md)?))?;
+    matedit_contract::io::write_atomically(&md_path, |p| Ok(std::fs::write(p, &md)?))?;
     println!("{md}");
     if let Some(last) = report.checkpoints.last() {
         match report.beats_baselines(&last.name) {

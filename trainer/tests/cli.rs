@@ -3,7 +3,8 @@
 //! a killed or signalled run resumes to the same loss sequence and metrics as an uninterrupted one, and
 //! refusals name their cause.
 
-use matedit_datagen::dataset::run::{RunOptions, Worker, load as load_manifest, run};
+use matedit_contract::lock::Worker;
+use matedit_datagen::dataset::run::{RunOptions, load as load_manifest, run};
 use matedit_physics::brdf::Dsbrdf;
 use serde_json::Value;
 use std::path::{Path, PathBuf};

@@ -6,7 +6,8 @@
 //! The dataset goes through the trainer's own reader (checksums, EXR decoding, the material
 //! table's normalised parameters), so this is the path training takes.
 
-use matedit_datagen::dataset::run::{RunOptions, Worker, load as load_manifest, run};
+use matedit_contract::lock::Worker;
+use matedit_datagen::dataset::run::{RunOptions, load as load_manifest, run};
 use matedit_physics::brdf::Dsbrdf;
 use matedit_trainer::data::{Dataset, Loader, LoaderConfig};
 use matedit_trainer::render::{Batch, RenderingLayer};

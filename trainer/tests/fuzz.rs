@@ -263,7 +263,7 @@ fn photos_hdr() {
 fn photos_exr() {
     let n = 24 * 16;
     let ch = |k: f32| (0..n).map(|i| (i as f32 * k).sin().abs()).collect::<Vec<f32>>();
-    let bytes = matedit_datagen::io::encode_exr_channels(
+    let bytes = matedit_contract::io::encode_exr_channels(
         24,
         16,
         vec![("R", ch(0.1)), ("G", ch(0.2)), ("B", ch(0.3)), ("A", ch(0.05))],

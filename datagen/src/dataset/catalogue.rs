@@ -2,13 +2,14 @@
 //! a stable id, sorted by id. Ids name things inside their source, never where it is mounted,
 //! so two machines build identical datasets from the same manifest.
 
-use super::content::Merge;
-use super::manifest::{EnvSourceToml, ManifestError, ManifestFile, MaterialSourceToml, ShapeSourceToml};
-use crate::assets::envmaps::Family;
-use crate::materials::library::library;
+use super::manifest::{EnvSourceToml, ManifestFile, MaterialSourceToml, ShapeSourceToml};
 use crate::shapes::UpAxis;
 use crate::shapes::procedural::Category;
 use crate::shapes::sources;
+use matedit_assets::envmaps::Family;
+use matedit_assets::materials::library::library;
+use matedit_contract::manifest::ManifestError;
+use matedit_contract::records::Merge;
 use matedit_physics::BrdfSpec;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -65,7 +66,7 @@ pub struct MaterialItem {
 pub struct EnvItem {
     /// Stable id (`builtin:sunsky:3`, `file:NAME`).
     pub id: String,
-    /// What [`load_env`](crate::io::load_env) accepts.
+    /// What [`load_env`](matedit_assets::envfile::load_env) accepts.
     pub spec: String,
     /// Content group (the id of its first member): identical pixels go to the same split.
     pub group: String,

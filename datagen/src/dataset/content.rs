@@ -35,13 +35,14 @@
 //! * **Environments**, only when splits deal them: the decoded texels (size and f32 bits).
 
 use super::catalogue::{Catalogue, MaterialSource};
-use super::manifest::{ManifestError, ManifestFile};
+use super::manifest::ManifestFile;
 use crate::shapes::{Mesh, Shape, UpAxis};
+use matedit_contract::manifest::ManifestError;
+use matedit_contract::records::Merge;
 use matedit_physics::BrdfSpec;
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::envmap::EnvMap;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
 /// Names the fingerprint definitions recorded in `dataset.json`; a change of any definition
@@ -58,19 +59,6 @@ pub const DESCRIPTOR_CELLS: usize = 16;
 
 /// L1 distance below which two shapes of a category are near-duplicates.
 pub const NEAR_DUPLICATE_L1: f64 = 0.03;
-
-/// One merge the content analysis made: `ids[1..]` joined the group of `ids[0]`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Merge {
-    /// `shape`, `material` or `environment`.
-    pub kind: String,
-    /// The ids, the group's first member first.
-    pub ids: Vec<String>,
-    /// `identical geometry`, `near-duplicate geometry (L1 0.012)`, `identical parameters`,
-    /// `identical pixels`.
-    pub reason: String,
-}
 
 /// `blake3:HEX` of the shape fingerprint of a loaded (normalised) mesh.
 pub fn mesh_fingerprint(mesh: &Mesh) -> String {
@@ -431,7 +419,7 @@ pub fn analyse(mf: &ManifestFile, cat: &mut Catalogue, envs_dealt: bool) -> Resu
             .envs
             .par_iter()
             .map(|e| {
-                crate::io::load_env(&e.spec)
+                matedit_assets::envfile::load_env(&e.spec)
                     .map(|(map, _)| env_fingerprint(&map))
                     .map_err(|err| format!("{err:#}"))
             })

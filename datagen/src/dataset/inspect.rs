@@ -4,10 +4,11 @@
 //! ([`pick`]): the index is ordered shape, material, environment, view, so every k-th sample tends
 //! to repeat one environment.
 
-use super::sample::SampleRecord;
-use crate::assets::envmaps::thumbnail;
-use crate::io::{SheetLabels, load_env, normal_to_u8, read_exr_channels, write_labelled_contact_sheet};
 use anyhow::{Context, Result, bail};
+use matedit_assets::envfile::load_env;
+use matedit_assets::envmaps::thumbnail;
+use matedit_contract::io::{SheetLabels, normal_to_u8, read_exr_channels, write_labelled_contact_sheet};
+use matedit_contract::records::SampleRecord;
 use matedit_physics::tonemap::tonemap_u8;
 use std::collections::HashMap;
 use std::path::Path;

@@ -8,10 +8,10 @@
 
 use super::catalogue::{MaterialItem, MaterialSource};
 use super::plan::GroundTruth;
-use crate::io::write_atomically;
-use crate::materials::cache::FIT_VERSION;
-use crate::materials::fit::fit_dsbrdf;
 use anyhow::{Context, Result};
+use matedit_assets::materials::cache::FIT_VERSION;
+use matedit_assets::materials::fit::fit_dsbrdf;
+use matedit_contract::io::write_atomically;
 use matedit_physics::BrdfModel;
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::brdf::MerlBrdf;

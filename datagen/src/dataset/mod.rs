@@ -8,10 +8,11 @@
 //!   samples and shards;
 //! * [`materials`]: fitted 108-parameter labels and the BRDFs that render them;
 //! * [`sample`]: one training tuple (I, O, normals, mask, regions, environment);
-//! * [`store`]: the layout on disk, atomic shards, `index.jsonl`, `dataset.json`, joining
-//!   workers;
+//! * [`store`]: atomic shards, `index.jsonl`, `dataset.json`, joining workers (the layout,
+//!   the records and their readers are the contract: `matedit_contract::{layout, records}`);
 //! * [`run`]: `plan` and `run` (locking, resuming, workers);
-//! * [`verify`] and [`inspect`]: checking and looking at a finished dataset;
+//! * [`verify`] and [`inspect`]: a dataset's content against its sources (the checks that need
+//!   only the files are `matedit_contract::verify`), and looking at a finished dataset;
 //! * [`bench`]: speed against error of the shading options on a manifest's samples.
 
 pub mod bench;

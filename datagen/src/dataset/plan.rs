@@ -13,10 +13,11 @@
 //! catalogue without duplicates gets the same deal as before fingerprints existed.
 
 use super::catalogue::Catalogue;
-use super::manifest::{ManifestError, ManifestFile};
+use super::manifest::ManifestFile;
 use crate::accel::Accel;
-use crate::assets::random::Draw;
 use crate::render::Shadows;
+use matedit_assets::random::Draw;
+use matedit_contract::manifest::ManifestError;
 use matedit_physics::shading::Quality;
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};

@@ -17,61 +17,21 @@ use super::catalogue::ShapeItem;
 use super::materials::MaterialEntry;
 use super::plan::{Plan, RotationMode, SplitPlan};
 use crate::accel::Scene;
-use crate::assets::random::Draw;
 use crate::gbuffer::{GBuffer, SharedVisibility};
-use crate::io::{encode_env_exr, encode_exr_channels, load_env};
 use crate::render::Shadows;
 use crate::shapes::{Mesh, Shape};
 use anyhow::{Context, Result};
 use glam::Mat3;
+use matedit_assets::envfile::load_env;
+use matedit_assets::random::Draw;
+use matedit_contract::io::{encode_env_exr, encode_exr_channels};
+use matedit_contract::records::SampleRecord;
 use matedit_physics::EnvMap;
 use matedit_physics::shading::zonal::{PolarNormals, ZonalEnv, ZonalKernel, ZonalRefusal, shade_image_zonal};
 use matedit_physics::shading::{Quality, VisibilityFn, shade_with};
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex, OnceLock};
-
-/// One line of `index.jsonl` (and of a shard's `shard.json`).
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct SampleRecord {
-    /// Unique id, `SPLIT-NNNNNNN`.
-    pub id: String,
-    /// Split name.
-    pub split: String,
-    /// Index within the split.
-    pub index: usize,
-    /// Shape category.
-    pub category: String,
-    /// Shape id.
-    pub shape_id: String,
-    /// Region names; the EXR's `region` channel indexes this list.
-    pub regions: Vec<String>,
-    /// Material id per region (m).
-    pub material_ids: Vec<String>,
-    /// Target material id per region (m_t).
-    pub target_material_ids: Vec<String>,
-    /// Environment id.
-    pub env_id: String,
-    /// Rotation of the environment about +y, degrees.
-    pub env_rotation_deg: f64,
-    /// Camera azimuth, degrees.
-    pub view_azimuth_deg: f64,
-    /// Camera elevation, degrees.
-    pub view_elevation_deg: f64,
-    /// Whether shadow rays were traced.
-    pub shadows: bool,
-    /// Pixels covered by the object.
-    pub covered_pixels: usize,
-    /// Shard directory, relative to the dataset root.
-    pub shard: String,
-    /// Files of the sample, relative to the dataset root: `image` (EXR: R, G, B = I; O.R, O.G,
-    /// O.B = O; normal.X/Y/Z; mask; region) and `env` (EXR, camera-space environment).
-    pub files: BTreeMap<String, String>,
-    /// `blake3:HEX` of each file, same keys as `files`.
-    pub checksums: BTreeMap<String, String>,
-}
 
 /// A loaded shape with its BVH.
 pub struct LoadedShape {
@@ -435,11 +395,6 @@ pub fn encode(px: SamplePixels) -> Result<(SampleRecord, Vec<u8>, Vec<u8>)> {
     let image = encode_exr_channels(res, res, px.image).with_context(|| px.record.id.clone())?;
     let env = encode_env_exr(&px.env).with_context(|| px.record.id.clone())?;
     Ok((px.record, image, env))
-}
-
-/// `blake3:HEX` of some bytes.
-pub fn checksum(bytes: &[u8]) -> String {
-    format!("blake3:{}", blake3::hash(bytes).to_hex())
 }
 
 #[cfg(test)]

@@ -3,6 +3,7 @@
 mod mesh;
 mod obj;
 pub mod procedural;
+pub mod sets;
 pub mod sources;
 
 pub use mesh::{Mesh, MeshError, UpAxis};

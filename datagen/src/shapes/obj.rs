@@ -108,8 +108,8 @@ impl Mesh {
             let c = palette.get(k % palette.len().max(1)).copied().unwrap_or([0.8; 3]);
             let _ = writeln!(m, "newmtl {name}\nKd {} {} {}\n", c[0], c[1], c[2]);
         }
-        crate::io::write_atomically(&mtl, |tmp| Ok(std::fs::write(tmp, m)?))?;
-        crate::io::write_atomically(path, |tmp| Ok(std::fs::write(tmp, obj)?))
+        matedit_contract::io::write_atomically(&mtl, |tmp| Ok(std::fs::write(tmp, m)?))?;
+        matedit_contract::io::write_atomically(path, |tmp| Ok(std::fs::write(tmp, obj)?))
     }
 }
 

@@ -19,16 +19,17 @@ mod stream;
 mod tests;
 
 pub use batch::Batch;
-pub use matedit_datagen::dataset::sample::SampleRecord;
-pub use matedit_datagen::dataset::store::{DatasetRecord, MaterialRecord};
+pub use matedit_contract::records::SampleRecord;
+pub use matedit_contract::records::{DatasetRecord, MaterialRecord};
 pub use sample::{LoadError, Sample};
 pub use stream::{Epochs, Loader, LoaderConfig, OnCorrupt, Skipped, epoch_order};
 
 use anyhow::{Context, Result, bail};
-use matedit_datagen::dataset::sample::checksum;
+use matedit_contract::layout::{check_record, read_dataset_record, read_index};
+use matedit_contract::records::checksum;
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use std::collections::{BTreeMap, HashSet};
-use std::path::{Component, Path, PathBuf};
+use std::path::{Path, PathBuf};
 
 /// An opened dataset: its description, material table and sample records by split.
 #[derive(Clone, Debug)]
@@ -47,14 +48,7 @@ impl Dataset {
     /// line. Sample files are not read here.
     pub fn open(dir: &Path) -> Result<Dataset> {
         let ds_path = dir.join("dataset.json");
-        let text = std::fs::read_to_string(&ds_path).with_context(|| {
-            format!(
-                "cannot read {} (not a dataset, or an unfinished run: `datagen join`)",
-                ds_path.display()
-            )
-        })?;
-        let record: DatasetRecord =
-            serde_json::from_str(&text).with_context(|| format!("{}: not a dataset record", ds_path.display()))?;
+        let record = read_dataset_record(dir)?;
 
         let mut materials = BTreeMap::new();
         for (id, m) in &record.materials {
@@ -69,7 +63,7 @@ impl Dataset {
         }
 
         let index_path = dir.join("index.jsonl");
-        let index = std::fs::read(&index_path).with_context(|| format!("cannot read {}", index_path.display()))?;
+        let (index, lines) = read_index(dir)?;
         let mut splits: Vec<(String, Vec<SampleRecord>)> = record
             .plan
             .splits
@@ -77,13 +71,11 @@ impl Dataset {
             .map(|s| (s.name.clone(), Vec::new()))
             .collect();
         let mut ids = HashSet::new();
-        for (n, line) in index.split(|&b| b == b'\n').enumerate() {
-            if line.iter().all(u8::is_ascii_whitespace) {
-                continue;
-            }
-            let at = || format!("{}:{}", index_path.display(), n + 1);
-            let rec: SampleRecord = serde_json::from_slice(line).with_context(|| format!("{}: bad record", at()))?;
-            check_record(&rec, &materials).with_context(|| format!("{}: sample {}", at(), rec.id))?;
+        for (n, rec) in lines {
+            let at = || format!("{}:{n}", index_path.display());
+            let rec = rec.with_context(|| format!("{}: bad record", at()))?;
+            check_record(&rec, |id| materials.contains_key(id))
+                .map_err(|e| anyhow::anyhow!("{}: sample {}: {e}", at(), rec.id))?;
             if !ids.insert(rec.id.clone()) {
                 bail!("{}: sample id {} appears twice", at(), rec.id);
             }
@@ -245,30 +237,4 @@ impl Dataset {
         }
         Ok((path, bytes))
     }
-}
-
-/// What `open` requires of a record so that `load` can only fail on the files themselves.
-fn check_record(rec: &SampleRecord, materials: &BTreeMap<String, [f32; PARAMS]>) -> Result<()> {
-    let r = rec.regions.len();
-    if r == 0 || r > u8::MAX as usize {
-        bail!("{r} regions: expected 1 to {}", u8::MAX);
-    }
-    if rec.material_ids.len() != r || rec.target_material_ids.len() != r {
-        bail!("one material and one target per region expected ({r} regions)");
-    }
-    for id in rec.material_ids.iter().chain(&rec.target_material_ids) {
-        if !materials.contains_key(id) {
-            bail!("material {id} is not in dataset.json's material table");
-        }
-    }
-    for key in ["image", "env"] {
-        let (Some(rel), Some(_)) = (rec.files.get(key), rec.checksums.get(key)) else {
-            bail!("no {key} file or checksum recorded");
-        };
-        // Paths come from a file anyone can edit: keep reads inside the dataset.
-        if !Path::new(rel).components().all(|c| matches!(c, Component::Normal(_))) {
-            bail!("{key} file {rel:?} is not a plain path inside the dataset");
-        }
-    }
-    Ok(())
 }

@@ -3,8 +3,9 @@
 //! material files (no fitting), 12 training and 4 test samples.
 
 use super::*;
-use matedit_datagen::dataset::run::{RunOptions, Worker, load as load_manifest, run};
-use matedit_datagen::io::read_exr_channels;
+use matedit_contract::io::read_exr_channels;
+use matedit_contract::lock::Worker;
+use matedit_datagen::dataset::run::{RunOptions, load as load_manifest, run};
 use matedit_physics::brdf::Dsbrdf;
 use std::sync::{Arc, OnceLock};
 

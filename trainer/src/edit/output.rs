@@ -16,7 +16,7 @@ use super::photo::{Encoding, Photo};
 use super::{EditReport, Predicted, Prepared};
 use crate::render::{Batch, RenderingLayer};
 use anyhow::{Context, Result, bail};
-use matedit_datagen::io::{
+use matedit_contract::io::{
     SheetLabels, normal_to_u8, write_atomically, write_exr_channels, write_labelled_contact_sheet,
 };
 use matedit_physics::brdf::Dsbrdf;

@@ -77,7 +77,7 @@ pub fn load_photo(path: &Path) -> Result<Photo> {
     let what = path.display();
     match extension(path).as_str() {
         "exr" => {
-            let (w, h, ch) = matedit_datagen::io::read_exr_channels(path)?;
+            let (w, h, ch) = matedit_contract::io::read_exr_channels(path)?;
             check_size(path, w as u64, h as u64)?;
             let get = |n: &str| {
                 ch.get(n)

@@ -3,7 +3,7 @@
 //! multi-material object, and another illumination.
 
 use anyhow::{Context, Result, bail};
-use matedit_datagen::materials::{cache, fit, library};
+use matedit_assets::materials::{cache, fit, library};
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::{BrdfModel, BrdfSpec};
 use std::collections::HashMap;
@@ -168,7 +168,7 @@ pub fn load_regions(path: &Path, width: usize, height: usize, coverage: &[f32]) 
 /// out `[3, He, 2He]` as the rendering layer reads it. The map is used as given: its +z faces the
 /// camera.
 pub fn relight_env(spec: &str, height: usize) -> Result<Vec<f32>> {
-    let (env, _) = matedit_datagen::io::load_env(spec)?;
+    let (env, _) = matedit_assets::envfile::load_env(spec)?;
     let env = env.resampled(height, 0.0);
     let t = env.texels();
     let n = t.len();

@@ -188,7 +188,7 @@ fn a_photo_is_edited_and_only_the_object_changes() {
     let rep = edit(model(), &req, &out2).unwrap();
     assert_eq!(rep.regions.len(), 2);
     assert!(out2.join("material-1.dsbrdf.json").is_file() && out2.join("material-2.dsbrdf.json").is_file());
-    let (w, h, ch) = matedit_datagen::io::read_exr_channels(&out2.join("o_prime.exr")).unwrap();
+    let (w, h, ch) = matedit_contract::io::read_exr_channels(&out2.join("o_prime.exr")).unwrap();
     let (mut left, mut right) = ([0.0_f64; 2], [0.0_f64; 2]);
     for k in 0..w * h {
         let side = if k % w < w / 2 { &mut left } else { &mut right };

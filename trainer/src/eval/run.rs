@@ -712,5 +712,5 @@ impl EvalReport {
 
 /// Writes `report` as JSON to `path`, atomically.
 pub fn write_report(report: &EvalReport, path: &Path) -> Result<()> {
-    matedit_datagen::io::write_atomically(path, |p| Ok(std::fs::write(p, serde_json::to_string_pretty(report)?)?))
+    matedit_contract::io::write_atomically(path, |p| Ok(std::fs::write(p, serde_json::to_string_pretty(report)?)?))
 }

@@ -6,7 +6,7 @@
 
 use crate::metrics::metric_exposure;
 use anyhow::Result;
-use matedit_datagen::io::{SheetLabels, contact_sheet, normal_to_u8, write_labelled_contact_sheet};
+use matedit_contract::io::{SheetLabels, contact_sheet, normal_to_u8, write_labelled_contact_sheet};
 use matedit_physics::tonemap::tonemap_u8;
 use std::path::Path;
 
@@ -168,7 +168,7 @@ pub fn methods_image(names: &[String], compared: &[Compared]) -> image::RgbaImag
 /// Writes the methods sheet to `path` (PNG, atomically).
 pub fn write_methods(path: &Path, names: &[String], compared: &[Compared]) -> Result<()> {
     let img = methods_image(names, compared);
-    matedit_datagen::io::write_atomically(path, |tmp| {
+    matedit_contract::io::write_atomically(path, |tmp| {
         img.save_with_format(tmp, image::ImageFormat::Png)
             .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))
     })

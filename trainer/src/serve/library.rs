@@ -6,7 +6,7 @@ use crate::edit::output::spheres;
 use crate::edit::target::dsbrdf_of;
 use crate::metrics::metric_exposure;
 use anyhow::{Context, Result};
-use matedit_datagen::materials::library::{Split, library};
+use matedit_assets::materials::library::{Split, library};
 use matedit_physics::tonemap::tonemap_u8;
 use serde_json::{Value, json};
 use std::collections::HashMap;

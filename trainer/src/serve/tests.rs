@@ -344,7 +344,7 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
     let other_size = png(image::GrayImage::from_pixel(30, 20, image::Luma([255])));
     let exr_mask = {
         let p = dir("exr").join("m.exr");
-        matedit_datagen::io::write_exr_channels(&p, 60, 40, vec![("Y", vec![1.0; 2400])]).unwrap();
+        matedit_contract::io::write_exr_channels(&p, 60, 40, vec![("Y", vec![1.0; 2400])]).unwrap();
         std::fs::read(&p).unwrap()
     };
     // A small PNG whose header claims 100000 × 100000 pixels (ten gigapixels).
@@ -359,7 +359,7 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
         let p = dir("exr").join("many.exr");
         let names: Vec<String> = (0..40).map(|k| format!("c{k:02}")).collect();
         let ch: Vec<(&str, Vec<f32>)> = names.iter().map(|n| (n.as_str(), vec![0.5; 2400])).collect();
-        matedit_datagen::io::write_exr_channels(&p, 60, 40, ch).unwrap();
+        matedit_contract::io::write_exr_channels(&p, 60, 40, ch).unwrap();
         std::fs::read(&p).unwrap()
     };
     let gold: &[u8] = b"library:gold-polished";

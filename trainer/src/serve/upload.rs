@@ -116,7 +116,7 @@ pub fn display_name(name: &str) -> String {
 pub fn check_material(spec: &str) -> Result<()> {
     let spec = spec.trim();
     if let Some(name) = spec.strip_prefix("library:") {
-        matedit_datagen::materials::library::find(name)
+        matedit_assets::materials::library::find(name)
             .map_err(|_| anyhow::anyhow!("material “{}”: no such library material", display_name(name)))?;
         return Ok(());
     }

@@ -6,7 +6,7 @@ use super::step::{LossWeights, RenderWith, StageKind};
 use crate::model::network::NetConfig;
 use crate::model::vgg16::Layer;
 use crate::model::{Init, Widths};
-use matedit_datagen::dataset::manifest::{ManifestError, expand_vars};
+use matedit_contract::manifest::{ManifestError, expand_vars, invalid, parse_toml, read_text};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use toml::Spanned;
@@ -313,46 +313,14 @@ pub struct TrainPlan {
     pub skip_corrupt: bool,
 }
 
-fn invalid(
-    path: &Path,
-    text: &str,
-    span: std::ops::Range<usize>,
-    field: &str,
-    message: impl Into<String>,
-) -> ManifestError {
-    let end = span.start.min(text.len());
-    ManifestError::Invalid {
-        file: path.display().to_string(),
-        line: text.as_bytes()[..end].iter().filter(|&&b| b == b'\n').count() + 1,
-        field: field.to_string(),
-        message: message.into(),
-    }
-}
-
 /// Reads and validates a training manifest.
 pub fn load(path: &Path) -> Result<TrainPlan, ManifestError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ManifestError::Io {
-        file: path.display().to_string(),
-        source,
-    })?;
-    parse(path, text)
+    parse(path, read_text(path)?)
 }
 
 /// Validates manifest text that came from `path`.
 pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
-    if let Some(line) = matedit_datagen::dataset::manifest::nested_too_deep(&text) {
-        return Err(ManifestError::Syntax {
-            file: path.display().to_string(),
-            message: format!(
-                "line {line}: brackets and braces nested more than {} deep",
-                matedit_datagen::dataset::manifest::MAX_NESTING
-            ),
-        });
-    }
-    let m: TrainManifest = toml::from_str(&text).map_err(|e| ManifestError::Syntax {
-        file: path.display().to_string(),
-        message: e.to_string().trim_end().to_string(),
-    })?;
+    let m: TrainManifest = parse_toml(path, &text)?;
     let bad = |span: std::ops::Range<usize>, field: &str, msg: String| invalid(path, &text, span, field, msg);
     let widths = match m.model.widths.get_ref() {
         WidthsSpec::Preset(p) if p == "cpu-small" => Widths::cpu_small(),

@@ -20,7 +20,7 @@ use anyhow::{Context, Result, bail};
 use burn::module::Module;
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::tensor::Device;
-use matedit_datagen::progress::Progress;
+use matedit_contract::progress::Progress;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -222,7 +222,7 @@ fn truncate_lines(path: &Path, lines: usize) -> Result<()> {
     }
     let text = std::fs::read_to_string(path)?;
     let kept: String = text.lines().take(lines).map(|l| format!("{l}\n")).collect();
-    matedit_datagen::io::write_atomically(path, |p| Ok(std::fs::write(p, kept)?))
+    matedit_contract::io::write_atomically(path, |p| Ok(std::fs::write(p, kept)?))
 }
 
 /// Set when the run is asked to stop (by `trainer run`'s SIGTERM and SIGUSR1 handler: a
@@ -248,9 +248,8 @@ pub struct Preempted {
 
 /// Runs (or, with `resume`, continues) the manifest's stages into `out`.
 pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet: bool) -> Result<RunSummary> {
-    let _lock =
-        matedit_datagen::dataset::run::lock_output(out, matedit_datagen::dataset::run::Worker { index: 0, count: 1 })
-            .with_context(|| format!("{} is in use by another trainer run", out.display()))?;
+    let _lock = matedit_contract::lock::lock_output(out, matedit_contract::lock::Worker::ALL)
+        .with_context(|| format!("{} is in use by another trainer run", out.display()))?;
     let m = &plan.manifest;
     let metrics_path = out.join("metrics.jsonl");
     checkpoint::remove_stale_temporaries(out)?;
@@ -304,7 +303,7 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
             (net, None)
         }
     };
-    matedit_datagen::io::write_atomically(&out.join("manifest.toml"), |p| Ok(std::fs::write(p, &plan.text)?))?;
+    matedit_contract::io::write_atomically(&out.join("manifest.toml"), |p| Ok(std::fs::write(p, &plan.text)?))?;
     let layer = RenderingLayer::new(plan.net.env_height);
     let perceptual = match &plan.vgg16 {
         Some(w) => Perceptual::vgg16(w, plan.manifest.loss.vgg16_layers.get_ref(), &device)?,

@@ -2,8 +2,8 @@
 //! runs along x, so the default view is a side view.
 
 use super::builder::Builder;
-use crate::assets::random::Draw;
 use glam::{Mat3, Vec3};
+use matedit_assets::random::Draw;
 
 pub(super) fn build(b: &mut Builder, r: &mut Draw) {
     let length = r.uniform(3.6, 5.2) as f32;

@@ -2,8 +2,8 @@
 //! stretchers (region 0, "frame").
 
 use super::builder::{Builder, rot_x, rot_y};
-use crate::assets::random::Draw;
 use glam::{Mat3, Vec3};
+use matedit_assets::random::Draw;
 
 pub(super) fn build(b: &mut Builder, r: &mut Draw) {
     let w = r.uniform(0.42, 0.62) as f32;

@@ -13,7 +13,7 @@ mod sofa;
 pub use builder::Builder;
 
 use super::Mesh;
-use crate::assets::random::Draw;
+use matedit_assets::random::Draw;
 
 /// A shape category of the paper's dataset.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]

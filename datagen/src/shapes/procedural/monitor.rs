@@ -2,8 +2,8 @@
 //! (region 0, "housing"); flat panels or deep CRT-style backs, 16:9, 16:10 or 4:3.
 
 use super::builder::Builder;
-use crate::assets::random::Draw;
 use glam::{Mat3, Vec3};
+use matedit_assets::random::Draw;
 
 pub(super) fn build(b: &mut Builder, r: &mut Draw) {
     let sw = r.uniform(0.42, 0.75) as f32;

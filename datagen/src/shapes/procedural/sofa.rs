@@ -2,8 +2,8 @@
 //! optional legs (region 0, "frame").
 
 use super::builder::{Builder, rot_x};
-use crate::assets::random::Draw;
 use glam::{Mat3, Vec3};
+use matedit_assets::random::Draw;
 
 pub(super) fn build(b: &mut Builder, r: &mut Draw) {
     let width = r.uniform(1.1, 2.4) as f32;

@@ -1,7 +1,7 @@
 //! Loading environment maps: Radiance .hdr (image crate), OpenEXR (exr crate) and the embedded
 //! procedural maps.
 
-use crate::assets::envmaps::builtin;
+use crate::envmaps::builtin;
 use anyhow::{Context, Result, anyhow, bail};
 use matedit_physics::EnvMap;
 use std::path::Path;
@@ -16,7 +16,7 @@ pub struct EnvSource {
 }
 
 /// Loads `spec`: a `.hdr` or `.exr` path, or `builtin:NAME` (see
-/// [`builtin`](crate::assets::envmaps::builtin)). NaN or infinite texels are an error naming
+/// [`builtin`](crate::envmaps::builtin)). NaN or infinite texels are an error naming
 /// the file; negative values are clamped to 0 and counted.
 pub fn load_env(spec: &str) -> Result<(EnvMap, EnvSource)> {
     if let Some(name) = spec.strip_prefix("builtin:") {
@@ -58,7 +58,7 @@ fn read_exr_rgb(path: &Path) -> Result<(usize, usize, Vec<[f32; 3]>)> {
     // Through the channel reader, which refuses a header that claims more pixels than the file
     // can hold before anything is allocated for them (a 756-byte file found by the fuzzer asked
     // for 457 MB).
-    let (w, h, ch) = super::read_exr_channels(path)?;
+    let (w, h, ch) = matedit_contract::io::read_exr_channels(path)?;
     let get = |n: &str| {
         ch.get(n)
             .with_context(|| format!("{}: no {n} channel (an environment map needs R, G, B)", path.display()))

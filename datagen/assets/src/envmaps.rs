@@ -270,7 +270,7 @@ pub fn write_family_set(
         .map(|&(f, s)| {
             let map = f.generate(s, height);
             let path = dir.join(format!("{}_{s}.exr", f.name()));
-            crate::io::write_env_exr(&path, &map)?;
+            matedit_contract::io::write_env_exr(&path, &map)?;
             Ok((path, thumbnail(&map, 64)))
         })
         .collect();
@@ -282,7 +282,7 @@ pub fn write_family_set(
         tiles.push(t);
     }
     let sheet = dir.join("envmaps.png");
-    crate::io::write_contact_sheet(&sheet, &tiles, 128, 64, count.max(1))?;
+    matedit_contract::io::write_contact_sheet(&sheet, &tiles, 128, 64, count.max(1))?;
     paths.push(sheet);
     Ok(paths)
 }

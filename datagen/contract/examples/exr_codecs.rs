@@ -1,12 +1,12 @@
 //! Size and encoding time of one dataset image under each EXR compression, with the exr crate's
 //! writer, and with the factory's own ZIP16 writer (libdeflate; `io::encode_exr_channels`).
-//! `cargo run --release -p matedit-datagen --example exr_codecs -- FILE.exr`
+//! `cargo run --release -p matedit-contract --example exr_codecs -- FILE.exr`
 use exr::prelude::*;
 use std::time::Instant;
 
 fn main() {
     let path = std::env::args().nth(1).expect("FILE.exr");
-    let (w, h, ch) = matedit_datagen::io::read_exr_channels(std::path::Path::new(&path)).unwrap();
+    let (w, h, ch) = matedit_contract::io::read_exr_channels(std::path::Path::new(&path)).unwrap();
     for (name, compression, blocks) in [
         ("ZIP16", Compression::ZIP16, Blocks::ScanLines),
         ("ZIP1", Compression::ZIP1, Blocks::ScanLines),
@@ -47,7 +47,7 @@ fn main() {
     for _ in 0..5 {
         let list: Vec<(&str, Vec<f32>)> = ch.iter().map(|(n, d)| (n.as_str(), d.clone())).collect();
         let t = Instant::now();
-        size = matedit_datagen::io::encode_exr_channels(w, h, list).unwrap().len();
+        size = matedit_contract::io::encode_exr_channels(w, h, list).unwrap().len();
         times.push(t.elapsed().as_secs_f64() * 1e3);
     }
     times.sort_by(|a, b| a.total_cmp(b));

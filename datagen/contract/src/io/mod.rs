@@ -2,12 +2,10 @@
 //! is renamed into place, so a reader never sees a partial file and a failed write leaves any
 //! previous file untouched.
 
-mod envmap;
 mod exr_io;
 mod png;
 pub mod text;
 
-pub use envmap::{EnvSource, load_env};
 pub use exr_io::{encode_env_exr, encode_exr_channels, read_exr_channels, write_env_exr, write_exr_channels};
 pub use png::{
     SheetLabels, contact_sheet, normal_to_u8, write_contact_sheet, write_labelled_contact_sheet, write_png_preview,

@@ -252,7 +252,7 @@ pub fn rendered_errors(
 /// The three environments fits are judged under: a sunny sky, a softbox studio, a window-lit
 /// room (procedural seeds 1, 2, 3 at 32×64).
 pub fn judging_envs() -> Vec<(String, matedit_physics::EnvMap)> {
-    use crate::assets::envmaps::Family;
+    use crate::envmaps::Family;
     [(Family::SunSky, 1), (Family::Softbox, 2), (Family::Window, 3)]
         .into_iter()
         .map(|(f, s)| (format!("{}:{s}", f.name()), f.generate(s, 256).resampled(32, 0.0)))

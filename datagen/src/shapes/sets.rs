@@ -57,7 +57,7 @@ pub fn write_category_set(dir: &Path, count: usize, seed: u64) -> Result<Vec<Pat
         }
     }
     let sheet = dir.join("shapes.png");
-    crate::io::write_contact_sheet(&sheet, &tiles, RES, RES, count.max(1))?;
+    matedit_contract::io::write_contact_sheet(&sheet, &tiles, RES, RES, count.max(1))?;
     paths.push(sheet);
     Ok(paths)
 }

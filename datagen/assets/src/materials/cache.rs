@@ -4,8 +4,8 @@
 
 use super::fit::fit_and_report;
 use super::library::{LibraryMaterial, Split, library};
-use crate::io::write_atomically;
 use anyhow::{Context, Result};
+use matedit_contract::io::write_atomically;
 use matedit_physics::brdf::Dsbrdf;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
