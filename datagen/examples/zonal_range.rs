@@ -8,7 +8,7 @@
 //! holds them, real HDRIs with a sun or sharp-edged lights at two turns (`--all-maps`: all 12),
 //! with `zonal` as the factory runs it (a material whose lobes the grid cannot resolve is shaded
 //! by the fast path) and with the fast path (the reference: within 10⁻³ of `exact` over the whole
-//! range, `tests/zonal.rs`). Prints the largest relative RMSE over the maps, the path, the
+//! range, `physics/tests/zonal.rs`). Prints the largest relative RMSE over the maps, the path, the
 //! kernel's rows, size and build time, and the time of one image. `--raw` shades every material on
 //! the grid its lobes ask for, capped at 128 rows, as the factory did before it refused what the
 //! cap cannot resolve (the error that refusal avoids).

@@ -5,7 +5,7 @@
 //! Every library material of the given families (comma-separated, default all) is fitted from the
 //! cache (`datagen assets materials` first) and rendered on a RES² sphere (default 128) under
 //! four procedural maps (`sunsky:1`, `softbox:2`, `window:3`, `overcast:4`, 64×128) with the fast
-//! path (the reference: within 1e-4 of the exact path, `tests/shading_paths.rs`) and with the
+//! path (the reference: within 1e-4 of the exact path, `physics/tests/shading_paths.rs`) and with the
 //! zonal method at each setting of the sweep. Prints, per setting, the median and largest relative
 //! RMSE, the median time of one image (environment spectra + table + interpolation, 2 threads),
 //! the median kernel build time and size per material. `--per-material` prints the default

@@ -176,29 +176,8 @@ fn report_set(paths: &[PathBuf], out: &std::path::Path, sheet: &str) {
 }
 
 fn run_fit(spec: BrdfSpec, out: PathBuf) -> Result<()> {
-    let source = matedit_assets::materials::cache::resolve(&spec, &matedit_assets::materials::cache::default_dir())?;
-    let t = std::time::Instant::now();
-    let (m, report) = matedit_assets::materials::fit::fit_and_report(&source);
-    let rendered: Vec<String> = report
-        .rendered
-        .iter()
-        .map(|(e, v)| format!("{e} {:.2}%", 100.0 * v))
-        .collect();
-    eprintln!(
-        "fit in {:.1} s: BRDF-space log RMSE {:.4}; rendered relative RMSE: {}",
-        t.elapsed().as_secs_f64(),
-        report.brdf_log_rmse,
-        rendered.join(", ")
-    );
-    matedit_contract::io::write_atomically(&out, |tmp| Ok(std::fs::write(tmp, m.to_json())?))?;
-    let json = serde_json::json!({
-        "source": format!("{spec:?}"),
-        "brdf_log_rmse": report.brdf_log_rmse,
-        "rendered_rel_rmse": report.rendered.iter().map(|(e, v)| (e.clone(), *v)).collect::<std::collections::BTreeMap<_, _>>(),
-    });
-    let report_path = out.with_extension("fit.json");
-    matedit_contract::io::write_atomically(&report_path, |tmp| Ok(std::fs::write(tmp, format!("{json:#}\n"))?))?;
-    eprintln!("wrote {} and {}", out.display(), report_path.display());
+    let dir = matedit_assets::materials::cache::default_dir();
+    eprint!("{}", matedit_assets::materials::cache::fit_to_file(&spec, &dir, &out)?);
     Ok(())
 }
 
@@ -342,54 +321,7 @@ fn run_render(a: RenderArgs) -> Result<()> {
     if let Some(p) = &a.env_out {
         r.write_env(p)?;
     }
-    let s = &r.stats;
-    eprintln!(
-        "rendered {} ({}): {}x{} px, {} covered, env {} at {}x{} ({} texels), shadows {}",
-        opts.shape,
-        if s.triangles > 0 {
-            format!("{} triangles", s.triangles)
-        } else {
-            "analytic".into()
-        },
-        opts.res,
-        opts.res,
-        s.covered_pixels,
-        r.env_source.name,
-        r.env.height(),
-        r.env.width(),
-        s.texels,
-        if s.shadows_traced { "traced" } else { "off" },
-    );
-    if s.regions.len() > 1 {
-        eprintln!(
-            "regions: {}",
-            s.regions
-                .iter()
-                .enumerate()
-                .map(|(i, r)| format!("{i}={r}"))
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
-    }
-    if s.degenerate_dropped > 0 {
-        eprintln!("note: {} zero-area triangles dropped", s.degenerate_dropped);
-    }
-    if s.env_negatives_clamped > 0 {
-        eprintln!(
-            "warning: {} negative environment values clamped to 0",
-            s.env_negatives_clamped
-        );
-    }
-    if opts.shadows == Shadows::On && !s.shadows_traced {
-        eprintln!("note: the sphere is convex, so shadow rays were skipped (the image is unchanged)");
-    }
-    if s.sanitized_pixels > 0 {
-        eprintln!("warning: {} pixels overflowed f32 and were clamped", s.sanitized_pixels);
-    }
-    eprintln!(
-        "time: setup {:.3} s, visibility {:.3} s, shading {:.3} s",
-        s.setup_s, s.gbuffer_s, s.shading_s
-    );
+    eprint!("{}", r.report(&opts));
     eprintln!("wrote {}", a.out.display());
     Ok(())
 }
@@ -416,34 +348,7 @@ mod dataset {
             worker,
             progress: true,
         };
-        let s = r::run(&l, &opts)?;
-        let rate = if s.render_s > 0.0 {
-            s.rendered_samples as f64 / s.render_s
-        } else {
-            0.0
-        };
-        eprintln!(
-            "{}: rendered {} shards ({} samples, {:.1} samples/s), {} already complete",
-            s.dir.display(),
-            s.rendered_shards,
-            s.rendered_samples,
-            rate,
-            s.resumed_shards
-        );
-        if s.joined {
-            eprintln!(
-                "wrote {} and {}",
-                s.dir.join("index.jsonl").display(),
-                s.dir.join("dataset.json").display()
-            );
-        } else {
-            eprintln!(
-                "worker {}/{} done; when every worker has finished: datagen join {}",
-                worker.index,
-                worker.count,
-                s.dir.display()
-            );
-        }
+        eprint!("{}", r::run(&l, &opts)?.report(worker));
         Ok(())
     }
 
@@ -507,64 +412,10 @@ mod dataset {
         res: Option<usize>,
         per_sample: bool,
     ) -> Result<()> {
-        let mut l = r::load(manifest)?;
-        if let Some(res) = res {
-            l.plan.settings.resolution = res;
-        }
-        let dir = std::env::temp_dir().join(format!("matedit-bench-materials-{}", std::process::id()));
-        let materials = matedit_datagen::dataset::materials::prepare_all(
-            &dir,
-            &l.plan.catalogue.materials,
-            &matedit_datagen::dataset::materials::needed(&l.plan),
-            l.plan.settings.ground_truth,
-            &|| {},
-        )?;
-        let _ = std::fs::remove_dir_all(&dir);
-        let picks = b::spread(&l.plan, samples);
-        let rows = b::bench(&l.plan, &materials, &picks, reference, options)?;
-        println!(
-            "{} samples of {} at {}², {} threads, reference {reference:?}",
-            picks.len(),
-            manifest.display(),
-            l.plan.settings.resolution,
-            rayon::current_num_threads()
+        print!(
+            "{}",
+            b::bench_manifest(manifest, samples, reference, options, res, per_sample)?
         );
-        println!(
-            "| quality | samples/s | median rel. RMSE | max rel. RMSE | bytes/sample | set-up once per material |"
-        );
-        println!("|---|---|---|---|---|---|");
-        for row in &rows {
-            let setup = if row.setup_materials > 0 {
-                format!("{:.2} s for {} materials", row.setup_s, row.setup_materials)
-            } else {
-                "none".to_string()
-            };
-            // Three significant figures: the exact path runs at hundredths of a sample a second.
-            let rate = row.samples_per_s;
-            let decimals = if rate > 0.0 {
-                (2.0 - rate.log10().floor()).clamp(0.0, 6.0) as usize
-            } else {
-                2
-            };
-            println!(
-                "| {:?} | {rate:.decimals$} | {:.3} % | {:.3} % | {:.0} | {setup} |",
-                row.quality,
-                100.0 * row.median_rel_rmse,
-                100.0 * row.max_rel_rmse,
-                row.bytes_per_sample
-            );
-        }
-        if per_sample {
-            println!();
-            println!("| quality | split | sample | rel. RMSE |");
-            println!("|---|---|---|---|");
-            for row in &rows {
-                for ((s, i), e) in picks.iter().zip(&row.per_sample_rel_rmse) {
-                    let split = &l.plan.splits[*s].name;
-                    println!("| {:?} | {split} | {i} | {:.3} % |", row.quality, 100.0 * e);
-                }
-            }
-        }
         Ok(())
     }
 }

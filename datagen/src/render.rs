@@ -229,6 +229,73 @@ pub fn render(opts: &RenderOptions) -> Result<Rendered> {
 }
 
 impl Rendered {
+    /// What `datagen render` reports about a render: size, coverage, environment, regions,
+    /// what was dropped or clamped, and the time of each stage; one line each.
+    pub fn report(&self, opts: &RenderOptions) -> String {
+        use std::fmt::Write;
+        let s = &self.stats;
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "rendered {} ({}): {}x{} px, {} covered, env {} at {}x{} ({} texels), shadows {}",
+            opts.shape,
+            if s.triangles > 0 {
+                format!("{} triangles", s.triangles)
+            } else {
+                "analytic".into()
+            },
+            opts.res,
+            opts.res,
+            s.covered_pixels,
+            self.env_source.name,
+            self.env.height(),
+            self.env.width(),
+            s.texels,
+            if s.shadows_traced { "traced" } else { "off" },
+        );
+        if s.regions.len() > 1 {
+            let _ = writeln!(
+                out,
+                "regions: {}",
+                s.regions
+                    .iter()
+                    .enumerate()
+                    .map(|(i, r)| format!("{i}={r}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+        if s.degenerate_dropped > 0 {
+            let _ = writeln!(out, "note: {} zero-area triangles dropped", s.degenerate_dropped);
+        }
+        if s.env_negatives_clamped > 0 {
+            let _ = writeln!(
+                out,
+                "warning: {} negative environment values clamped to 0",
+                s.env_negatives_clamped
+            );
+        }
+        if opts.shadows == Shadows::On && !s.shadows_traced {
+            let _ = writeln!(
+                out,
+                "note: the sphere is convex, so shadow rays were skipped (the image is unchanged)"
+            );
+        }
+        if s.sanitized_pixels > 0 {
+            let _ = writeln!(
+                out,
+                "warning: {} pixels overflowed f32 and were clamped",
+                s.sanitized_pixels
+            );
+        }
+        let _ = writeln!(
+            out,
+            "time: setup {:.3} s, visibility {:.3} s, shading {:.3} s",
+            s.setup_s, s.gbuffer_s, s.shading_s
+        );
+        out
+    }
+
     /// Writes the EXR (channels R, G, B, normal.X, normal.Y, normal.Z, mask, region).
     pub fn write_exr(&self, path: &Path) -> Result<()> {
         let g = &self.gbuffer;

@@ -682,12 +682,8 @@ pub fn dataset() -> &'static Path {
     DIR.get_or_init(|| {
         let root = std::env::temp_dir().join(format!("matedit-fuzz-dataset-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&root);
-        std::fs::create_dir_all(root.join("src/mats")).unwrap();
-        let mats = [[0.8, 0.2, 0.1], [0.1, 0.5, 0.7], [0.4, 0.4, 0.4], [0.9, 0.9, 0.2]]
+        let materials = [[0.8, 0.2, 0.1], [0.1, 0.5, 0.7], [0.4, 0.4, 0.4], [0.9, 0.9, 0.2]]
             .map(matedit_physics::brdf::Dsbrdf::near_lambertian);
-        for (i, m) in mats.iter().enumerate() {
-            std::fs::write(root.join(format!("src/mats/m{i}.dsbrdf.json")), m.to_json()).unwrap();
-        }
         let manifest = r#"
 [dataset]
 name = "fuzz"
@@ -722,33 +718,17 @@ name = "test"
 shapes = { car = 1 }
 materials = 2
 "#;
-        std::fs::write(root.join("src/m.toml"), manifest).unwrap();
-        let out = root.join("dataset");
-        let l = matedit_datagen::dataset::run::load(&root.join("src/m.toml")).unwrap();
-        matedit_datagen::dataset::run::run(
-            &l,
-            &matedit_datagen::dataset::run::RunOptions {
-                out: Some(out.clone()),
-                worker: matedit_contract::lock::Worker::ALL,
-                progress: false,
-            },
-        )
-        .unwrap();
-        out
+        let sources = matedit_fixtures::Sources {
+            manifest,
+            materials: &materials,
+            objs: &[],
+        };
+        matedit_fixtures::render_dataset(&root, "m.toml", &sources, "dataset")
     })
 }
 
 pub fn copy_tree(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let p = e.unwrap().path();
-        let dest = to.join(p.file_name().unwrap());
-        if p.is_dir() {
-            copy_tree(&p, &dest);
-        } else {
-            std::fs::copy(&p, &dest).unwrap();
-        }
-    }
+    matedit_fixtures::copy_dir(from, to)
 }
 
 /// EXRs of `w × h` whose channel sets a reader of RGB may not expect: R and G only, Y only,

@@ -6,6 +6,11 @@ use matedit_physics::BrdfSpec;
 use matedit_physics::shading::Quality;
 use std::path::PathBuf;
 
+#[path = "../../physics/tests/common/mod.rs"]
+mod physics_common;
+#[allow(unused_imports)]
+pub use physics_common::*;
+
 /// Renders through the same library entry point as `datagen render`.
 pub fn render_scene(shape: &str, brdf: &str, env: &str, env_res: EnvRes, res: usize, quality: Quality) -> Rendered {
     render(&RenderOptions {
@@ -26,44 +31,11 @@ pub fn render_scene(shape: &str, brdf: &str, env: &str, env_res: EnvRes, res: us
     .expect("render")
 }
 
-/// Pixels whose whole square lies inside the unit disk (the sphere's fully covered pixels).
-pub fn fully_covered(res: usize) -> Vec<usize> {
-    let h = 1.0 / res as f64;
-    (0..res * res)
-        .filter(|p| {
-            let (x, y) = matedit_physics::camera::pixel_center(p % res, p / res, res);
-            let (x, y) = (x.abs() + h, y.abs() + h);
-            x * x + y * y < 1.0
-        })
-        .collect()
-}
-
-/// Relative RMSE of `a` against `b` over `pixels`, all channels.
-pub fn rel_rmse(a: &[[f32; 3]], b: &[[f32; 3]], pixels: &[usize]) -> f64 {
-    let (mut num, mut den) = (0.0, 0.0);
-    for &p in pixels {
-        for c in 0..3 {
-            let d = a[p][c] as f64 - b[p][c] as f64;
-            num += d * d;
-            den += (b[p][c] as f64).powi(2);
-        }
-    }
-    (num / den).sqrt()
-}
-
 /// A scratch directory unique to this test process.
 pub fn scratch(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("matedit-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&d).expect("scratch dir");
     d
-}
-
-/// `../shared/eval-assets` (or `$MATEDIT_EVAL_ASSETS`), when present.
-pub fn eval_assets() -> Option<PathBuf> {
-    let p = std::env::var_os("MATEDIT_EVAL_ASSETS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/eval-assets"));
-    p.is_dir().then_some(p)
 }
 
 /// Writes a UV sphere OBJ (no normals in the file) of `stacks × slices` quads.

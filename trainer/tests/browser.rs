@@ -13,8 +13,7 @@ use burn::optim::AdamConfig;
 use burn::tensor::Device;
 use fantoccini::actions::{InputSource, MOUSE_BUTTON_LEFT, MouseActions, PointerAction};
 use fantoccini::{Client, ClientBuilder, Locator};
-use matedit_contract::lock::Worker;
-use matedit_datagen::dataset::run::{RunOptions, load as load_manifest, run};
+use matedit_fixtures::{Sources, render_dataset};
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::tonemap::tonemap_u8;
 use matedit_trainer::data::Dataset;
@@ -79,27 +78,18 @@ fn root() -> PathBuf {
 
 /// A test-split photo (8-bit sRGB PNG) and its mask, and an untrained network's checkpoint.
 fn fixture() -> (PathBuf, PathBuf, PathBuf) {
-    let src = root().join("src");
-    std::fs::create_dir_all(src.join("mats")).unwrap();
-    for (i, m) in [
+    let materials = [
         Dsbrdf::near_lambertian([0.7, 0.25, 0.1]),
         Dsbrdf::near_lambertian([0.2, 0.4, 0.7]),
         Dsbrdf::near_lambertian([0.5, 0.5, 0.5]),
         Dsbrdf::near_lambertian([0.8, 0.7, 0.2]),
-    ]
-    .iter()
-    .enumerate()
-    {
-        std::fs::write(src.join(format!("mats/m{i}.dsbrdf.json")), m.to_json()).unwrap();
-    }
-    std::fs::write(src.join("m.toml"), DATASET).unwrap();
-    let out = root().join("dataset");
-    let opts = RunOptions {
-        out: Some(out.clone()),
-        worker: Worker::ALL,
-        progress: false,
+    ];
+    let sources = Sources {
+        manifest: DATASET,
+        materials: &materials,
+        objs: &[],
     };
-    run(&load_manifest(&src.join("m.toml")).unwrap(), &opts).unwrap();
+    let out = render_dataset(&root(), "m.toml", &sources, "dataset");
     let ds = Dataset::open(&out).unwrap();
     let s = ds.load(&ds.records("test")[0], true).unwrap();
     let (n, hw) = (s.size, s.size * s.size);

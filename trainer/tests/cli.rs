@@ -3,9 +3,7 @@
 //! a killed or signalled run resumes to the same loss sequence and metrics as an uninterrupted one, and
 //! refusals name their cause.
 
-use matedit_contract::lock::Worker;
-use matedit_datagen::dataset::run::{RunOptions, load as load_manifest, run};
-use matedit_physics::brdf::Dsbrdf;
+use matedit_fixtures::{OCTAHEDRON, Sources, five_materials, render_dataset};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -61,9 +59,6 @@ name = "test"
 shapes = { car = 1 }
 materials = 2
 "#;
-
-const OCTAHEDRON: &str = "v 1 0 0\nv -1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nv 0 0 -1\n\
-f 1 3 5\nf 3 2 5\nf 2 4 5\nf 4 1 5\nf 3 1 6\nf 2 3 6\nf 4 2 6\nf 1 4 6\n";
 
 /// A training manifest over `dataset`: two stages with frequent checkpoints.
 fn training_manifest(dataset: &Path) -> String {
@@ -123,37 +118,21 @@ fn root() -> PathBuf {
 fn dataset() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let src = root().join("src");
         let _ = std::fs::remove_dir_all(root());
-        std::fs::create_dir_all(src.join("mats")).unwrap();
-        std::fs::create_dir_all(src.join("objs")).unwrap();
-        std::fs::write(src.join("objs/octahedron.obj"), OCTAHEDRON).unwrap();
-        let mats = [
-            Dsbrdf::near_lambertian([0.8, 0.2, 0.1]),
-            Dsbrdf::near_lambertian([0.1, 0.5, 0.7]),
-            Dsbrdf::from_normalised(&(0..108).map(|i| 0.5 * (i as f64).sin()).collect::<Vec<_>>()).unwrap(),
-            Dsbrdf::near_lambertian([0.4, 0.4, 0.4]),
-            Dsbrdf::near_lambertian([0.9, 0.9, 0.2]),
-        ];
-        for (i, m) in mats.iter().enumerate() {
-            std::fs::write(src.join(format!("mats/m{i}.dsbrdf.json")), m.to_json()).unwrap();
-        }
-        render(&src, "m.toml", DATASET, "dataset")
+        render("m.toml", DATASET, "dataset")
     })
 }
 
-/// Renders dataset manifest `text`, written as `src/name`, into `root()/out`.
-fn render(src: &Path, name: &str, text: &str, out: &str) -> PathBuf {
-    std::fs::write(src.join(name), text).unwrap();
-    let out = root().join(out);
-    let l = load_manifest(&src.join(name)).unwrap();
-    let opts = RunOptions {
-        out: Some(out.clone()),
-        worker: Worker::ALL,
-        progress: false,
+/// Renders dataset manifest `text`, written as `src/name` beside the five materials and the
+/// octahedron, into `root()/out`.
+fn render(name: &str, text: &str, out: &str) -> PathBuf {
+    let materials = five_materials();
+    let sources = Sources {
+        manifest: text,
+        materials: &materials,
+        objs: &[("octahedron.obj", OCTAHEDRON)],
     };
-    run(&l, &opts).unwrap();
-    out
+    render_dataset(&root(), name, &sources, out)
 }
 
 fn trainer() -> Command {
@@ -697,10 +676,10 @@ fn eval_scores_only_the_asked_categories() {
 fn single_material_dataset() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let src = dataset().parent().unwrap().join("src");
+        dataset();
         let text = DATASET.replace("[multi_material]\nmode = \"per_region\"\n", "");
         assert_ne!(text, DATASET);
-        render(&src, "single.toml", &text, "dataset-single")
+        render("single.toml", &text, "dataset-single")
     })
 }
 

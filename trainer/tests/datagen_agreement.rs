@@ -6,8 +6,7 @@
 //! The dataset goes through the trainer's own reader (checksums, EXR decoding, the material
 //! table's normalised parameters), so this is the path training takes.
 
-use matedit_contract::lock::Worker;
-use matedit_datagen::dataset::run::{RunOptions, load as load_manifest, run};
+use matedit_fixtures::{Sources, render_dataset};
 use matedit_physics::brdf::Dsbrdf;
 use matedit_trainer::data::{Dataset, Loader, LoaderConfig};
 use matedit_trainer::render::{Batch, RenderingLayer};
@@ -91,25 +90,18 @@ fn relative_rmse(got: &[f32], want: &[f32], mask: &[f32], pixels: usize) -> f64 
 fn make_dataset(tag: &str) -> (std::path::PathBuf, std::path::PathBuf) {
     let root = std::env::temp_dir().join(format!("matedit-trainer-{tag}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&root);
-    std::fs::create_dir_all(root.join("mats")).unwrap();
-    let mats = [
+    let materials = [
         material([0.7, 0.2, 0.1], (0.3, 8.0), (1.5, 120.0)),
         material([0.1, 0.4, 0.6], (0.05, 30.0), (3.0, 600.0)),
         material([0.5, 0.5, 0.5], (0.8, 3.0), (1e-5, 1e4)),
         material([0.05, 0.05, 0.05], (0.2, 15.0), (2.0, 250.0)),
     ];
-    for (i, m) in mats.iter().enumerate() {
-        std::fs::write(root.join(format!("mats/m{i}.dsbrdf.json")), m.to_json()).unwrap();
-    }
-    std::fs::write(root.join("m.toml"), DATASET).unwrap();
-    let out = root.join("dataset");
-    let manifest = load_manifest(&root.join("m.toml")).unwrap();
-    let opts = RunOptions {
-        out: Some(out.clone()),
-        worker: Worker::ALL,
-        progress: false,
+    let sources = Sources {
+        manifest: DATASET,
+        materials: &materials,
+        objs: &[],
     };
-    run(&manifest, &opts).unwrap();
+    let out = render_dataset(&root, "m.toml", &sources, "dataset");
     (root, out)
 }
 

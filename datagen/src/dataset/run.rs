@@ -250,6 +250,41 @@ pub struct RunSummary {
     pub joined: bool,
 }
 
+impl RunSummary {
+    /// What `datagen run` reports when it ends: shards and samples rendered and their rate,
+    /// and what was written (or, for one of several workers, how to join).
+    pub fn report(&self, worker: Worker) -> String {
+        let rate = if self.render_s > 0.0 {
+            self.rendered_samples as f64 / self.render_s
+        } else {
+            0.0
+        };
+        let mut out = format!(
+            "{}: rendered {} shards ({} samples, {:.1} samples/s), {} already complete\n",
+            self.dir.display(),
+            self.rendered_shards,
+            self.rendered_samples,
+            rate,
+            self.resumed_shards
+        );
+        if self.joined {
+            out += &format!(
+                "wrote {} and {}\n",
+                self.dir.join("index.jsonl").display(),
+                self.dir.join("dataset.json").display()
+            );
+        } else {
+            out += &format!(
+                "worker {}/{} done; when every worker has finished: datagen join {}\n",
+                worker.index,
+                worker.count,
+                self.dir.display()
+            );
+        }
+        out
+    }
+}
+
 fn bar(progress: bool, len: u64, what: &str) -> Progress {
     Progress::new(
         progress,

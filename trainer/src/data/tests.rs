@@ -4,9 +4,7 @@
 
 use super::*;
 use matedit_contract::io::read_exr_channels;
-use matedit_contract::lock::Worker;
-use matedit_datagen::dataset::run::{RunOptions, load as load_manifest, run};
-use matedit_physics::brdf::Dsbrdf;
+use matedit_fixtures::{OCTAHEDRON, Sources, copy_dir, five_materials, render_dataset};
 use std::sync::{Arc, OnceLock};
 
 const MANIFEST: &str = r#"
@@ -59,9 +57,6 @@ shapes = { car = 1 }
 materials = 2
 "#;
 
-const OCTAHEDRON: &str = "v 1 0 0\nv -1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nv 0 0 -1\n\
-f 1 3 5\nf 3 2 5\nf 2 4 5\nf 4 1 5\nf 3 1 6\nf 2 3 6\nf 4 2 6\nf 1 4 6\n";
-
 fn root() -> PathBuf {
     std::env::temp_dir().join(format!("matedit-trainer-data-{}", std::process::id()))
 }
@@ -70,51 +65,22 @@ fn root() -> PathBuf {
 fn fixture() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let src = root().join("src");
         let _ = std::fs::remove_dir_all(root());
-        std::fs::create_dir_all(src.join("mats")).unwrap();
-        std::fs::create_dir_all(src.join("objs")).unwrap();
-        std::fs::write(src.join("objs/octahedron.obj"), OCTAHEDRON).unwrap();
-        let mats = [
-            Dsbrdf::near_lambertian([0.8, 0.2, 0.1]),
-            Dsbrdf::near_lambertian([0.1, 0.5, 0.7]),
-            Dsbrdf::from_normalised(&(0..108).map(|i| 0.5 * (i as f64).sin()).collect::<Vec<_>>()).unwrap(),
-            Dsbrdf::near_lambertian([0.4, 0.4, 0.4]),
-            Dsbrdf::near_lambertian([0.9, 0.9, 0.2]),
-        ];
-        for (i, m) in mats.iter().enumerate() {
-            std::fs::write(src.join(format!("mats/m{i}.dsbrdf.json")), m.to_json()).unwrap();
-        }
-        std::fs::write(src.join("m.toml"), MANIFEST).unwrap();
-        let out = root().join("dataset");
-        let l = load_manifest(&src.join("m.toml")).unwrap();
-        let opts = RunOptions {
-            out: Some(out.clone()),
-            worker: Worker::ALL,
-            progress: false,
+        let materials = five_materials();
+        let sources = Sources {
+            manifest: MANIFEST,
+            materials: &materials,
+            objs: &[("octahedron.obj", OCTAHEDRON)],
         };
-        run(&l, &opts).unwrap();
-        out
+        render_dataset(&root(), "m.toml", &sources, "dataset")
     })
 }
 
 /// A private copy of the fixture for a test that damages files.
 fn copy_fixture(name: &str) -> PathBuf {
-    fn copy(from: &Path, to: &Path) {
-        std::fs::create_dir_all(to).unwrap();
-        for e in std::fs::read_dir(from).unwrap() {
-            let p = e.unwrap().path();
-            let dest = to.join(p.file_name().unwrap());
-            if p.is_dir() {
-                copy(&p, &dest);
-            } else {
-                std::fs::copy(&p, &dest).unwrap();
-            }
-        }
-    }
     let dest = root().join(name);
     let _ = std::fs::remove_dir_all(&dest);
-    copy(fixture(), &dest);
+    copy_dir(fixture(), &dest);
     dest
 }
 

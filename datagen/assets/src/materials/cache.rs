@@ -203,6 +203,36 @@ pub fn resolve(spec: &matedit_physics::BrdfSpec, dir: &Path) -> Result<matedit_p
     }
 }
 
+/// `datagen fit`: fits `spec` (resolved with the cache in `dir`), writes the material to `out`
+/// and its errors to `out` with the extension `fit.json`, both atomically; returns the report
+/// lines.
+pub fn fit_to_file(spec: &matedit_physics::BrdfSpec, dir: &Path, out: &Path) -> Result<String> {
+    let source = resolve(spec, dir)?;
+    let t = std::time::Instant::now();
+    let (m, report) = fit_and_report(&source);
+    let rendered: Vec<String> = report
+        .rendered
+        .iter()
+        .map(|(e, v)| format!("{e} {:.2}%", 100.0 * v))
+        .collect();
+    let mut lines = format!(
+        "fit in {:.1} s: BRDF-space log RMSE {:.4}; rendered relative RMSE: {}\n",
+        t.elapsed().as_secs_f64(),
+        report.brdf_log_rmse,
+        rendered.join(", ")
+    );
+    write_atomically(out, |tmp| Ok(std::fs::write(tmp, m.to_json())?))?;
+    let json = serde_json::json!({
+        "source": format!("{spec:?}"),
+        "brdf_log_rmse": report.brdf_log_rmse,
+        "rendered_rel_rmse": report.rendered.iter().map(|(e, v)| (e.clone(), *v)).collect::<BTreeMap<_, _>>(),
+    });
+    let report_path = out.with_extension("fit.json");
+    write_atomically(&report_path, |tmp| Ok(std::fs::write(tmp, format!("{json:#}\n"))?))?;
+    lines += &format!("wrote {} and {}\n", out.display(), report_path.display());
+    Ok(lines)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

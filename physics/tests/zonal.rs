@@ -54,7 +54,7 @@ fn resolvable() -> Vec<(&'static str, BrdfModel, f64)> {
             BrdfModel::Dsbrdf(Box::new(
                 Dsbrdf::load(std::path::Path::new(concat!(
                     env!("CARGO_MANIFEST_DIR"),
-                    "/assets/materials/red_plastic.dsbrdf.json"
+                    "/../assets/materials/red_plastic.dsbrdf.json"
                 )))
                 .expect("example material"),
             )),

@@ -2,7 +2,7 @@
 //! the analytic BRDFs themselves: the trilinear lookup against the nearest-sample lookup, and
 //! the cost of one `eval` of each.
 //!
-//! `cargo test --release --test merl_interpolation -- --nocapture` prints the table of
+//! `cargo test --release -p matedit-physics --test merl_interpolation -- --nocapture` prints the table of
 //! `docs/PERFORMANCE.md` ("MERL lookups: nearest vs interpolated"). `MATEDIT_MERL_SPHERE` and
 //! `MATEDIT_MERL_ENV_ROWS` (default 64 and 32) set the sphere's and the environment's resolution.
 

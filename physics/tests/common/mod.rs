@@ -1,0 +1,37 @@
+//! Helpers shared by the physics tests (and, through a `#[path]` module, the workspace tests).
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+
+/// Pixels whose whole square lies inside the unit disk (the sphere's fully covered pixels).
+pub fn fully_covered(res: usize) -> Vec<usize> {
+    let h = 1.0 / res as f64;
+    (0..res * res)
+        .filter(|p| {
+            let (x, y) = matedit_physics::camera::pixel_center(p % res, p / res, res);
+            let (x, y) = (x.abs() + h, y.abs() + h);
+            x * x + y * y < 1.0
+        })
+        .collect()
+}
+
+/// Relative RMSE of `a` against `b` over `pixels`, all channels.
+pub fn rel_rmse(a: &[[f32; 3]], b: &[[f32; 3]], pixels: &[usize]) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for &p in pixels {
+        for c in 0..3 {
+            let d = a[p][c] as f64 - b[p][c] as f64;
+            num += d * d;
+            den += (b[p][c] as f64).powi(2);
+        }
+    }
+    (num / den).sqrt()
+}
+
+/// `../shared/eval-assets` (or `$MATEDIT_EVAL_ASSETS`), when present.
+pub fn eval_assets() -> Option<PathBuf> {
+    let p = std::env::var_os("MATEDIT_EVAL_ASSETS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/eval-assets"));
+    p.is_dir().then_some(p)
+}
