@@ -19,24 +19,11 @@ pub enum Accel {
     Embree,
 }
 
+impl matedit_contract::manifest::Named for Accel {
+    const NAMES: &'static [(&'static str, Self)] = &[("obvhs", Accel::Obvhs), ("embree", Accel::Embree)];
+}
+
 impl Accel {
-    /// Its name in manifests and on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            Accel::Obvhs => "obvhs",
-            Accel::Embree => "embree",
-        }
-    }
-
-    /// By name; `None` for an unknown one.
-    pub fn from_name(name: &str) -> Option<Self> {
-        match name {
-            "obvhs" => Some(Accel::Obvhs),
-            "embree" => Some(Accel::Embree),
-            _ => None,
-        }
-    }
-
     /// Whether this build can use it.
     pub fn available(self) -> bool {
         match self {
@@ -386,6 +373,7 @@ fn barycentrics(tri: &Triangle, origin: Vec3, dir: Vec3) -> (f32, f32) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use matedit_contract::manifest::Named;
 
     fn two_triangles() -> Mesh {
         Mesh {

@@ -194,3 +194,108 @@ pub fn training(
         peak_bytes: peak as usize,
     })
 }
+
+/// What `trainer bench` measures.
+pub struct Options {
+    /// Images per batch of the rendering layer.
+    pub batch: usize,
+    /// Image side of the rendering layer.
+    pub size: usize,
+    /// Timed runs (the median is reported).
+    pub runs: usize,
+    /// Also time the tensor reference of the layer (CPU device).
+    pub reference: bool,
+    /// Training configurations, `NAME:SIZE:BATCH` (NAME: cpu-small or paper).
+    pub train: Vec<String>,
+}
+
+/// `trainer bench`'s report on device `device` (a training manifest's device name): the
+/// rendering layer (the fused CPU layer against the tensor reference on the CPU device, the GPU
+/// kernels on a GPU device), then training images/s per configuration. `alloc` measures peak
+/// host memory where the binary installed it.
+pub fn report(device: &str, opts: &Options, alloc: Option<&PeakAlloc>) -> Result<String> {
+    use std::fmt::Write;
+    let dev = crate::train::run::device_for(device)?;
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "# trainer bench (device {device}: {dev:?}; {} threads)",
+        rayon::current_num_threads()
+    );
+    let (batch, size, runs) = (opts.batch, opts.size, opts.runs);
+    let _ = writeln!(
+        out,
+        "rendering layer, batch {batch} at {size}², 64x128 environment, forward+backward:"
+    );
+    if let Some(line) = gpu_layer_line(&dev, batch, size, runs)? {
+        out.push_str(&line);
+    } else {
+        let (fused, reference) = rendering_layer(batch, size, 64, runs, opts.reference, alloc)?;
+        let _ = writeln!(
+            out,
+            "  fused             {:9.3} s  peak {:9.1} MB",
+            fused.seconds,
+            fused.peak_bytes as f64 / 1e6
+        );
+        if let Some(r) = reference {
+            let _ = writeln!(
+                out,
+                "  tensor reference  {:9.3} s  peak {:9.1} MB",
+                r.seconds,
+                r.peak_bytes as f64 / 1e6
+            );
+            let _ = writeln!(
+                out,
+                "  ratio             {:9.1}x faster, {:.1}x less peak memory",
+                r.seconds / fused.seconds,
+                r.peak_bytes as f64 / fused.peak_bytes.max(1) as f64
+            );
+        }
+    }
+    for spec in &opts.train {
+        let parts: Vec<&str> = spec.split(':').collect();
+        let [name, s, b] = parts.as_slice() else {
+            anyhow::bail!("--train {spec}: expected NAME:SIZE:BATCH");
+        };
+        let widths = match *name {
+            "cpu-small" => Widths::cpu_small(),
+            "paper" => Widths::paper(),
+            other => anyhow::bail!("--train {spec}: unknown configuration {other} (cpu-small, paper)"),
+        };
+        let (s, b): (usize, usize) = (s.parse()?, b.parse()?);
+        let m = training(&dev, name, widths, s, b, 3)?;
+        let memory = if m.peak_bytes > 0 {
+            format!(", device memory reserved {:.1} MB", m.peak_bytes as f64 / 1e6)
+        } else {
+            String::new()
+        };
+        let _ = writeln!(
+            out,
+            "training (joint step) {:24} {:7.2} images/s ({:.3} s/step{memory})",
+            m.name,
+            b as f64 / m.seconds,
+            m.seconds
+        );
+    }
+    Ok(out)
+}
+
+/// The GPU kernels' line of the report, on a GPU device.
+#[cfg(feature = "wgpu")]
+fn gpu_layer_line(dev: &Device, batch: usize, size: usize, runs: usize) -> Result<Option<String>> {
+    if crate::render::on_device(dev, 64).is_none() {
+        return Ok(None);
+    }
+    let m = rendering_layer_on_device(dev, batch, size, 64, runs)?;
+    Ok(Some(format!(
+        "  GPU kernels       {:9.3} s  device memory reserved {:9.1} MB\n",
+        m.seconds,
+        m.peak_bytes as f64 / 1e6
+    )))
+}
+
+/// Without the `wgpu` feature there are no GPU kernels.
+#[cfg(not(feature = "wgpu"))]
+fn gpu_layer_line(_dev: &Device, _batch: usize, _size: usize, _runs: usize) -> Result<Option<String>> {
+    Ok(None)
+}

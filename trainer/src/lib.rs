@@ -1,13 +1,22 @@
 //! # matedit-trainer
 //!
-//! The network of Fig. 2 of the paper and everything around it: reading the factory's datasets
-//! (`data`), the prediction modules and Baseline 1's encoder–decoder (`model`), the
-//! differentiable rendering layer (`render`), losses, steps, stages and checkpoints (`train`),
-//! the paper's metrics, shared by losses and evaluation (`metrics`), Tables 1–3 (`eval`), the comparison methods that are not networks
-//! (`baseline`), editing photos and the post-optimisation of Eq. 6 (`edit`), the editing web page
-//! (`serve`), and the material
-//! targets (`targets`): the 108 DSBRDF parameters normalised to the tanh range [−0.95, 0.95]
-//! (Sec. 3.2) and back.
+//! The network of Fig. 2 of the paper and everything around it:
+//!
+//! * [`data`]: reading the factory's datasets (through `matedit-contract`'s reader and checker);
+//! * [`model`]: the normal, material and illumination modules, the network, and Baseline 1's
+//!   encoder–decoder;
+//! * [`render`]: the differentiable rendering layer (Eq. 2; CPU, and GPU kernels with `wgpu`);
+//! * [`targets`]: the 108 DSBRDF parameters normalised to the tanh range [−0.95, 0.95]
+//!   (Sec. 3.2) and back;
+//! * [`train`]: losses (Eq. 5), steps, stages, checkpoints and training manifests;
+//! * [`metrics`]: the paper's metrics, shared by the losses and the evaluation;
+//! * [`eval`]: Tables 1–3; [`baseline`]: the comparison methods that are not networks;
+//! * [`edit`]: editing photos, material transfer and swap, and the post-optimisation of Eq. 6;
+//! * [`serve`]: the editing web page; [`bench`]: speed of the layer and of training;
+//!   [`alloc`]: the counting allocator behind peak-memory figures.
+//!
+//! It depends on `matedit-physics`, `matedit-contract` and `matedit-assets` only; the factory
+//! (meshes, BVHs) is not part of its build.
 
 #![warn(missing_docs)]
 

@@ -7,7 +7,6 @@ use matedit_trainer::alloc::PeakAlloc;
 use matedit_trainer::baseline::lombardi::LombardiConfig;
 use matedit_trainer::bench;
 use matedit_trainer::eval::{EvalOptions, evaluate};
-use matedit_trainer::model::Widths;
 use matedit_trainer::targets::{material_from_prediction, normalised_target};
 use matedit_trainer::train::manifest;
 use matedit_trainer::train::run::{Preempted, open_dataset_stream, run as run_manifest, stop_requested};
@@ -277,74 +276,15 @@ fn run(cli: Cli) -> Result<()> {
             train,
             device,
         } => {
-            let dev = matedit_trainer::train::run::device_for(&device)?;
-            println!(
-                "# trainer bench (device {device}: {dev:?}; {} threads)",
-                rayon::current_num_threads()
-            );
-            bench_layer(&dev, batch, size, runs, no_reference)?;
-            for spec in train {
-                let parts: Vec<&str> = spec.split(':').collect();
-                let [name, s, b] = parts.as_slice() else {
-                    anyhow::bail!("--train {spec}: expected NAME:SIZE:BATCH");
-                };
-                let widths = match *name {
-                    "cpu-small" => Widths::cpu_small(),
-                    "paper" => Widths::paper(),
-                    other => anyhow::bail!("--train {spec}: unknown configuration {other} (cpu-small, paper)"),
-                };
-                let (s, b): (usize, usize) = (s.parse()?, b.parse()?);
-                let m = bench::training(&dev, name, widths, s, b, 3)?;
-                let memory = if m.peak_bytes > 0 {
-                    format!(", device memory reserved {:.1} MB", m.peak_bytes as f64 / 1e6)
-                } else {
-                    String::new()
-                };
-                println!(
-                    "training (joint step) {:24} {:7.2} images/s ({:.3} s/step{memory})",
-                    m.name,
-                    b as f64 / m.seconds,
-                    m.seconds
-                );
-            }
+            let opts = bench::Options {
+                batch,
+                size,
+                runs,
+                reference: !no_reference,
+                train,
+            };
+            print!("{}", bench::report(&device, &opts, Some(&ALLOC))?);
         }
-    }
-    Ok(())
-}
-
-/// `trainer bench`'s rendering-layer lines: the fused CPU layer (and the tensor reference) on
-/// the CPU device, the GPU kernels on a GPU device.
-fn bench_layer(dev: &burn::tensor::Device, batch: usize, size: usize, runs: usize, no_reference: bool) -> Result<()> {
-    #[cfg(feature = "wgpu")]
-    if matedit_trainer::render::on_device(dev, 64).is_some() {
-        let m = bench::rendering_layer_on_device(dev, batch, size, 64, runs)?;
-        println!("rendering layer, batch {batch} at {size}², 64x128 environment, forward+backward:");
-        println!(
-            "  GPU kernels       {:9.3} s  device memory reserved {:9.1} MB",
-            m.seconds,
-            m.peak_bytes as f64 / 1e6
-        );
-        return Ok(());
-    }
-    let _ = dev;
-    let (fused, reference) = bench::rendering_layer(batch, size, 64, runs, !no_reference, Some(&ALLOC))?;
-    println!("rendering layer, batch {batch} at {size}², 64x128 environment, forward+backward:");
-    println!(
-        "  fused             {:9.3} s  peak {:9.1} MB",
-        fused.seconds,
-        fused.peak_bytes as f64 / 1e6
-    );
-    if let Some(r) = reference {
-        println!(
-            "  tensor reference  {:9.3} s  peak {:9.1} MB",
-            r.seconds,
-            r.peak_bytes as f64 / 1e6
-        );
-        println!(
-            "  ratio             {:9.1}x faster, {:.1}x less peak memory",
-            r.seconds / fused.seconds,
-            r.peak_bytes as f64 / fused.peak_bytes.max(1) as f64
-        );
     }
     Ok(())
 }

@@ -3,7 +3,9 @@
 //! Syntax and type errors come from the TOML parser with their line and column.
 
 use serde::de::DeserializeOwned;
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::path::Path;
+use toml::Spanned;
 
 /// A manifest problem, located in the file.
 #[derive(Debug, thiserror::Error)]
@@ -128,6 +130,94 @@ pub fn invalid(
     }
 }
 
+/// An enum written as a name in a manifest: its names, in the one list everything else (the
+/// parser, the messages, `FromStr` where there is one) reads.
+pub trait Named: Copy + PartialEq + 'static {
+    /// Every value with its name, in the order messages list them.
+    const NAMES: &'static [(&'static str, Self)];
+
+    /// For a name that was accepted once: why it is refused now and what to use instead.
+    fn removed(_name: &str) -> Option<&'static str> {
+        None
+    }
+
+    /// The name of a value.
+    fn name(self) -> &'static str {
+        Self::NAMES.iter().find(|(_, v)| *v == self).map_or("?", |(n, _)| n)
+    }
+
+    /// The value of a name.
+    fn from_name(name: &str) -> Option<Self> {
+        Self::NAMES.iter().find(|(n, _)| *n == name).map(|(_, v)| *v)
+    }
+
+    /// What a refused name gets: the removal note, or the accepted names.
+    fn refusal(name: &str) -> String {
+        match Self::removed(name) {
+            Some(why) => format!("{name:?} was removed: {why}"),
+            None => {
+                let names: Vec<&str> = Self::NAMES.iter().map(|(n, _)| *n).collect();
+                format!("{name:?}: expected {}", names.join(", "))
+            }
+        }
+    }
+}
+
+/// A manifest field holding one of a [`Named`] enum's names. Any string deserializes, so that a
+/// name outside the list is reported by [`choice`] as `FILE:LINE: FIELD: message` with the
+/// accepted names, like every other checked value; it serializes as the name written.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Choice<T> {
+    /// One of the names.
+    Known(T),
+    /// Anything else, as written.
+    Unknown(String),
+}
+
+impl<T: Named> Choice<T> {
+    /// A default: `value` with no span.
+    pub fn default_to(value: T) -> Spanned<Choice<T>> {
+        Spanned::new(0..0, Choice::Known(value))
+    }
+}
+
+impl<'de, T: Named> Deserialize<'de> for Choice<T> {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let name = String::deserialize(d)?;
+        Ok(T::from_name(&name).map_or(Choice::Unknown(name), Choice::Known))
+    }
+}
+
+impl<T: Named> Serialize for Choice<T> {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            Choice::Known(v) => s.serialize_str(v.name()),
+            Choice::Unknown(name) => s.serialize_str(name),
+        }
+    }
+}
+
+/// The value of `field`, or a located error naming the accepted names.
+pub fn choice<T: Named>(
+    path: &Path,
+    text: &str,
+    field_value: &Spanned<Choice<T>>,
+    field: &str,
+) -> Result<T, ManifestError> {
+    match field_value.get_ref() {
+        Choice::Known(v) => Ok(*v),
+        Choice::Unknown(name) => Err(invalid(path, text, field_value.span(), field, T::refusal(name))),
+    }
+}
+
+/// The qualities of Eq. 2's implementations, from their one list in the physics crate.
+impl Named for matedit_physics::shading::Quality {
+    const NAMES: &'static [(&'static str, Self)] = &matedit_physics::shading::Quality::NAMES;
+    fn removed(name: &str) -> Option<&'static str> {
+        matedit_physics::shading::Quality::removed(name)
+    }
+}
+
 /// Expands `${NAME}` from the environment.
 pub fn expand_vars(s: &str) -> Result<String, String> {
     let mut out = String::new();
@@ -148,6 +238,45 @@ pub fn expand_vars(s: &str) -> Result<String, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    enum Colour {
+        Red,
+        Green,
+    }
+
+    impl Named for Colour {
+        const NAMES: &'static [(&'static str, Self)] = &[("red", Colour::Red), ("green", Colour::Green)];
+        fn removed(name: &str) -> Option<&'static str> {
+            (name == "blue").then_some("use green")
+        }
+    }
+
+    #[derive(Deserialize, Serialize)]
+    struct Paint {
+        colour: Spanned<Choice<Colour>>,
+    }
+
+    #[test]
+    fn choices_parse_by_name_and_refuse_others_at_their_line() {
+        let p = Path::new("paint.toml");
+        let text = "# a comment\ncolour = \"green\"\n";
+        let paint: Paint = parse_toml(p, text).unwrap();
+        assert_eq!(choice(p, text, &paint.colour, "colour").unwrap(), Colour::Green);
+        assert_eq!(toml::to_string(&paint).unwrap().trim(), "colour = \"green\"");
+        for (bad, want) in [
+            ("pink", "\"pink\": expected red, green"),
+            ("blue", "\"blue\" was removed: use green"),
+        ] {
+            let text = format!("\n\ncolour = \"{bad}\"\n");
+            let paint: Paint = parse_toml(p, &text).unwrap();
+            let e = choice(p, &text, &paint.colour, "colour").unwrap_err().to_string();
+            assert_eq!(e, format!("paint.toml:3: colour: {want}"));
+        }
+        assert!(parse_toml::<Paint>(p, "colour = 3").is_err(), "not a string");
+        assert_eq!(Colour::Red.name(), "red");
+        assert_eq!(Colour::from_name("green"), Some(Colour::Green));
+    }
 
     #[test]
     fn nesting_is_counted_outside_strings_and_comments() {

@@ -80,7 +80,7 @@ pub fn bench(
         let out: Vec<(Images, usize)> = picks
             .par_iter()
             .map(|&(s, i)| {
-                let px = r.render(s, i)?;
+                let px = r.render(&plan.sample(s, i))?;
                 let get = |names: [&str; 3]| -> Vec<f32> {
                     names
                         .iter()

@@ -2,13 +2,17 @@
 //! a stable id, sorted by id. Ids name things inside their source, never where it is mounted,
 //! so two machines build identical datasets from the same manifest.
 
-use super::manifest::{EnvSourceToml, ManifestFile, MaterialSourceToml, ShapeSourceToml};
+use super::manifest::{
+    EnvSource, EnvSourceToml, ManifestFile, MaterialSource as MaterialSourceName, MaterialSourceToml, ShapeSource,
+    ShapeSourceToml,
+};
 use crate::shapes::UpAxis;
 use crate::shapes::procedural::Category;
 use crate::shapes::sources;
 use matedit_assets::envmaps::Family;
 use matedit_assets::materials::library::library;
 use matedit_contract::manifest::ManifestError;
+use matedit_contract::manifest::Named;
 use matedit_contract::records::Merge;
 use matedit_physics::BrdfSpec;
 use std::collections::BTreeSet;
@@ -33,6 +37,8 @@ pub struct ShapeItem {
     pub fingerprint: String,
     /// Index of the `[[shapes]]` entry that provides it (for messages).
     pub entry: usize,
+    /// Its region names (`object` for the sphere; empty until the plan loads it).
+    pub regions: Vec<String>,
 }
 
 /// Where a material's BRDF comes from.
@@ -294,11 +300,14 @@ fn shapes_of(
                 up: UpAxis::PosY,
                 fingerprint: String::new(),
                 entry: i,
+                regions: Vec::new(),
             });
         }
     };
-    match s.source.as_str() {
-        "procedural" => {
+    let kind = mf.choice(&s.source, &format!("{field}.source"))?;
+    let source = kind.name();
+    match kind {
+        ShapeSource::Procedural => {
             not_for(
                 mf,
                 &span,
@@ -317,15 +326,15 @@ fn shapes_of(
             let count = generated_count(mf, &span, &field, "count", s.count.as_ref(), first, "required")?;
             procedural(cat, c, first, count);
         }
-        "folder" | "shapenet" => {
+        ShapeSource::Folder | ShapeSource::Shapenet => {
             not_for(
                 mf,
                 &span,
                 &field,
-                &s.source,
+                source,
                 &[("count", s.count.is_some()), ("first_seed", s.first_seed.is_some())],
             )?;
-            let cats: Vec<Category> = if s.source == "folder" {
+            let cats: Vec<Category> = if kind == ShapeSource::Folder {
                 not_for(mf, &span, &field, "folder", &[("categories", s.categories.is_some())])?;
                 let name = required(
                     mf,
@@ -355,7 +364,7 @@ fn shapes_of(
                 "procedural",
             )? {
                 Some(path) => {
-                    let found = if s.source == "folder" {
+                    let found = if kind == ShapeSource::Folder {
                         sources::folder(&path, Some(cats[0]))
                     } else {
                         sources::shapenet(&path, &cats)
@@ -371,6 +380,7 @@ fn shapes_of(
                             up,
                             fingerprint: String::new(),
                             entry: i,
+                            regions: Vec::new(),
                         });
                     }
                 }
@@ -394,13 +404,6 @@ fn shapes_of(
                     ));
                 }
             }
-        }
-        other => {
-            return Err(mf.invalid(
-                span,
-                &format!("{field}.source"),
-                format!("{other:?}: expected procedural, folder or shapenet"),
-            ));
         }
     }
     Ok(())
@@ -488,8 +491,10 @@ fn materials_of(
     let span = entry.span();
     let s = entry.get_ref();
     let field = format!("materials[{i}]");
-    match s.source.as_str() {
-        "library" => {
+    let kind = mf.choice(&s.source, &format!("{field}.source"))?;
+    let source = kind.name();
+    match kind {
+        MaterialSourceName::Library => {
             not_for(
                 mf,
                 &span,
@@ -501,15 +506,15 @@ fn materials_of(
                 .map_err(|e| mf.invalid(span.clone(), &format!("{field}.names"), e))?;
             cat.materials.extend(items);
         }
-        "dsbrdf" | "merl" => {
+        MaterialSourceName::Dsbrdf | MaterialSourceName::Merl => {
             not_for(
                 mf,
                 &span,
                 &field,
-                &s.source,
+                source,
                 &[("names", s.names.is_some()), ("families", s.families.is_some())],
             )?;
-            let suffix = if s.source == "dsbrdf" {
+            let suffix = if kind == MaterialSourceName::Dsbrdf {
                 ".dsbrdf.json"
             } else {
                 ".binary"
@@ -539,7 +544,7 @@ fn materials_of(
                     }
                     for f in files {
                         let name = stem(&f, suffix);
-                        let (id, group, source) = if s.source == "dsbrdf" {
+                        let (id, group, source) = if kind == MaterialSourceName::Dsbrdf {
                             (
                                 format!("dsbrdf:{name}"),
                                 format!("dsbrdf:{name}"),
@@ -567,13 +572,6 @@ fn materials_of(
                     cat.materials.extend(items);
                 }
             }
-        }
-        other => {
-            return Err(mf.invalid(
-                span,
-                &format!("{field}.source"),
-                format!("{other:?}: expected library, dsbrdf or merl"),
-            ));
         }
     }
     Ok(())
@@ -616,8 +614,10 @@ fn envs_of(
     let span = entry.span();
     let s = entry.get_ref();
     let field = format!("environments[{i}]");
-    match s.source.as_str() {
-        "procedural" => {
+    let kind = mf.choice(&s.source, &format!("{field}.source"))?;
+    let source = kind.name();
+    match kind {
+        EnvSource::Procedural => {
             not_for(
                 mf,
                 &span,
@@ -636,12 +636,12 @@ fn envs_of(
                 .map_err(|e| mf.invalid(span.clone(), &format!("{field}.family"), e))?;
             cat.envs.extend(items);
         }
-        "file" | "folder" => {
+        EnvSource::File | EnvSource::Folder => {
             not_for(
                 mf,
                 &span,
                 &field,
-                &s.source,
+                source,
                 &[
                     ("family", s.family.is_some()),
                     ("count", s.count.is_some()),
@@ -726,13 +726,6 @@ fn envs_of(
                     cat.envs.extend(items);
                 }
             }
-        }
-        other => {
-            return Err(mf.invalid(
-                span,
-                &format!("{field}.source"),
-                format!("{other:?}: expected procedural, file or folder"),
-            ));
         }
     }
     Ok(())

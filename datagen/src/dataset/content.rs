@@ -262,20 +262,22 @@ pub fn analyse(mf: &ManifestFile, cat: &mut Catalogue, envs_dealt: bool) -> Resu
     let entry_span = |list_span: Option<std::ops::Range<usize>>| list_span.unwrap_or(0..0);
 
     // Shapes: load in parallel (rayon keeps the order), fingerprint and describe.
-    let loaded: Vec<Result<(String, Vec<f32>), String>> = cat
+    type Loaded = (String, Vec<f32>, Vec<String>);
+    let loaded: Vec<Result<Loaded, String>> = cat
         .shapes
         .par_iter()
         .map(|s| match Shape::load(&s.spec, UpAxis::PosY) {
-            Ok(Shape::Mesh(mesh)) => Ok((mesh_fingerprint(&mesh), mesh_descriptor(&mesh))),
-            Ok(Shape::Sphere) => Ok((format!("sphere:{}", s.spec), Vec::new())),
+            Ok(Shape::Mesh(mesh)) => Ok((mesh_fingerprint(&mesh), mesh_descriptor(&mesh), mesh.regions.clone())),
+            Ok(Shape::Sphere) => Ok((format!("sphere:{}", s.spec), Vec::new(), vec!["object".into()])),
             Err(e) => Err(e.to_string()),
         })
         .collect();
     let mut descriptors = Vec::with_capacity(loaded.len());
     for (s, r) in cat.shapes.iter_mut().zip(loaded) {
         match r {
-            Ok((fp, d)) => {
+            Ok((fp, d, regions)) => {
                 s.fingerprint = fp;
+                s.regions = regions;
                 descriptors.push(d);
             }
             Err(e) => {

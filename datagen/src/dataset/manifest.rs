@@ -6,11 +6,135 @@
 //! `FILE:LINE: FIELD: message` through [`ManifestError`]. The field-by-field reference is
 //! `manifests/README.md`.
 
-use matedit_contract::manifest::{ManifestError, expand_vars, invalid, line_of, parse_toml, read_text};
+use super::plan::{GroundTruth, ShadowPolicy};
+use crate::accel::Accel;
+use matedit_contract::manifest::{
+    Choice, ManifestError, Named, choice, expand_vars, invalid, line_of, parse_toml, read_text,
+};
+use matedit_physics::shading::Quality;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use toml::Spanned;
+
+/// `[[shapes]] source`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ShapeSource {
+    /// Generated shapes of a category.
+    Procedural,
+    /// A folder of OBJ files.
+    Folder,
+    /// A ShapeNet tree.
+    Shapenet,
+}
+
+impl Named for ShapeSource {
+    const NAMES: &'static [(&'static str, Self)] = &[
+        ("procedural", ShapeSource::Procedural),
+        ("folder", ShapeSource::Folder),
+        ("shapenet", ShapeSource::Shapenet),
+    ];
+}
+
+/// `[[materials]] source`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MaterialSource {
+    /// The material library.
+    Library,
+    /// DSBRDF files.
+    Dsbrdf,
+    /// MERL measurements.
+    Merl,
+}
+
+impl Named for MaterialSource {
+    const NAMES: &'static [(&'static str, Self)] = &[
+        ("library", MaterialSource::Library),
+        ("dsbrdf", MaterialSource::Dsbrdf),
+        ("merl", MaterialSource::Merl),
+    ];
+}
+
+/// `[[environments]] source`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EnvSource {
+    /// Procedural families.
+    Procedural,
+    /// One `.hdr` or `.exr` file.
+    File,
+    /// A folder of them.
+    Folder,
+}
+
+impl Named for EnvSource {
+    const NAMES: &'static [(&'static str, Self)] = &[
+        ("procedural", EnvSource::Procedural),
+        ("file", EnvSource::File),
+        ("folder", EnvSource::Folder),
+    ];
+}
+
+/// `environment_rotation.mode`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RotationKind {
+    /// Uniform in [0°, 360°).
+    Random,
+    /// Always 0°.
+    None,
+    /// Drawn from `values`.
+    List,
+}
+
+impl Named for RotationKind {
+    const NAMES: &'static [(&'static str, Self)] = &[
+        ("random", RotationKind::Random),
+        ("none", RotationKind::None),
+        ("list", RotationKind::List),
+    ];
+}
+
+/// `sampling.mode`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SamplingMode {
+    /// Every shape × material × environment of a split (the paper).
+    Cross,
+    /// `combinations` random combinations per split.
+    Sampled,
+}
+
+impl Named for SamplingMode {
+    const NAMES: &'static [(&'static str, Self)] =
+        &[("cross", SamplingMode::Cross), ("sampled", SamplingMode::Sampled)];
+}
+
+/// `target.policy`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TargetPolicy {
+    /// Another material of the same split, per region.
+    Random,
+    /// m_t = m.
+    Same,
+}
+
+impl Named for TargetPolicy {
+    const NAMES: &'static [(&'static str, Self)] = &[("random", TargetPolicy::Random), ("same", TargetPolicy::Same)];
+}
+
+/// `multi_material.mode`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MaterialsPerObject {
+    /// One material per object.
+    Single,
+    /// One per semantic region of the mesh.
+    PerRegion,
+}
+
+impl Named for MaterialsPerObject {
+    const NAMES: &'static [(&'static str, Self)] = &[
+        ("single", MaterialsPerObject::Single),
+        ("per_region", MaterialsPerObject::PerRegion),
+    ];
+}
 
 /// The whole manifest as written (see `manifests/README.md`).
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -81,16 +205,16 @@ pub struct RenderSection {
     pub env_resolution: Spanned<String>,
     /// `exact`, `fast` or `zonal` (see `docs/PERFORMANCE.md` for speed against error).
     #[serde(default = "default_quality")]
-    pub quality: Spanned<String>,
+    pub quality: Spanned<Choice<Quality>>,
     /// `off`, `on` or `auto` (on for shapes that can shadow themselves).
     #[serde(default = "default_shadows")]
-    pub shadows: Spanned<String>,
+    pub shadows: Spanned<Choice<ShadowPolicy>>,
     /// `dsbrdf` (render the fitted 108-parameter material) or `measured` (render the source).
     #[serde(default = "default_ground_truth")]
-    pub ground_truth: Spanned<String>,
+    pub ground_truth: Spanned<Choice<GroundTruth>>,
     /// Ray queries: `obvhs` or `embree` (a build with `--features embree`).
     #[serde(default = "default_accel")]
-    pub accel: Spanned<String>,
+    pub accel: Spanned<Choice<Accel>>,
 }
 
 fn default_resolution() -> Spanned<usize> {
@@ -99,17 +223,17 @@ fn default_resolution() -> Spanned<usize> {
 fn default_env_resolution() -> Spanned<String> {
     Spanned::new(0..0, "64x128".into())
 }
-fn default_quality() -> Spanned<String> {
-    Spanned::new(0..0, "zonal".into())
+fn default_quality() -> Spanned<Choice<Quality>> {
+    Choice::default_to(Quality::Zonal)
 }
-fn default_shadows() -> Spanned<String> {
-    Spanned::new(0..0, "off".into())
+fn default_shadows() -> Spanned<Choice<ShadowPolicy>> {
+    Choice::default_to(ShadowPolicy::Off)
 }
-fn default_ground_truth() -> Spanned<String> {
-    Spanned::new(0..0, "dsbrdf".into())
+fn default_ground_truth() -> Spanned<Choice<GroundTruth>> {
+    Choice::default_to(GroundTruth::Dsbrdf)
 }
-fn default_accel() -> Spanned<String> {
-    Spanned::new(0..0, "obvhs".into())
+fn default_accel() -> Spanned<Choice<Accel>> {
+    Choice::default_to(Accel::Obvhs)
 }
 
 impl Default for RenderSection {
@@ -167,14 +291,14 @@ impl Default for ViewsSection {
 pub struct RotationSection {
     /// `random` (uniform in [0°, 360°)), `none`, or `list` (drawn from `values`).
     #[serde(default = "default_rotation_mode")]
-    pub mode: Spanned<String>,
+    pub mode: Spanned<Choice<RotationKind>>,
     /// Angles in degrees for `list`.
     #[serde(default)]
     pub values: Vec<f64>,
 }
 
-fn default_rotation_mode() -> Spanned<String> {
-    Spanned::new(0..0, "random".into())
+fn default_rotation_mode() -> Spanned<Choice<RotationKind>> {
+    Choice::default_to(RotationKind::Random)
 }
 
 impl Default for RotationSection {
@@ -193,14 +317,14 @@ pub struct SamplingSection {
     /// `cross` (every shape × material × environment of a split, as in the paper) or
     /// `sampled` (`combinations` random combinations per split).
     #[serde(default = "default_sampling_mode")]
-    pub mode: Spanned<String>,
+    pub mode: Spanned<Choice<SamplingMode>>,
     /// Combinations per split for `sampled`.
     #[serde(default)]
     pub combinations: Option<Spanned<usize>>,
 }
 
-fn default_sampling_mode() -> Spanned<String> {
-    Spanned::new(0..0, "cross".into())
+fn default_sampling_mode() -> Spanned<Choice<SamplingMode>> {
+    Choice::default_to(SamplingMode::Cross)
 }
 
 impl Default for SamplingSection {
@@ -218,11 +342,11 @@ impl Default for SamplingSection {
 pub struct TargetSection {
     /// `random` (another material of the same split, per region) or `same` (m_t = m).
     #[serde(default = "default_target_policy")]
-    pub policy: Spanned<String>,
+    pub policy: Spanned<Choice<TargetPolicy>>,
 }
 
-fn default_target_policy() -> Spanned<String> {
-    Spanned::new(0..0, "random".into())
+fn default_target_policy() -> Spanned<Choice<TargetPolicy>> {
+    Choice::default_to(TargetPolicy::Random)
 }
 
 impl Default for TargetSection {
@@ -241,11 +365,11 @@ pub struct MultiMaterialSection {
     /// gets its own material; the combination's material goes to region 0, the others are
     /// drawn from the split).
     #[serde(default = "default_mm_mode")]
-    pub mode: Spanned<String>,
+    pub mode: Spanned<Choice<MaterialsPerObject>>,
 }
 
-fn default_mm_mode() -> Spanned<String> {
-    Spanned::new(0..0, "single".into())
+fn default_mm_mode() -> Spanned<Choice<MaterialsPerObject>> {
+    Choice::default_to(MaterialsPerObject::Single)
 }
 
 impl Default for MultiMaterialSection {
@@ -261,7 +385,7 @@ impl Default for MultiMaterialSection {
 #[serde(deny_unknown_fields)]
 pub struct ShapeSourceToml {
     /// `procedural`, `folder` or `shapenet`.
-    pub source: String,
+    pub source: Spanned<Choice<ShapeSource>>,
     /// Category (procedural and folder).
     pub category: Option<String>,
     /// Categories to take from a ShapeNet tree (all four when absent).
@@ -286,7 +410,7 @@ pub struct ShapeSourceToml {
 pub struct MaterialSourceToml {
     /// `library`, `dsbrdf` (a file or a folder of `.dsbrdf.json`) or `merl` (a folder of
     /// `.binary` files).
-    pub source: String,
+    pub source: Spanned<Choice<MaterialSource>>,
     /// Library names (`["*"]` for all).
     pub names: Option<Vec<String>>,
     /// Library families (metal, carpaint, plastic, rubber, ceramic, fabric, wood).
@@ -302,7 +426,7 @@ pub struct MaterialSourceToml {
 #[serde(deny_unknown_fields)]
 pub struct EnvSourceToml {
     /// `procedural`, `file` or `folder` (`.hdr` and `.exr`).
-    pub source: String,
+    pub source: Spanned<Choice<EnvSource>>,
     /// Procedural family: sunsky, overcast, softbox, window, or `all`.
     pub family: Option<String>,
     /// Procedural maps per family.
@@ -375,6 +499,11 @@ impl ManifestFile {
     /// The 1-based line of a byte offset (line 1 for defaults, which have no span).
     pub fn line_of(&self, offset: usize) -> usize {
         line_of(&self.text, offset)
+    }
+
+    /// The value of a named choice, or a located error listing the accepted names.
+    pub fn choice<T: Named>(&self, value: &Spanned<Choice<T>>, field: &str) -> Result<T, ManifestError> {
+        choice(&self.path, &self.text, value, field)
     }
 
     /// An [`ManifestError::Invalid`] at `span`.

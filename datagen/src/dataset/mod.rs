@@ -7,7 +7,9 @@
 //! * [`plan`]: the split deal (no shape or material in two splits), combinations, views,
 //!   samples and shards;
 //! * [`materials`]: fitted 108-parameter labels and the BRDFs that render them;
-//! * [`sample`]: one training tuple (I, O, normals, mask, regions, environment);
+//! * [`spec`]: one sample fully described, every random choice made (shape, environment and
+//!   its rotation, view, regions, materials and targets);
+//! * [`sample`]: one training tuple rendered from its description (I, O, normals, mask, regions, environment);
 //! * [`store`]: atomic shards, `index.jsonl`, `dataset.json`, joining workers (the layout,
 //!   the records and their readers are the contract: `matedit_contract::{layout, records}`);
 //! * [`run`]: `plan` and `run` (locking, resuming, workers);
@@ -24,5 +26,6 @@ pub mod materials;
 pub mod plan;
 pub mod run;
 pub mod sample;
+pub mod spec;
 pub mod store;
 pub mod verify;

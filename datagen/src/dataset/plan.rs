@@ -13,11 +13,11 @@
 //! catalogue without duplicates gets the same deal as before fingerprints existed.
 
 use super::catalogue::Catalogue;
-use super::manifest::ManifestFile;
+use super::manifest::{ManifestFile, MaterialsPerObject, RotationKind, SamplingMode, TargetPolicy};
 use crate::accel::Accel;
 use crate::render::Shadows;
 use matedit_assets::random::Draw;
-use matedit_contract::manifest::ManifestError;
+use matedit_contract::manifest::{ManifestError, Named};
 use matedit_physics::shading::Quality;
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
@@ -31,6 +31,19 @@ pub enum RotationMode {
     None,
     /// Drawn from a list.
     List(Vec<f64>),
+}
+
+impl Named for ShadowPolicy {
+    const NAMES: &'static [(&'static str, Self)] = &[
+        ("off", ShadowPolicy::Off),
+        ("on", ShadowPolicy::On),
+        ("auto", ShadowPolicy::Auto),
+    ];
+}
+
+impl Named for GroundTruth {
+    const NAMES: &'static [(&'static str, Self)] =
+        &[("dsbrdf", GroundTruth::Dsbrdf), ("measured", GroundTruth::Measured)];
 }
 
 /// Shadow policy of the manifest.
@@ -199,20 +212,6 @@ fn shuffle<T>(items: &mut [T], draw: &mut Draw) {
     }
 }
 
-fn choice<'a>(
-    mf: &ManifestFile,
-    s: &'a toml::Spanned<String>,
-    field: &str,
-    options: &[&str],
-) -> Result<&'a str, ManifestError> {
-    let v = s.get_ref().as_str();
-    if options.contains(&v) {
-        Ok(v)
-    } else {
-        Err(mf.invalid(s.span(), field, format!("{v:?}: expected {}", options.join(", "))))
-    }
-}
-
 fn settings(mf: &ManifestFile) -> Result<Settings, ManifestError> {
     let m = &mf.manifest;
     let r = &m.render;
@@ -241,21 +240,10 @@ fn settings(mf: &ManifestFile) -> Result<Settings, ManifestError> {
             ));
         }
     };
-    let quality = match choice(mf, &r.quality, "render.quality", &["exact", "fast", "zonal"])? {
-        "exact" => Quality::Exact,
-        "fast" => Quality::Fast,
-        _ => Quality::Zonal,
-    };
-    let shadows = match choice(mf, &r.shadows, "render.shadows", &["off", "on", "auto"])? {
-        "off" => ShadowPolicy::Off,
-        "on" => ShadowPolicy::On,
-        _ => ShadowPolicy::Auto,
-    };
-    let ground_truth = match choice(mf, &r.ground_truth, "render.ground_truth", &["dsbrdf", "measured"])? {
-        "dsbrdf" => GroundTruth::Dsbrdf,
-        _ => GroundTruth::Measured,
-    };
-    let accel = Accel::from_name(choice(mf, &r.accel, "render.accel", &["obvhs", "embree"])?).unwrap_or_default();
+    let quality = mf.choice(&r.quality, "render.quality")?;
+    let shadows = mf.choice(&r.shadows, "render.shadows")?;
+    let ground_truth = mf.choice(&r.ground_truth, "render.ground_truth")?;
+    let accel = mf.choice(&r.accel, "render.accel")?;
     if let Some(why) = accel.unavailable_reason() {
         return Err(mf.invalid(r.accel.span(), "render.accel", format!("\"{}\": {why}", accel.name())));
     }
@@ -277,10 +265,10 @@ fn settings(mf: &ManifestFile) -> Result<Settings, ManifestError> {
         return Err(mf.invalid(v.elevation_deg.span(), "views.elevation_deg", "expected −89° to 89°"));
     }
     let rot = &m.environment_rotation;
-    let rotation = match choice(mf, &rot.mode, "environment_rotation.mode", &["random", "none", "list"])? {
-        "random" => RotationMode::Random,
-        "none" => RotationMode::None,
-        _ => {
+    let rotation = match mf.choice(&rot.mode, "environment_rotation.mode")? {
+        RotationKind::Random => RotationMode::Random,
+        RotationKind::None => RotationMode::None,
+        RotationKind::List => {
             if rot.values.is_empty() || rot.values.iter().any(|x| !x.is_finite()) {
                 return Err(mf.invalid(
                     rot.mode.span(),
@@ -298,13 +286,8 @@ fn settings(mf: &ManifestFile) -> Result<Settings, ManifestError> {
             "only used with mode = \"list\"",
         ));
     }
-    let target_same = choice(mf, &m.target.policy, "target.policy", &["random", "same"])? == "same";
-    let per_region = choice(
-        mf,
-        &m.multi_material.mode,
-        "multi_material.mode",
-        &["single", "per_region"],
-    )? == "per_region";
+    let target_same = mf.choice(&m.target.policy, "target.policy")? == TargetPolicy::Same;
+    let per_region = mf.choice(&m.multi_material.mode, "multi_material.mode")? == MaterialsPerObject::PerRegion;
     let shard_size = *m.dataset.shard_size.get_ref();
     if !(1..=100_000).contains(&shard_size) {
         return Err(mf.invalid(
@@ -480,9 +463,9 @@ fn combinations_of(
     seed: u64,
 ) -> Result<Vec<Combination>, ManifestError> {
     let s = &mf.manifest.sampling;
-    let mode = choice(mf, &s.mode, "sampling.mode", &["cross", "sampled"])?;
+    let mode = mf.choice(&s.mode, "sampling.mode")?;
     let mut out = Vec::new();
-    if mode == "cross" {
+    if mode == SamplingMode::Cross {
         if s.combinations.is_some() {
             return Err(mf.invalid(
                 s.mode.span(),

@@ -4,7 +4,7 @@ use super::catalogue::Catalogue;
 use super::manifest::ManifestFile;
 use super::materials::{needed, peek_render, prepare_all};
 use super::plan::Plan;
-use super::sample::{Renderer, ZonalStatus};
+use super::sample::{Renderer, ZonalStatus, encode};
 use super::store::{join, plan_record, write_shard};
 use anyhow::{Context, Result, bail};
 use matedit_contract::layout::{read_plan, shard_done, shards_dir, write_plan};
@@ -360,7 +360,9 @@ pub fn run(l: &Loaded, opts: &RunOptions) -> Result<RunSummary> {
     // Shards in parallel as well as their samples: with one shard at a time, every shard's
     // slowest samples left the other threads idle at its end.
     todo.par_iter().try_for_each(|shard| {
-        write_shard(&dir, plan, &renderer, shard, &|| sbar.inc(1))
+        let produce = |index| encode(renderer.render(&plan.sample(shard.split, index))?);
+        let indices = shard.first..shard.first + shard.len;
+        write_shard(&dir, &shard.name(plan), indices, &produce, &|| sbar.inc(1))
             .with_context(|| format!("shard {}", shard.name(plan)))
     })?;
     sbar.finish_and_clear();

@@ -2,9 +2,8 @@
 //! view and light, material m_t), camera-space normals, mask, region map and the environment as
 //! the camera sees it.
 //!
-//! Every random choice of a sample comes from its combination's seed stream, in a fixed order
-//! (environment rotation, the views, then per-region materials and targets), so all views of a
-//! combination agree and a sample never depends on which thread or worker renders it.
+//! It renders a sample the plan has fully described ([`super::spec::SampleSpec`]); it makes no
+//! choice of its own.
 //!
 //! Shortcuts ("model only what a scene needs"), each measured in `docs/PERFORMANCE.md`:
 //! one BVH per shape serves all its views (rays are turned into object space instead);
@@ -15,7 +14,8 @@
 
 use super::catalogue::ShapeItem;
 use super::materials::MaterialEntry;
-use super::plan::{Plan, RotationMode, SplitPlan};
+use super::plan::Plan;
+use super::spec::SampleSpec;
 use crate::accel::Scene;
 use crate::gbuffer::{GBuffer, SharedVisibility};
 use crate::render::Shadows;
@@ -23,7 +23,6 @@ use crate::shapes::{Mesh, Shape};
 use anyhow::{Context, Result};
 use glam::Mat3;
 use matedit_assets::envfile::load_env;
-use matedit_assets::random::Draw;
 use matedit_contract::io::{encode_env_exr, encode_exr_channels};
 use matedit_contract::records::SampleRecord;
 use matedit_physics::EnvMap;
@@ -222,56 +221,27 @@ impl<'a> Renderer<'a> {
             .with_context(|| format!("material {} was not prepared", self.plan.catalogue.materials[k].id))
     }
 
-    /// Renders sample `index` of split `split`.
-    pub fn render(&self, split: usize, index: usize) -> Result<SamplePixels> {
+    /// Renders a described sample.
+    pub fn render(&self, spec: &SampleSpec) -> Result<SamplePixels> {
         let plan = self.plan;
         let st = &plan.settings;
-        let sp: &SplitPlan = &plan.splits[split];
-        let combo = &sp.combinations[index / st.views_per_combination];
-        let slot = index % st.views_per_combination;
-        let mut draw = Draw::new(plan.seed, combo.stream);
-        let rotation = match &st.rotation {
-            RotationMode::Random => draw.uniform(0.0, 360.0),
-            RotationMode::None => 0.0,
-            RotationMode::List(v) => v[draw.int(0, v.len() - 1)],
-        };
-        // Partial Fisher–Yates: the first `per_combination` of a shuffled list of azimuths.
-        let mut views: Vec<usize> = (0..st.azimuths).collect();
-        for i in 0..st.views_per_combination {
-            let j = draw.int(i, st.azimuths - 1);
-            views.swap(i, j);
-        }
-        let azimuth = views[slot] as f64 * 360.0 / st.azimuths as f64;
-        let elevation = st.elevation_deg;
-
-        let loaded = self.shape(combo.shape)?;
-        let item = &plan.catalogue.shapes[combo.shape];
-        let mesh_regions: Vec<String> = match &loaded.shape {
-            Shape::Mesh(m) => m.regions.clone(),
-            Shape::Sphere => vec!["object".into()],
-        };
-        let regions = if st.per_region {
-            mesh_regions
-        } else {
-            vec!["object".into()]
-        };
-        let pick_other = |draw: &mut Draw, not: usize| -> usize {
-            let others: Vec<usize> = sp.materials.iter().copied().filter(|&m| m != not).collect();
-            if others.is_empty() {
-                not
-            } else {
-                others[draw.int(0, others.len() - 1)]
+        let (azimuth, elevation, rotation) = (spec.view_azimuth_deg, spec.view_elevation_deg, spec.env_rotation_deg);
+        let loaded = self.shape(spec.shape)?;
+        let item = &plan.catalogue.shapes[spec.shape];
+        if st.per_region {
+            let now: &[String] = match &loaded.shape {
+                Shape::Mesh(m) => &m.regions,
+                Shape::Sphere => &[],
+            };
+            if !now.is_empty() && now != spec.regions.as_slice() {
+                anyhow::bail!(
+                    "shape {}: its regions are {now:?} now, {:?} when the plan was made (the file changed)",
+                    item.id,
+                    spec.regions
+                );
             }
-        };
-        let mut materials = vec![combo.material];
-        for _ in 1..regions.len() {
-            let m = pick_other(&mut draw, combo.material);
-            materials.push(m);
         }
-        let targets: Vec<usize> = materials
-            .iter()
-            .map(|&m| if st.target_same { m } else { pick_other(&mut draw, m) })
-            .collect();
+        let (materials, targets) = (&spec.materials, &spec.targets);
 
         // Object → camera: yaw by −azimuth (the camera moves +azimuth around the object), then
         // pitch by the elevation (the camera looks down).
@@ -286,7 +256,7 @@ impl<'a> Renderer<'a> {
         };
 
         // L_cam(d) = L_src(R_y(azimuth − rotation) · R_x(−elevation) · d).
-        let env = self.env(combo.env)?.tilted(st.env_rows, azimuth - rotation, -elevation);
+        let env = self.env(spec.env)?.tilted(st.env_rows, azimuth - rotation, -elevation);
 
         let shadows = st.shadows.for_shape(loaded.convex) == Shadows::On && loaded.scene.is_some();
         let shared = loaded
@@ -307,7 +277,7 @@ impl<'a> Renderer<'a> {
         let mut spectra: Vec<ZonalEnv> = Vec::new();
         let mut image_i = vec![[0.0_f32; 3]; res * res];
         let mut image_o = vec![[0.0_f32; 3]; res * res];
-        for (r, (&mi, &mt)) in materials.iter().zip(&targets).enumerate() {
+        for (r, (&mi, &mt)) in materials.iter().zip(targets).enumerate() {
             let mask_r: Vec<f32> = g
                 .mask
                 .iter()
@@ -367,15 +337,15 @@ impl<'a> Renderer<'a> {
         let ids =
             |v: &[usize]| -> Result<Vec<String>> { v.iter().map(|&m| Ok(self.material(m)?.id.clone())).collect() };
         let record = SampleRecord {
-            id: format!("{}-{index:07}", sp.name),
-            split: sp.name.clone(),
-            index,
+            id: spec.id.clone(),
+            split: plan.splits[spec.split].name.clone(),
+            index: spec.index,
             category: item.category.clone(),
             shape_id: item.id.clone(),
-            regions,
-            material_ids: ids(&materials)?,
-            target_material_ids: ids(&targets)?,
-            env_id: plan.catalogue.envs[combo.env].id.clone(),
+            regions: spec.regions.clone(),
+            material_ids: ids(materials)?,
+            target_material_ids: ids(targets)?,
+            env_id: plan.catalogue.envs[spec.env].id.clone(),
             env_rotation_deg: rotation,
             view_azimuth_deg: azimuth,
             view_elevation_deg: elevation,

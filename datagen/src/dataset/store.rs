@@ -4,8 +4,7 @@
 //! records}`.
 
 use super::materials::MaterialEntry;
-use super::plan::{Plan, Settings, ShardRef};
-use super::sample::{Renderer, encode};
+use super::plan::{Plan, Settings};
 use anyhow::{Context, Result, bail};
 use matedit_contract::io::write_atomically;
 use matedit_contract::layout::{read_plan, read_shard, shard_done, shards_dir};
@@ -93,26 +92,29 @@ pub fn content_record(plan: &Plan) -> ContentRecord {
     r
 }
 
-/// Renders and writes one shard atomically. `on_sample` is called after each sample.
+/// An encoded sample: its record (files and checksums not yet filled in), the image EXR and
+/// the environment EXR.
+pub type EncodedSample = (SampleRecord, Vec<u8>, Vec<u8>);
+
+/// Writes shard `name` atomically from the samples `indices` of its split, which `produce`
+/// renders and encodes (in parallel); `on_sample` is called after each sample is written.
 pub fn write_shard(
     dir: &Path,
-    plan: &Plan,
-    renderer: &Renderer<'_>,
-    shard: &ShardRef,
+    name: &str,
+    indices: std::ops::Range<usize>,
+    produce: &(dyn Fn(usize) -> Result<EncodedSample> + Sync),
     on_sample: &(dyn Fn() + Sync),
 ) -> Result<()> {
-    let name = shard.name(plan);
     let root = shards_dir(dir);
     let tmp = root.join(format!(".tmp-{name}"));
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).with_context(|| format!("cannot remove stale {}", tmp.display()))?;
     }
     std::fs::create_dir_all(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
-    let records: Vec<SampleRecord> = (shard.first..shard.first + shard.len)
+    let records: Vec<SampleRecord> = indices
         .into_par_iter()
         .map(|index| {
-            let px = renderer.render(shard.split, index)?;
-            let (mut rec, image, env) = encode(px)?;
+            let (mut rec, image, env) = produce(index)?;
             let rel = format!("shards/{name}");
             let files = [
                 ("image", format!("{}.exr", rec.id), image),
@@ -131,12 +133,12 @@ pub fn write_shard(
         .collect::<Result<_>>()?;
     let record = ShardRecord {
         format: FORMAT.into(),
-        shard: name.clone(),
+        shard: name.to_string(),
         samples: records,
     };
     std::fs::write(tmp.join("shard.json"), serde_json::to_vec_pretty(&record)?)
         .with_context(|| format!("cannot write {}", tmp.join("shard.json").display()))?;
-    let dest = root.join(&name);
+    let dest = root.join(name);
     std::fs::rename(&tmp, &dest).with_context(|| format!("cannot move {} to {}", tmp.display(), dest.display()))?;
     Ok(())
 }

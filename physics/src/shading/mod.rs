@@ -66,16 +66,33 @@ pub enum Quality {
     Zonal,
 }
 
+impl Quality {
+    /// The names of the qualities, as manifests and the command line write them (the one list).
+    pub const NAMES: [(&'static str, Quality); 3] = [
+        ("exact", Quality::Exact),
+        ("fast", Quality::Fast),
+        ("zonal", Quality::Zonal),
+    ];
+
+    /// Why a quality that was accepted once is refused now.
+    pub fn removed(name: &str) -> Option<&'static str> {
+        // `lut` was superseded by `zonal` (faster, within its error budget everywhere).
+        (name == "lut").then_some("use zonal (or fast)")
+    }
+}
+
 impl std::str::FromStr for Quality {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "exact" => Ok(Quality::Exact),
-            "fast" => Ok(Quality::Fast),
-            "zonal" => Ok(Quality::Zonal),
-            // `lut` was superseded by `zonal` (faster, within its error budget everywhere).
-            "lut" => Err("quality \"lut\" was removed: use zonal (or fast)".to_string()),
-            _ => Err(format!("quality {s:?}: expected exact, fast or zonal")),
+        if let Some(&(_, q)) = Quality::NAMES.iter().find(|(n, _)| *n == s) {
+            return Ok(q);
+        }
+        match Quality::removed(s) {
+            Some(why) => Err(format!("quality {s:?} was removed: {why}")),
+            None => {
+                let names: Vec<&str> = Quality::NAMES.iter().map(|(n, _)| *n).collect();
+                Err(format!("quality {s:?}: expected {}", names.join(", ")))
+            }
         }
     }
 }

@@ -56,6 +56,10 @@ pub enum OnCorrupt {
     Skip,
 }
 
+impl matedit_contract::manifest::Named for OnCorrupt {
+    const NAMES: &'static [(&'static str, Self)] = &[("stop", OnCorrupt::Stop), ("skip", OnCorrupt::Skip)];
+}
+
 /// How long the stream runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Epochs {

@@ -65,6 +65,10 @@ pub enum Init {
     Uniform008,
 }
 
+impl matedit_contract::manifest::Named for Init {
+    const NAMES: &'static [(&'static str, Self)] = &[("uniform-0.08", Init::Uniform008), ("default", Init::Default)];
+}
+
 impl Init {
     /// The Burn initializer, or `None` for the layer default.
     pub fn initializer(self) -> Option<Initializer> {

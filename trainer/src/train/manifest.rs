@@ -3,10 +3,12 @@
 //! the line and the field, before any work starts.
 
 use super::step::{LossWeights, RenderWith, StageKind};
+use crate::data::OnCorrupt;
 use crate::model::network::NetConfig;
 use crate::model::vgg16::Layer;
 use crate::model::{Init, Widths};
-use matedit_contract::manifest::{ManifestError, expand_vars, invalid, parse_toml, read_text};
+use crate::train::run::DeviceName;
+use matedit_contract::manifest::{Choice, ManifestError, Named, choice, expand_vars, invalid, parse_toml, read_text};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use toml::Spanned;
@@ -44,7 +46,7 @@ pub struct RunSection {
     /// `cpu` (Burn's flex backend), `wgpu` (the rendering layer as a GPU kernel; needs the `wgpu`
     /// feature) or `cuda` (needs the `cuda` feature).
     #[serde(default = "default_device")]
-    pub device: Spanned<String>,
+    pub device: Spanned<Choice<DeviceName>>,
     /// Start from the weights of this checkpoint folder (another run's stage) instead of a fresh
     /// initialisation: finetuning, e.g. the paper's multi-material model from the single-material
     /// one. The optimiser starts fresh.
@@ -52,8 +54,8 @@ pub struct RunSection {
     pub init_from: Option<Spanned<String>>,
 }
 
-fn default_device() -> Spanned<String> {
-    Spanned::new(0..0, "cpu".to_string())
+fn default_device() -> Spanned<Choice<DeviceName>> {
+    Choice::default_to(DeviceName::Cpu)
 }
 
 /// `[model]`.
@@ -69,15 +71,15 @@ pub struct ModelSection {
     pub widths: Spanned<WidthsSpec>,
     /// `uniform-0.08` (the paper) or `default` (Burn's Kaiming uniform).
     #[serde(default = "default_init")]
-    pub init: Spanned<String>,
+    pub init: Spanned<Choice<Init>>,
 }
 
 fn default_env_height() -> Spanned<usize> {
     Spanned::new(0..0, 64)
 }
 
-fn default_init() -> Spanned<String> {
-    Spanned::new(0..0, "uniform-0.08".into())
+fn default_init() -> Spanned<Choice<Init>> {
+    Choice::default_to(Init::Uniform008)
 }
 
 /// `[loss]`: the weights of Eq. 5 and the perceptual loss's network.
@@ -179,7 +181,7 @@ pub struct DataSection {
     /// `stop` (default): a corrupt or truncated file ends the run naming it; `skip`: it is
     /// skipped and reported.
     #[serde(default = "default_on_corrupt")]
-    pub on_corrupt: Spanned<String>,
+    pub on_corrupt: Spanned<Choice<OnCorrupt>>,
     /// Recompute every file's checksum when reading it.
     #[serde(default = "default_true")]
     pub verify_checksums: bool,
@@ -191,8 +193,8 @@ fn default_shuffle() -> usize {
 fn default_workers() -> usize {
     2
 }
-fn default_on_corrupt() -> Spanned<String> {
-    Spanned::new(0..0, "stop".into())
+fn default_on_corrupt() -> Spanned<Choice<OnCorrupt>> {
+    Choice::default_to(OnCorrupt::Stop)
 }
 fn default_true() -> bool {
     true
@@ -311,6 +313,8 @@ pub struct TrainPlan {
     pub init_from: Option<PathBuf>,
     /// Skip corrupt samples instead of stopping.
     pub skip_corrupt: bool,
+    /// The device the run trains on.
+    pub device: DeviceName,
 }
 
 /// Reads and validates a training manifest.
@@ -350,17 +354,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
             Widths::new(*base_channels, *max_channels, *hidden, *normal_channels).with_dropout(*dropout)
         }
     };
-    let init = match m.model.init.get_ref().as_str() {
-        "uniform-0.08" => Init::Uniform008,
-        "default" => Init::Default,
-        other => {
-            return Err(bad(
-                m.model.init.span(),
-                "model.init",
-                format!("unknown initialisation {other:?} (uniform-0.08, default)"),
-            ));
-        }
-    };
+    let init = choice(path, &text, &m.model.init, "model.init")?;
     let kinds = |k: StageKind| m.stages.iter().filter(|s| s.get_ref().kind == k).count();
     if kinds(StageKind::EncoderDecoder) > 0
         && let Some(other) = m.stages.iter().find(|s| s.get_ref().kind != StageKind::EncoderDecoder)
@@ -391,20 +385,11 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
             e,
         ));
     }
-    if let Err(e) = crate::train::run::check_device_name(m.run.device.get_ref()) {
+    let device = choice(path, &text, &m.run.device, "run.device")?;
+    if let Err(e) = crate::train::run::check_device_name(device.name()) {
         return Err(bad(m.run.device.span(), "run.device", e));
     }
-    let skip_corrupt = match m.data.on_corrupt.get_ref().as_str() {
-        "stop" => false,
-        "skip" => true,
-        other => {
-            return Err(bad(
-                m.data.on_corrupt.span(),
-                "data.on_corrupt",
-                format!("expected stop or skip, got {other:?}"),
-            ));
-        }
-    };
+    let skip_corrupt = choice(path, &text, &m.data.on_corrupt, "data.on_corrupt")? == OnCorrupt::Skip;
     if m.stages.is_empty() {
         return Err(bad(0..0, "stages", "at least one [[stages]] entry is needed".into()));
     }
@@ -553,6 +538,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         vgg16,
         init_from,
         skip_corrupt,
+        device,
         text,
     })
 }

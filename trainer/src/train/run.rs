@@ -20,6 +20,7 @@ use anyhow::{Context, Result, bail};
 use burn::module::Module;
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::tensor::Device;
+use matedit_contract::manifest::Named;
 use matedit_contract::progress::Progress;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
@@ -175,6 +176,28 @@ fn step_seed(seed: u64, stage: usize, step: usize) -> u64 {
 /// The devices a training manifest (or `trainer bench --device`) can name.
 pub const DEVICES: &str = "cpu, wgpu, cuda";
 
+/// A device a run trains on, by its name in manifests and on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DeviceName {
+    /// Burn's flex CPU backend.
+    Cpu,
+    /// Burn's wgpu backend (a build with `--features wgpu`).
+    Wgpu,
+    /// Burn's CUDA backend (a build with `--features cuda`).
+    Cuda,
+}
+
+impl Named for DeviceName {
+    const NAMES: &'static [(&'static str, Self)] = &[
+        ("cpu", DeviceName::Cpu),
+        ("wgpu", DeviceName::Wgpu),
+        ("cuda", DeviceName::Cuda),
+    ];
+    fn refusal(name: &str) -> String {
+        format!("unknown device {name:?} ({DEVICES})")
+    }
+}
+
 /// Whether this build can train on the device `name`, and if not, why.
 pub fn check_device_name(name: &str) -> std::result::Result<(), String> {
     let missing = |feature: &str, what: &str| {
@@ -182,13 +205,13 @@ pub fn check_device_name(name: &str) -> std::result::Result<(), String> {
             "this build has no {what} backend: build the trainer with `--features {feature}`"
         ))
     };
-    match name {
-        "cpu" => Ok(()),
-        "wgpu" if cfg!(feature = "wgpu") => Ok(()),
-        "wgpu" => missing("wgpu", "wgpu (Vulkan, Metal, DX12)"),
-        "cuda" if cfg!(feature = "cuda") => Ok(()),
-        "cuda" => missing("cuda", "CUDA"),
-        other => Err(format!("unknown device {other:?} ({DEVICES})")),
+    match DeviceName::from_name(name) {
+        Some(DeviceName::Cpu) => Ok(()),
+        Some(DeviceName::Wgpu) if cfg!(feature = "wgpu") => Ok(()),
+        Some(DeviceName::Wgpu) => missing("wgpu", "wgpu (Vulkan, Metal, DX12)"),
+        Some(DeviceName::Cuda) if cfg!(feature = "cuda") => Ok(()),
+        Some(DeviceName::Cuda) => missing("cuda", "CUDA"),
+        None => Err(DeviceName::refusal(name)),
     }
 }
 
@@ -254,7 +277,7 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
     let metrics_path = out.join("metrics.jsonl");
     checkpoint::remove_stale_temporaries(out)?;
     let latest = checkpoint::latest(out)?;
-    let device = device_for(m.run.device.get_ref())?;
+    let device = device_for(plan.device.name())?;
     // Where to start: a fresh run, or the latest checkpoint.
     let (mut net, mut start): (Net, Option<(State, PathBuf)>) = match (&latest, resume) {
         (Some(_), false) => bail!(
@@ -316,7 +339,7 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
     } else {
         "the fused CPU rendering layer"
     };
-    eprintln!("device {} ({device:?}), {layer_on}", m.run.device.get_ref());
+    eprintln!("device {} ({device:?}), {layer_on}", plan.device.name());
     let ctx = StepContext {
         layer: &layer,
         weights: &plan.weights,
