@@ -278,6 +278,22 @@ fn manifests_that_try_to_leak_or_ask_too_much_are_refused_with_field_and_line() 
             ),
             "shapes[0].path",
         ),
+        (
+            "a substitute of another kind",
+            manifest(TEST_SPLIT, "").replace(
+                "source = \"procedural\"\ncategory = \"car\"\ncount = 3",
+                "source = \"folder\"\ncategory = \"car\"\npath = \"/nonexistent/cars\"\nif_missing = \"library\"",
+            ),
+            "shapes[0].if_missing: \"library\": expected \"error\" or \"procedural\"",
+        ),
+        (
+            "an unknown if_missing",
+            manifest(TEST_SPLIT, "").replace(
+                "source = \"procedural\"\ncategory = \"car\"\ncount = 3",
+                "source = \"folder\"\ncategory = \"car\"\npath = \"/nonexistent/cars\"\nif_missing = \"maybe\"",
+            ),
+            "shapes[0].if_missing: \"maybe\": expected error, procedural, library",
+        ),
     ];
     for (what, text, needle) in cases {
         let p = write(&d, "bad.toml", &text);
@@ -512,4 +528,73 @@ fn the_command_line_refuses_a_second_run_and_names_bad_manifest_lines() {
         .unwrap()
         + 1;
     assert!(err.contains(&format!("bad.toml:{line}: render.shadows")), "{err}");
+}
+
+#[test]
+fn every_recorded_sample_is_the_plans_description_of_it() {
+    let d = scratch("spec");
+    let m = write(&d, "m.toml", &manifest(TEST_SPLIT, "ground_truth = \"measured\""));
+    let out = d.join("out");
+    run_to(&m, &out);
+    let l = load(&m).unwrap();
+    let plan = &l.plan;
+    let cat = &plan.catalogue;
+    let recs = index(&out);
+    let mut described = 0;
+    for (s, split) in plan.splits.iter().enumerate() {
+        for i in 0..split.samples {
+            let spec = plan.sample(s, i);
+            // A description is a pure function of the plan: asking again, in any order, is equal.
+            assert_eq!(spec, plan.sample(s, i));
+            let rec = recs.iter().find(|r| r["id"] == spec.id.as_str()).expect("recorded");
+            assert_eq!(rec["split"], split.name.as_str());
+            assert_eq!(rec["shape_id"], cat.shapes[spec.shape].id.as_str());
+            assert_eq!(rec["env_id"], cat.envs[spec.env].id.as_str());
+            assert_eq!(rec["env_rotation_deg"].as_f64(), Some(spec.env_rotation_deg));
+            assert_eq!(rec["view_azimuth_deg"].as_f64(), Some(spec.view_azimuth_deg));
+            assert_eq!(rec["view_elevation_deg"].as_f64(), Some(spec.view_elevation_deg));
+            assert!((0.0..360.0).contains(&spec.env_rotation_deg));
+            let ids = |v: &[usize]| v.iter().map(|&k| cat.materials[k].id.clone()).collect::<Vec<_>>();
+            let strings = |v: &Value| -> Vec<String> {
+                v.as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|x| x.as_str().unwrap().to_string())
+                    .collect()
+            };
+            assert_eq!(strings(&rec["regions"]), spec.regions);
+            assert_eq!(strings(&rec["material_ids"]), ids(&spec.materials));
+            assert_eq!(strings(&rec["target_material_ids"]), ids(&spec.targets));
+            // Per-region materials: one per region of the shape, all from the split, each target
+            // another material of the split (the policy is `random` and every split has several).
+            assert_eq!(spec.regions, cat.shapes[spec.shape].regions);
+            assert_eq!(spec.materials.len(), spec.regions.len());
+            for (&mi, &mt) in spec.materials.iter().zip(&spec.targets) {
+                assert!(split.materials.contains(&mi) && split.materials.contains(&mt));
+                assert_ne!(mi, mt);
+            }
+            described += 1;
+        }
+    }
+    assert_eq!(described, recs.len());
+    assert!(
+        recs.iter().any(|r| r["regions"].as_array().unwrap().len() > 1),
+        "the test needs multi-region shapes"
+    );
+}
+
+#[test]
+fn a_missing_folder_with_if_missing_procedural_is_replaced_and_noted() {
+    let d = scratch("if-missing");
+    let text = manifest(TEST_SPLIT, "").replace(
+        "source = \"procedural\"\ncategory = \"car\"\ncount = 3",
+        "source = \"folder\"\ncategory = \"car\"\npath = \"/nonexistent/cars\"\nif_missing = \"procedural\"\nfallback_count = 3",
+    );
+    let l = load(&write(&d, "m.toml", &text)).unwrap();
+    let notes = &l.plan.catalogue.substitutions;
+    assert!(notes.iter().any(|n| n.contains("/nonexistent/cars")), "{notes:?}");
+    assert_eq!(
+        l.plan.catalogue.shapes.iter().filter(|s| s.category == "car").count(),
+        3
+    );
 }

@@ -257,10 +257,11 @@ pub fn report(device: &str, opts: &Options, alloc: Option<&PeakAlloc>) -> Result
         let [name, s, b] = parts.as_slice() else {
             anyhow::bail!("--train {spec}: expected NAME:SIZE:BATCH");
         };
-        let widths = match *name {
-            "cpu-small" => Widths::cpu_small(),
-            "paper" => Widths::paper(),
-            other => anyhow::bail!("--train {spec}: unknown configuration {other} (cpu-small, paper)"),
+        let Some(widths) = Widths::preset(name) else {
+            anyhow::bail!(
+                "--train {spec}: unknown configuration {name} ({})",
+                Widths::preset_names()
+            );
         };
         let (s, b): (usize, usize) = (s.parse()?, b.parse()?);
         let m = training(&dev, name, widths, s, b, 3)?;

@@ -3,16 +3,15 @@
 //! so two machines build identical datasets from the same manifest.
 
 use super::manifest::{
-    EnvSource, EnvSourceToml, ManifestFile, MaterialSource as MaterialSourceName, MaterialSourceToml, ShapeSource,
-    ShapeSourceToml,
+    EnvSource, EnvSourceToml, IfMissing, ManifestFile, MaterialSource as MaterialSourceName, MaterialSourceToml,
+    ShapeSource, ShapeSourceToml,
 };
 use crate::shapes::UpAxis;
 use crate::shapes::procedural::Category;
 use crate::shapes::sources;
 use matedit_assets::envmaps::Family;
 use matedit_assets::materials::library::library;
-use matedit_contract::manifest::ManifestError;
-use matedit_contract::manifest::Named;
+use matedit_contract::manifest::{Choice, ManifestError, Named};
 use matedit_contract::records::Merge;
 use matedit_physics::BrdfSpec;
 use std::collections::BTreeSet;
@@ -168,22 +167,25 @@ fn existing_path(
     span: std::ops::Range<usize>,
     field: &str,
     path: Option<&String>,
-    if_missing: Option<&String>,
-    substitute: &str,
+    if_missing: Option<&Spanned<Choice<IfMissing>>>,
+    substitute: IfMissing,
 ) -> Result<Option<PathBuf>, ManifestError> {
     let Some(written) = path else {
         return Err(mf.invalid(span, &format!("{field}.path"), "this source needs a path"));
     };
-    let allowed = match if_missing.map(String::as_str) {
-        None | Some("error") => false,
-        Some(s) if s == substitute => true,
-        Some(other) => {
-            return Err(mf.invalid(
-                span,
-                &format!("{field}.if_missing"),
-                format!("{other:?}: expected \"error\" or \"{substitute}\""),
-            ));
-        }
+    let allowed = match if_missing {
+        None => false,
+        Some(value) => match mf.choice(value, &format!("{field}.if_missing"))? {
+            IfMissing::Error => false,
+            v if v == substitute => true,
+            other => {
+                return Err(mf.invalid(
+                    value.span(),
+                    &format!("{field}.if_missing"),
+                    format!("{:?}: expected \"error\" or \"{}\"", other.name(), substitute.name()),
+                ));
+            }
+        },
     };
     let resolved = match mf.resolve_path(written) {
         Ok(p) if p.exists() => return Ok(Some(p)),
@@ -196,7 +198,10 @@ fn existing_path(
         Err(mf.invalid(
             span,
             &format!("{field}.path"),
-            format!("{resolved} (set if_missing = \"{substitute}\" to use the embedded defaults instead)"),
+            format!(
+                "{resolved} (set if_missing = \"{}\" to use the embedded defaults instead)",
+                substitute.name()
+            ),
         ))
     }
 }
@@ -361,7 +366,7 @@ fn shapes_of(
                 &field,
                 s.path.as_ref(),
                 s.if_missing.as_ref(),
-                "procedural",
+                IfMissing::Procedural,
             )? {
                 Some(path) => {
                     let found = if kind == ShapeSource::Folder {
@@ -525,7 +530,7 @@ fn materials_of(
                 &field,
                 s.path.as_ref(),
                 s.if_missing.as_ref(),
-                "library",
+                IfMissing::Library,
             )? {
                 Some(path) => {
                     let files = files_with(&path, suffix).map_err(|e| {
@@ -654,7 +659,7 @@ fn envs_of(
                 &field,
                 s.path.as_ref(),
                 s.if_missing.as_ref(),
-                "procedural",
+                IfMissing::Procedural,
             )? {
                 Some(path) => {
                     let mut files = Vec::new();

@@ -74,6 +74,25 @@ impl Named for EnvSource {
     ];
 }
 
+/// `if_missing` of a source with a `path`: what to do when the path does not exist.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum IfMissing {
+    /// Stop with an error naming the path (the default).
+    Error,
+    /// Substitute procedural shapes or environments.
+    Procedural,
+    /// Substitute library materials.
+    Library,
+}
+
+impl Named for IfMissing {
+    const NAMES: &'static [(&'static str, Self)] = &[
+        ("error", IfMissing::Error),
+        ("procedural", IfMissing::Procedural),
+        ("library", IfMissing::Library),
+    ];
+}
+
 /// `environment_rotation.mode`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RotationKind {
@@ -399,7 +418,7 @@ pub struct ShapeSourceToml {
     /// Up axis of the files (`y`, `z`, `-y`, ...; default `y`).
     pub up: Option<String>,
     /// `error` (default) or `procedural`: what to do when `path` does not exist.
-    pub if_missing: Option<String>,
+    pub if_missing: Option<Spanned<Choice<IfMissing>>>,
     /// Procedural shapes per category used when `if_missing = "procedural"` applies.
     pub fallback_count: Option<usize>,
 }
@@ -418,7 +437,7 @@ pub struct MaterialSourceToml {
     /// File or folder for `dsbrdf` and `merl`.
     pub path: Option<String>,
     /// `error` (default) or `library`: what to do when `path` does not exist.
-    pub if_missing: Option<String>,
+    pub if_missing: Option<Spanned<Choice<IfMissing>>>,
 }
 
 /// An `[[environments]]` entry.
@@ -436,7 +455,7 @@ pub struct EnvSourceToml {
     /// File or folder.
     pub path: Option<String>,
     /// `error` (default) or `procedural`: what to do when `path` does not exist.
-    pub if_missing: Option<String>,
+    pub if_missing: Option<Spanned<Choice<IfMissing>>>,
     /// Procedural maps per family used when `if_missing = "procedural"` applies.
     pub fallback_count: Option<usize>,
 }

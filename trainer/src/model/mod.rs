@@ -43,6 +43,9 @@ pub struct Widths {
     pub dropout: f64,
 }
 
+/// A named width configuration and its constructor.
+pub type Preset = (&'static str, fn() -> Widths);
+
 impl Widths {
     /// The paper's widths (Sec. 3.2 gives layer counts, not widths: these follow Eigen & Fergus
     /// and common encoder practice).
@@ -53,6 +56,19 @@ impl Widths {
     /// A configuration small enough to train on two CPU cores.
     pub fn cpu_small() -> Self {
         Self::new(8, 64, 128, 16)
+    }
+
+    /// The named configurations (training manifests' `widths`, `trainer bench --train`).
+    pub const PRESETS: [Preset; 2] = [("cpu-small", Widths::cpu_small), ("paper", Widths::paper)];
+
+    /// A named configuration; `None` for a name not in [`Widths::PRESETS`].
+    pub fn preset(name: &str) -> Option<Self> {
+        Self::PRESETS.iter().find(|(n, _)| *n == name).map(|(_, make)| make())
+    }
+
+    /// The names of [`Widths::PRESETS`], for messages.
+    pub fn preset_names() -> String {
+        Self::PRESETS.map(|(n, _)| n).join(", ")
     }
 }
 

@@ -327,15 +327,13 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
     let m: TrainManifest = parse_toml(path, &text)?;
     let bad = |span: std::ops::Range<usize>, field: &str, msg: String| invalid(path, &text, span, field, msg);
     let widths = match m.model.widths.get_ref() {
-        WidthsSpec::Preset(p) if p == "cpu-small" => Widths::cpu_small(),
-        WidthsSpec::Preset(p) if p == "paper" => Widths::paper(),
-        WidthsSpec::Preset(p) => {
-            return Err(bad(
+        WidthsSpec::Preset(p) => Widths::preset(p).ok_or_else(|| {
+            bad(
                 m.model.widths.span(),
                 "model.widths",
-                format!("unknown preset {p:?} (cpu-small, paper, or a table)"),
-            ));
-        }
+                format!("unknown preset {p:?} ({}, or a table)", Widths::preset_names()),
+            )
+        })?,
         WidthsSpec::Explicit {
             base_channels,
             max_channels,
