@@ -329,7 +329,7 @@ fn run_render(a: RenderArgs) -> Result<()> {
 mod dataset {
     //! The dataset commands.
     use super::*;
-    use matedit_datagen::dataset::{bench as b, inspect as ins, run as r, store, verify as v};
+    use matedit_datagen::dataset::{inspect as ins, run as r, store, verify as v};
 
     pub fn plan(manifest: &std::path::Path) -> Result<()> {
         let l = r::load(manifest)?;
@@ -403,21 +403,6 @@ mod dataset {
         );
         Ok(())
     }
-
-    pub fn bench(
-        manifest: &std::path::Path,
-        samples: usize,
-        reference: Quality,
-        options: &[Quality],
-        res: Option<usize>,
-        per_sample: bool,
-    ) -> Result<()> {
-        print!(
-            "{}",
-            b::bench_manifest(manifest, samples, reference, options, res, per_sample)?
-        );
-        Ok(())
-    }
 }
 
 fn main() -> ExitCode {
@@ -443,7 +428,8 @@ fn main() -> ExitCode {
             options,
             res,
             per_sample,
-        } => dataset::bench(&manifest, samples, reference, &options, res, per_sample),
+        } => matedit_datagen::dataset::bench::bench_manifest(&manifest, samples, reference, &options, res, per_sample)
+            .map(|table| print!("{table}")),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

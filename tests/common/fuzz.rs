@@ -727,9 +727,7 @@ materials = 2
     })
 }
 
-pub fn copy_tree(from: &Path, to: &Path) {
-    matedit_fixtures::copy_dir(from, to)
-}
+pub use matedit_fixtures::copy_dir as copy_tree;
 
 /// EXRs of `w × h` whose channel sets a reader of RGB may not expect: R and G only, Y only,
 /// RGB stored as f16 and as u32, RGB with an extra channel. Written with the exr crate

@@ -228,19 +228,6 @@ impl<'a> Renderer<'a> {
         let (azimuth, elevation, rotation) = (spec.view_azimuth_deg, spec.view_elevation_deg, spec.env_rotation_deg);
         let loaded = self.shape(spec.shape)?;
         let item = &plan.catalogue.shapes[spec.shape];
-        if st.per_region {
-            let now: &[String] = match &loaded.shape {
-                Shape::Mesh(m) => &m.regions,
-                Shape::Sphere => &[],
-            };
-            if !now.is_empty() && now != spec.regions.as_slice() {
-                anyhow::bail!(
-                    "shape {}: its regions are {now:?} now, {:?} when the plan was made (the file changed)",
-                    item.id,
-                    spec.regions
-                );
-            }
-        }
         let (materials, targets) = (&spec.materials, &spec.targets);
 
         // Object → camera: yaw by −azimuth (the camera moves +azimuth around the object), then

@@ -8,7 +8,7 @@ use crate::model::network::NetConfig;
 use crate::model::vgg16::Layer;
 use crate::model::{Init, Widths};
 use crate::train::run::DeviceName;
-use matedit_contract::manifest::{Choice, ManifestError, Named, choice, expand_vars, invalid, parse_toml, read_text};
+use matedit_contract::manifest::{Choice, ManifestError, choice, expand_vars, invalid, parse_toml, read_text};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use toml::Spanned;
@@ -384,7 +384,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         ));
     }
     let device = choice(path, &text, &m.run.device, "run.device")?;
-    if let Err(e) = crate::train::run::check_device_name(device.name()) {
+    if let Err(e) = device.check_built() {
         return Err(bad(m.run.device.span(), "run.device", e));
     }
     let skip_corrupt = choice(path, &text, &m.data.on_corrupt, "data.on_corrupt")? == OnCorrupt::Skip;

@@ -173,9 +173,6 @@ fn step_seed(seed: u64, stage: usize, step: usize) -> u64 {
     u64::from_le_bytes(h.as_bytes()[..8].try_into().unwrap_or([0; 8]))
 }
 
-/// The devices a training manifest (or `trainer bench --device`) can name.
-pub const DEVICES: &str = "cpu, wgpu, cuda";
-
 /// A device a run trains on, by its name in manifests and on the command line.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DeviceName {
@@ -194,25 +191,34 @@ impl Named for DeviceName {
         ("cuda", DeviceName::Cuda),
     ];
     fn refusal(name: &str) -> String {
-        format!("unknown device {name:?} ({DEVICES})")
+        let names: Vec<&str> = Self::NAMES.iter().map(|(n, _)| *n).collect();
+        format!("unknown device {name:?} ({})", names.join(", "))
+    }
+}
+
+impl DeviceName {
+    /// Whether this build can train on it, and if not, why.
+    pub fn check_built(self) -> std::result::Result<(), String> {
+        let missing = |feature: &str, what: &str| {
+            Err(format!(
+                "this build has no {what} backend: build the trainer with `--features {feature}`"
+            ))
+        };
+        match self {
+            DeviceName::Cpu => Ok(()),
+            DeviceName::Wgpu if cfg!(feature = "wgpu") => Ok(()),
+            DeviceName::Wgpu => missing("wgpu", "wgpu (Vulkan, Metal, DX12)"),
+            DeviceName::Cuda if cfg!(feature = "cuda") => Ok(()),
+            DeviceName::Cuda => missing("cuda", "CUDA"),
+        }
     }
 }
 
 /// Whether this build can train on the device `name`, and if not, why.
 pub fn check_device_name(name: &str) -> std::result::Result<(), String> {
-    let missing = |feature: &str, what: &str| {
-        Err(format!(
-            "this build has no {what} backend: build the trainer with `--features {feature}`"
-        ))
-    };
-    match DeviceName::from_name(name) {
-        Some(DeviceName::Cpu) => Ok(()),
-        Some(DeviceName::Wgpu) if cfg!(feature = "wgpu") => Ok(()),
-        Some(DeviceName::Wgpu) => missing("wgpu", "wgpu (Vulkan, Metal, DX12)"),
-        Some(DeviceName::Cuda) if cfg!(feature = "cuda") => Ok(()),
-        Some(DeviceName::Cuda) => missing("cuda", "CUDA"),
-        None => Err(DeviceName::refusal(name)),
-    }
+    DeviceName::from_name(name)
+        .ok_or_else(|| DeviceName::refusal(name))?
+        .check_built()
 }
 
 /// The Burn device of a run, with autodiff. A GPU device that this build has but the machine
