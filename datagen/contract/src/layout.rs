@@ -104,9 +104,106 @@ pub fn check_record(rec: &SampleRecord, is_material: impl Fn(&str) -> bool) -> R
         let (Some(rel), Some(_)) = (rec.files.get(key), rec.checksums.get(key)) else {
             return Err(format!("no {key} file or checksum recorded"));
         };
-        if !Path::new(rel).components().all(|c| matches!(c, Component::Normal(_))) {
+        if rel.is_empty() || !Path::new(rel).components().all(|c| matches!(c, Component::Normal(_))) {
             return Err(format!("{key} file {rel:?} is not a plain path inside the dataset"));
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeMap;
+
+    fn record(regions: usize) -> SampleRecord {
+        let files =
+            |v: &str| BTreeMap::from([("image".to_string(), v.to_string()), ("env".to_string(), v.to_string())]);
+        SampleRecord {
+            id: "train-0000000".into(),
+            split: "train".into(),
+            index: 0,
+            category: "car".into(),
+            shape_id: "procedural:car:0".into(),
+            regions: (0..regions).map(|r| format!("r{r}")).collect(),
+            material_ids: vec!["m".into(); regions],
+            target_material_ids: vec!["m".into(); regions],
+            env_id: "e".into(),
+            env_rotation_deg: 0.0,
+            view_azimuth_deg: 0.0,
+            view_elevation_deg: 20.0,
+            shadows: false,
+            covered_pixels: 1,
+            shard: "shards/train-00000".into(),
+            files: files("shards/train-00000/train-0000000.exr"),
+            checksums: files("blake3:00"),
+        }
+    }
+
+    #[test]
+    fn records_are_checked_over_the_whole_region_range_and_against_hostile_paths() {
+        let known = |id: &str| id == "m";
+        for r in [1, 2, 255] {
+            assert_eq!(check_record(&record(r), known), Ok(()), "{r} regions");
+        }
+        for r in [0, 256] {
+            assert!(
+                check_record(&record(r), known).unwrap_err().contains("regions"),
+                "{r} regions"
+            );
+        }
+        let mut short = record(3);
+        short.target_material_ids.pop();
+        assert!(
+            check_record(&short, known)
+                .unwrap_err()
+                .contains("one material and one target")
+        );
+        let mut unknown = record(2);
+        unknown.target_material_ids[1] = "nope".into();
+        assert!(check_record(&unknown, known).unwrap_err().contains("material nope"));
+        let mut no_sum = record(1);
+        no_sum.checksums.remove("env");
+        assert!(
+            check_record(&no_sum, known)
+                .unwrap_err()
+                .contains("no env file or checksum")
+        );
+        for hostile in [
+            "../outside.exr",
+            "/etc/passwd",
+            "shards/../../x.exr",
+            "./shards/x.exr",
+            "",
+        ] {
+            let mut r = record(1);
+            r.files.insert("image".into(), hostile.into());
+            let refused = check_record(&r, known);
+            assert!(refused.unwrap_err().contains("not a plain path"), "{hostile:?}");
+        }
+    }
+
+    #[test]
+    fn the_index_keeps_line_numbers_skips_blank_lines_and_keeps_bad_lines_as_errors() {
+        let dir = std::env::temp_dir().join(format!("matedit-layout-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let good = serde_json::to_string(&record(1)).unwrap();
+        let text = format!("{good}\n\n   \n{{\"id\": 3}}\n{good}\n");
+        std::fs::write(dir.join("index.jsonl"), &text).unwrap();
+        let (bytes, lines) = read_index(&dir).unwrap();
+        assert_eq!(bytes, text.as_bytes());
+        let numbers: Vec<usize> = lines.iter().map(|(n, _)| *n).collect();
+        assert_eq!(numbers, [1, 4, 5]);
+        assert!(lines[0].1.is_ok() && lines[1].1.is_err() && lines[2].1.is_ok());
+        let e = read_dataset_record(&dir).unwrap_err().to_string();
+        assert!(e.contains("dataset.json") && e.contains("datagen join"), "{e}");
+        std::fs::write(dir.join("dataset.json"), "{}").unwrap();
+        assert!(
+            read_dataset_record(&dir)
+                .unwrap_err()
+                .to_string()
+                .contains("not a dataset record")
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

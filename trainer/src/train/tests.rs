@@ -684,3 +684,15 @@ fn training_steps_on_the_gpu_device_give_the_cpu_devices_losses() {
         assert!(on_cpu[0].total > 0.0);
     }
 }
+
+/// Width presets are one list, read by manifests and `trainer bench --train`.
+#[test]
+fn width_presets_resolve_by_name_and_unknown_names_are_listed() {
+    use crate::model::Widths;
+    assert_eq!(Widths::preset("cpu-small"), Some(Widths::cpu_small()));
+    assert_eq!(Widths::preset("paper"), Some(Widths::paper()));
+    for bad in ["", "CPU-small", "paper ", "tiny"] {
+        assert_eq!(Widths::preset(bad), None, "{bad:?}");
+    }
+    assert_eq!(Widths::preset_names(), "cpu-small, paper");
+}
