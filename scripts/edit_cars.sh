@@ -13,7 +13,7 @@ cd "$(dirname "$0")/.."
 model=${1:?usage: scripts/edit_cars.sh MODEL [ASSETS] [OUT]}
 assets=${2:-${MATEDIT_EVAL_ASSETS:-../shared/eval-assets}}
 out=${3:-out/edit-cars}
-cargo build --release -p matedit-trainer --bin matedit --example edit_figure --quiet
+cargo build --release -p matedit-edit --bin matedit --example edit_figure --quiet
 bin=target/release/matedit
 materials="fabric-felt-green carpaint-red-gloss gold-polished"
 rows=()

@@ -15,7 +15,7 @@ log=${3:-out/fuzz-long.log}
 mkdir -p "$(dirname "$log")"
 echo "# $(date -u +%FT%TZ) $(git rev-parse --short HEAD 2>/dev/null || echo '?') scale=$scale seed=$seed" >> "$log"
 status=0
-for target in "-p matedit --test fuzz" "-p matedit-trainer --test fuzz"; do
+for target in "-p matedit --test fuzz" "-p matedit --test fuzz_trainer" "-p matedit-edit --test fuzz"; do
     out=$(mktemp)
     # shellcheck disable=SC2086
     MATEDIT_FUZZ_SCALE=$scale MATEDIT_FUZZ_SEED=$seed cargo test --release $target -- --nocapture --skip harness \

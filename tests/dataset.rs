@@ -294,6 +294,14 @@ fn manifests_that_try_to_leak_or_ask_too_much_are_refused_with_field_and_line() 
             ),
             "shapes[0].if_missing: \"maybe\": expected error, procedural, library",
         ),
+        (
+            "an unknown up axis",
+            manifest(TEST_SPLIT, "").replace(
+                "source = \"procedural\"\ncategory = \"car\"\ncount = 3",
+                "source = \"folder\"\ncategory = \"car\"\npath = \"/nonexistent/cars\"\nup = \"w\"",
+            ),
+            "shapes[0].up: \"w\": expected x, +x, -x, y, +y, -y, z, +z, -z",
+        ),
     ];
     for (what, text, needle) in cases {
         let p = write(&d, "bad.toml", &text);

@@ -7,7 +7,8 @@
 //! * [`accel`]: the obvhs BVH for primary visibility and shadow rays;
 //! * [`gbuffer`]: per-pixel camera-space normals, mask and hit points of the orthographic view;
 //! * [`render`]: the one-scene preview renderer behind `datagen render`;
-//! * [`dataset`]: the manifest-driven dataset factory behind `datagen plan/run/verify/inspect/join`.
+//! * [`dataset`]: the manifest-driven dataset factory behind `datagen plan/run/verify/inspect/join`;
+//! * [`cli`]: the `datagen` command line.
 //!
 //! The image formation itself (Eq. 2, BRDFs, environment maps) lives in `matedit-physics`;
 //! what a dataset is on disk (records, layout, checker, file formats, locks) in
@@ -17,6 +18,7 @@
 #![warn(missing_docs)]
 
 pub mod accel;
+pub mod cli;
 pub mod dataset;
 pub mod gbuffer;
 pub mod render;

@@ -4,7 +4,7 @@
 //!
 //! `cargo run --release -p matedit-trainer --example eq6_timing -- SIZE [RUNS]`
 use anyhow::{Result, bail};
-use matedit_trainer::edit::optimize::{Eq6Config, Point, Priors, Problem, post_optimise};
+use matedit_trainer::post_optimisation::{Eq6Config, Point, Priors, Problem, post_optimise};
 use matedit_trainer::render::RenderingLayer;
 use matedit_trainer::train::synthetic::sphere_batch;
 use std::time::Instant;

@@ -10,25 +10,26 @@
 //!   (Sec. 3.2) and back;
 //! * [`train`]: losses (Eq. 5), steps, stages, checkpoints and training manifests;
 //! * [`metrics`]: the paper's metrics, shared by the losses and the evaluation;
+//! * [`post_optimisation`]: the refinement of Sec. 3.5 (Eq. 6);
 //! * [`eval`]: Tables 1–3; [`baseline`]: the comparison methods that are not networks;
-//! * [`edit`]: editing photos, material transfer and swap, and the post-optimisation of Eq. 6;
-//! * [`serve`]: the editing web page; [`bench`]: speed of the layer and of training;
-//!   [`alloc`]: the counting allocator behind peak-memory figures.
+//! * [`cli`]: the `trainer` command line; [`bench`]: speed of the layer and of training; [`alloc`]: the counting allocator behind
+//!   peak-memory figures.
 //!
-//! It depends on `matedit-physics`, `matedit-contract` and `matedit-assets` only; the factory
-//! (meshes, BVHs) is not part of its build.
+//! It depends on `matedit-physics` and `matedit-contract` only: the factory (meshes, BVHs) and
+//! the material library's fitting are not part of its build, not even of its tests'. Editing
+//! photos (`matedit`) is the crate `matedit-edit` (`trainer/edit/`) built on this one.
 
 #![warn(missing_docs)]
 
 pub mod alloc;
 pub mod baseline;
 pub mod bench;
+pub mod cli;
 pub mod data;
-pub mod edit;
 pub mod eval;
 pub mod metrics;
 pub mod model;
+pub mod post_optimisation;
 pub mod render;
-pub mod serve;
 pub mod targets;
 pub mod train;

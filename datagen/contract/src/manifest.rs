@@ -165,11 +165,13 @@ pub trait Named: Copy + PartialEq + 'static {
 
 /// A manifest field holding one of a [`Named`] enum's names. Any string deserializes, so that a
 /// name outside the list is reported by [`choice`] as `FILE:LINE: FIELD: message` with the
-/// accepted names, like every other checked value; it serializes as the name written.
+/// accepted names, like every other checked value; it serializes as the name written (an
+/// alias stays an alias, so a manifest's hash does not depend on which of a value's names it
+/// uses being canonical).
 #[derive(Clone, Debug, PartialEq)]
 pub enum Choice<T> {
-    /// One of the names.
-    Known(T),
+    /// One of the names: the value, and the name as written.
+    Known(T, String),
     /// Anything else, as written.
     Unknown(String),
 }
@@ -177,22 +179,24 @@ pub enum Choice<T> {
 impl<T: Named> Choice<T> {
     /// A default: `value` with no span.
     pub fn default_to(value: T) -> Spanned<Choice<T>> {
-        Spanned::new(0..0, Choice::Known(value))
+        Spanned::new(0..0, Choice::Known(value, value.name().to_owned()))
     }
 }
 
 impl<'de, T: Named> Deserialize<'de> for Choice<T> {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
         let name = String::deserialize(d)?;
-        Ok(T::from_name(&name).map_or(Choice::Unknown(name), Choice::Known))
+        Ok(match T::from_name(&name) {
+            Some(v) => Choice::Known(v, name),
+            None => Choice::Unknown(name),
+        })
     }
 }
 
 impl<T: Named> Serialize for Choice<T> {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         match self {
-            Choice::Known(v) => s.serialize_str(v.name()),
-            Choice::Unknown(name) => s.serialize_str(name),
+            Choice::Known(_, name) | Choice::Unknown(name) => s.serialize_str(name),
         }
     }
 }
@@ -205,7 +209,7 @@ pub fn choice<T: Named>(
     field: &str,
 ) -> Result<T, ManifestError> {
     match field_value.get_ref() {
-        Choice::Known(v) => Ok(*v),
+        Choice::Known(v, _) => Ok(*v),
         Choice::Unknown(name) => Err(invalid(path, text, field_value.span(), field, T::refusal(name))),
     }
 }
@@ -246,7 +250,11 @@ mod tests {
     }
 
     impl Named for Colour {
-        const NAMES: &'static [(&'static str, Self)] = &[("red", Colour::Red), ("green", Colour::Green)];
+        const NAMES: &'static [(&'static str, Self)] = &[
+            ("red", Colour::Red),
+            ("green", Colour::Green),
+            ("+green", Colour::Green),
+        ];
         fn removed(name: &str) -> Option<&'static str> {
             (name == "blue").then_some("use green")
         }
@@ -265,7 +273,7 @@ mod tests {
         assert_eq!(choice(p, text, &paint.colour, "colour").unwrap(), Colour::Green);
         assert_eq!(toml::to_string(&paint).unwrap().trim(), "colour = \"green\"");
         for (bad, want) in [
-            ("pink", "\"pink\": expected red, green"),
+            ("pink", "\"pink\": expected red, green, +green"),
             ("blue", "\"blue\" was removed: use green"),
         ] {
             let text = format!("\n\ncolour = \"{bad}\"\n");
@@ -276,6 +284,22 @@ mod tests {
         assert!(parse_toml::<Paint>(p, "colour = 3").is_err(), "not a string");
         assert_eq!(Colour::Red.name(), "red");
         assert_eq!(Colour::from_name("green"), Some(Colour::Green));
+    }
+
+    #[test]
+    fn an_alias_parses_to_its_value_and_serialises_as_written() {
+        let p = Path::new("paint.toml");
+        let text = "colour = \"+green\"\n";
+        let paint: Paint = parse_toml(p, text).unwrap();
+        assert_eq!(choice(p, text, &paint.colour, "colour").unwrap(), Colour::Green);
+        assert_eq!(
+            toml::to_string(&paint).unwrap(),
+            text,
+            "the alias is kept: manifest hashes stay"
+        );
+        assert_eq!(Colour::Green.name(), "green", "a value's name is its first");
+        let default = Choice::default_to(Colour::Green);
+        assert_eq!(choice(p, "", &default, "colour").unwrap(), Colour::Green);
     }
 
     #[test]

@@ -289,10 +289,8 @@ fn shapes_of(
     let span = entry.span();
     let s = entry.get_ref();
     let field = format!("shapes[{i}]");
-    let up: UpAxis = match &s.up {
-        Some(u) => u
-            .parse()
-            .map_err(|e: String| mf.invalid(span.clone(), &format!("{field}.up"), e))?,
+    let up = match &s.up {
+        Some(u) => mf.choice(u, &format!("{field}.up"))?,
         None => UpAxis::PosY,
     };
     let procedural = |cat: &mut Catalogue, c: Category, first: u64, count: usize| {

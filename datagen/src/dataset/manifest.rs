@@ -8,6 +8,7 @@
 
 use super::plan::{GroundTruth, ShadowPolicy};
 use crate::accel::Accel;
+use crate::shapes::UpAxis;
 use matedit_contract::manifest::{
     Choice, ManifestError, Named, choice, expand_vars, invalid, line_of, parse_toml, read_text,
 };
@@ -416,7 +417,7 @@ pub struct ShapeSourceToml {
     /// Folder or ShapeNet root; `${VAR}` is expanded, relative paths are relative to the manifest.
     pub path: Option<String>,
     /// Up axis of the files (`y`, `z`, `-y`, ...; default `y`).
-    pub up: Option<String>,
+    pub up: Option<Spanned<Choice<UpAxis>>>,
     /// `error` (default) or `procedural`: what to do when `path` does not exist.
     pub if_missing: Option<Spanned<Choice<IfMissing>>>,
     /// Procedural shapes per category used when `if_missing = "procedural"` applies.

@@ -1,6 +1,7 @@
 //! Triangle meshes: storage, normalisation and vertex normals.
 
 use glam::Vec3;
+use matedit_contract::manifest::Named;
 
 /// A triangle mesh with per-corner shading normals.
 #[derive(Clone, Debug, Default)]
@@ -162,18 +163,26 @@ pub enum UpAxis {
     NegZ,
 }
 
+/// The names of the up axes (`+x` is `x`, and so on): one list for manifests' `up` and
+/// `datagen render --up`.
+impl Named for UpAxis {
+    const NAMES: &'static [(&'static str, Self)] = &[
+        ("x", UpAxis::PosX),
+        ("+x", UpAxis::PosX),
+        ("-x", UpAxis::NegX),
+        ("y", UpAxis::PosY),
+        ("+y", UpAxis::PosY),
+        ("-y", UpAxis::NegY),
+        ("z", UpAxis::PosZ),
+        ("+z", UpAxis::PosZ),
+        ("-z", UpAxis::NegZ),
+    ];
+}
+
 impl std::str::FromStr for UpAxis {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        Ok(match s {
-            "x" | "+x" => UpAxis::PosX,
-            "-x" => UpAxis::NegX,
-            "y" | "+y" => UpAxis::PosY,
-            "-y" => UpAxis::NegY,
-            "z" | "+z" => UpAxis::PosZ,
-            "-z" => UpAxis::NegZ,
-            _ => return Err(format!("up axis {s:?}: expected x, -x, y, -y, z or -z")),
-        })
+        Self::from_name(s).ok_or_else(|| format!("up axis {}", Self::refusal(s)))
     }
 }
 

@@ -30,7 +30,7 @@
 //! * **Choice (solver).** The original alternates reflectance and illumination updates; here
 //!   L-BFGS on m* then on L* (the machinery of Eq. 6, [`alternate`]) for `rounds` rounds.
 
-use crate::edit::optimize::{
+use crate::post_optimisation::{
     Eq6Config, LightPrior, MaterialPrior, Optimised, Point, Priors, Problem, Property, alternate,
 };
 use crate::render::{Batch, RenderingLayer};
@@ -379,7 +379,7 @@ mod tests {
 
     #[test]
     fn prior_gradients_match_finite_differences_and_stay_finite_on_hard_lights() {
-        use crate::edit::optimize::Parametrised;
+        use crate::post_optimisation::Parametrised;
         let layer = RenderingLayer::new(4);
         let prior = family_prior();
         let hb = sphere_batch(1, 12, 4, 5, &layer);

@@ -15,8 +15,6 @@
 mod batch;
 mod sample;
 mod stream;
-#[cfg(test)]
-mod tests;
 
 pub use batch::Batch;
 pub use matedit_contract::records::SampleRecord;

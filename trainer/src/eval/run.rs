@@ -50,7 +50,7 @@ pub struct EvalOptions {
     /// O, O', n, n', L, L' of the last checkpoint.
     pub sheet: Option<(PathBuf, usize)>,
     /// Also score every checkpoint after the post-optimisation (Eq. 6) of each sample.
-    pub eq6: Option<crate::edit::optimize::Eq6Config>,
+    pub eq6: Option<crate::post_optimisation::Eq6Config>,
     /// Also score the Lombardi-style optimiser (given the true normals) on each sample.
     pub lombardi: Option<LombardiConfig>,
     /// Row labels of the checkpoints, in order (default, or where empty: each checkpoint's
@@ -418,9 +418,9 @@ fn eq6_batch(
     n_p: &[f32],
     m_p: &[f32],
     l_p: &[f32],
-    cfg: &crate::edit::optimize::Eq6Config,
-) -> Result<(crate::edit::optimize::Point, [f64; 3])> {
-    use crate::edit::optimize::{Point, Priors, Problem, post_optimise};
+    cfg: &crate::post_optimisation::Eq6Config,
+) -> Result<(crate::post_optimisation::Point, [f64; 3])> {
+    use crate::post_optimisation::{Point, Priors, Problem, post_optimise};
     let (p, t, r) = (hb.size * hb.size, 6 * hb.env_height * hb.env_height, hb.regions);
     let mut out = Point {
         normals: Vec::with_capacity(n_p.len()),

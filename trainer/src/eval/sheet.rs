@@ -43,7 +43,8 @@ pub struct Shown {
     pub env: [Vec<f32>; 2],
 }
 
-type Tile = Vec<[u8; 4]>;
+/// An image of RGBA pixels, row-major.
+pub type Tile = Vec<[u8; 4]>;
 
 /// A `[3, H, W]` image scaled into a tile (nearest), letterboxed to keep its aspect.
 fn tile(h: usize, w: usize, px: impl Fn(usize) -> [u8; 4]) -> Tile {
@@ -52,7 +53,7 @@ fn tile(h: usize, w: usize, px: impl Fn(usize) -> [u8; 4]) -> Tile {
 
 /// An `h × w` image (pixel `k` from `px(k)`) scaled into a `side`² tile (nearest), letterboxed
 /// with `background` to keep its aspect.
-pub(crate) fn letterboxed(side: usize, h: usize, w: usize, background: [u8; 4], px: impl Fn(usize) -> [u8; 4]) -> Tile {
+pub fn letterboxed(side: usize, h: usize, w: usize, background: [u8; 4], px: impl Fn(usize) -> [u8; 4]) -> Tile {
     let scale = (side as f64 / h as f64).min(side as f64 / w as f64);
     let (th, tw) = ((h as f64 * scale) as usize, (w as f64 * scale) as usize);
     let (oy, ox) = ((side - th) / 2, (side - tw) / 2);

@@ -1,11 +1,12 @@
-//! `matedit`: material editing of photos with a trained network (Sec. 3.4 of the paper).
+//! The `matedit` command line: material editing of photos with a trained network (Sec. 3.4 of
+//! the paper). The binary's `main` only calls [`main`].
 
+use crate::serve::{ServeConfig, serve};
+use crate::target::parse_material_arg;
+use crate::{Composite, EditRequest, edit, swap, transfer};
 use anyhow::Result;
 use clap::{Parser, Subcommand};
-use matedit_trainer::edit::optimize::Eq6Config;
-use matedit_trainer::edit::target::parse_material_arg;
-use matedit_trainer::edit::{Composite, EditRequest, edit, swap, transfer};
-use matedit_trainer::serve::{ServeConfig, serve};
+use matedit_trainer::post_optimisation::Eq6Config;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -312,7 +313,8 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
-fn main() -> ExitCode {
+/// Runs the command line of this process's arguments.
+pub fn main() -> ExitCode {
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

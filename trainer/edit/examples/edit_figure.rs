@@ -1,6 +1,6 @@
 //! A labelled figure of photos and their edits: one row per photo, one column per image.
 //!
-//! `cargo run --release -p matedit-trainer --example edit_figure -- OUT.png|OUT.jpg "COL1,COL2,..." ROW...`
+//! `cargo run --release -p matedit-edit --example edit_figure -- OUT.png|OUT.jpg "COL1,COL2,..." ROW...`
 //! where each ROW is the comma-separated image files of one row (see `scripts/edit_cars.sh`).
 use anyhow::{Context, Result, bail};
 use matedit_contract::io::{SheetLabels, contact_sheet, write_atomically, write_labelled_contact_sheet};

@@ -4,11 +4,73 @@
 //! refusals name their cause.
 
 use matedit_fixtures::{OCTAHEDRON, Sources, five_materials, render_dataset};
+use matedit_trainer::alloc::PeakAlloc;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{Command, ExitCode, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
+
+/// Counts heap bytes, as the `trainer` binary's allocator does, for `trainer bench`'s peak memory.
+#[global_allocator]
+static ALLOC: PeakAlloc = PeakAlloc::new();
+
+/// Set in the environment of a child process: this binary is then the `trainer` command
+/// (`matedit_trainer::cli::main`, exactly what the binary's `main` runs). A workspace test cannot
+/// name another package's binary, and the trainer's own tests must not build the factory that
+/// renders their datasets, so the test binary runs the command line itself.
+const AS_TRAINER: &str = "MATEDIT_TEST_AS_TRAINER";
+
+fn main() -> ExitCode {
+    if std::env::var_os(AS_TRAINER).is_some() {
+        return matedit_trainer::cli::main(Some(&ALLOC));
+    }
+    let args = libtest_mimic::Arguments::from_args();
+    let tests: [(&str, fn()); 8] = [
+        (
+            "a_killed_run_resumes_to_the_same_losses_and_metrics",
+            a_killed_run_resumes_to_the_same_losses_and_metrics,
+        ),
+        (
+            "bad_manifests_name_file_line_and_field",
+            bad_manifests_name_file_line_and_field,
+        ),
+        (
+            "stages_can_branch_from_an_earlier_stage",
+            stages_can_branch_from_an_earlier_stage,
+        ),
+        (
+            "bench_prints_both_layers_and_refuses_impossible_configurations",
+            bench_prints_both_layers_and_refuses_impossible_configurations,
+        ),
+        (
+            "a_truncated_shard_file_stops_the_run_naming_it_or_is_skipped_and_reported",
+            a_truncated_shard_file_stops_the_run_naming_it_or_is_skipped_and_reported,
+        ),
+        (
+            "a_run_can_start_from_another_runs_checkpoint",
+            a_run_can_start_from_another_runs_checkpoint,
+        ),
+        (
+            "eval_scores_only_the_asked_categories",
+            eval_scores_only_the_asked_categories,
+        ),
+        (
+            "baseline_1_resumes_bit_identically_and_table_3_has_every_method",
+            baseline_1_resumes_bit_identically_and_table_3_has_every_method,
+        ),
+    ];
+    let trials = tests
+        .into_iter()
+        .map(|(name, f)| {
+            libtest_mimic::Trial::test(name, move || {
+                f();
+                Ok(())
+            })
+        })
+        .collect();
+    libtest_mimic::run(&args, trials).exit_code()
+}
 
 const DATASET: &str = r#"
 [dataset]
@@ -136,7 +198,9 @@ fn render(name: &str, text: &str, out: &str) -> PathBuf {
 }
 
 fn trainer() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_trainer"))
+    let mut c = Command::new(std::env::current_exe().expect("the test binary's path"));
+    c.env(AS_TRAINER, "1");
+    c
 }
 
 fn write_manifest(name: &str, text: &str) -> PathBuf {
@@ -183,7 +247,6 @@ fn network_scores(scores: &Value, stage: &str) -> Value {
         .unwrap_or_else(|| panic!("no stage {stage} in the scores"))
 }
 
-#[test]
 fn a_killed_run_resumes_to_the_same_losses_and_metrics() {
     let m = write_manifest("resume.toml", &training_manifest(dataset()));
     let whole = root().join("whole");
@@ -343,7 +406,6 @@ fn a_killed_run_resumes_to_the_same_losses_and_metrics() {
     assert_eq!(again, want_scores);
 }
 
-#[test]
 fn bad_manifests_name_file_line_and_field() {
     let good = training_manifest(dataset());
     let cases = [
@@ -392,7 +454,6 @@ fn bad_manifests_name_file_line_and_field() {
     );
 }
 
-#[test]
 fn stages_can_branch_from_an_earlier_stage() {
     // C starts from A's weights with a learning rate too small to move an f32 weight (Adam's step
     // is lr-sized), so it must score exactly like A, and unlike B, which trained on from A.
@@ -457,7 +518,6 @@ learning_rate = [[0, 1e-30]]
     );
 }
 
-#[test]
 fn bench_prints_both_layers_and_refuses_impossible_configurations() {
     let o = trainer()
         .args([
@@ -512,7 +572,6 @@ fn copy_dir(from: &Path, to: &Path) {
     }
 }
 
-#[test]
 fn a_truncated_shard_file_stops_the_run_naming_it_or_is_skipped_and_reported() {
     let ds = root().join("corrupt-dataset");
     let _ = std::fs::remove_dir_all(&ds);
@@ -553,7 +612,6 @@ fn a_truncated_shard_file_stops_the_run_naming_it_or_is_skipped_and_reported() {
     assert_eq!(metric_lines(&out).len(), 28, "every step still ran");
 }
 
-#[test]
 fn a_run_can_start_from_another_runs_checkpoint() {
     // B starts from A's final weights with a learning rate too small to move an f32 weight, so
     // it must score exactly like A's last stage; a network of another shape is refused.
@@ -623,7 +681,6 @@ learning_rate = [[0, 1e-30]]
     );
 }
 
-#[test]
 fn eval_scores_only_the_asked_categories() {
     let text = training_manifest(dataset()).replace("steps = 14", "steps = 2");
     let m = write_manifest("categories.toml", &text);
@@ -709,7 +766,6 @@ fn total_losses(out: &Path) -> Vec<f64> {
         .collect()
 }
 
-#[test]
 fn baseline_1_resumes_bit_identically_and_table_3_has_every_method() {
     let ds = single_material_dataset();
     let m = write_manifest("b1.toml", &one_stage_manifest(ds, "b1", "encoder-decoder", 15));

@@ -2,12 +2,12 @@
 //! the rendering layer under the studio environment, fitted and rendered on first request and
 //! kept (the fit is shared with edits through `edit::target`'s memo).
 
-use crate::edit::output::spheres;
-use crate::edit::target::dsbrdf_of;
-use crate::metrics::metric_exposure;
+use crate::output::spheres;
+use crate::target::dsbrdf_of;
 use anyhow::{Context, Result};
 use matedit_assets::materials::library::{Split, library};
 use matedit_physics::tonemap::tonemap_u8;
+use matedit_trainer::metrics::metric_exposure;
 use serde_json::{Value, json};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, OnceLock};
@@ -60,7 +60,7 @@ impl Library {
 fn render(name: &str) -> Result<Vec<u8>> {
     let (material, _) = dsbrdf_of(&format!("library:{name}"))?;
     let params: Vec<f32> = material.to_normalised().iter().map(|&v| v as f32).collect();
-    let env = crate::edit::target::relight_env("builtin:studio", ENV_HEIGHT)?;
+    let env = crate::target::relight_env("builtin:studio", ENV_HEIGHT)?;
     let sph = spheres(&[&params], &env, ENV_HEIGHT, SIDE)?;
     let (img, mask) = sph.first().context("no sphere rendered")?;
     let e = metric_exposure(img, mask);

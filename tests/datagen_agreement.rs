@@ -157,7 +157,7 @@ fn ground_truth_n_m_l_reproduce_datagens_exact_images() {
 /// true, and the priors) the energy and the material's error both fall.
 #[test]
 fn eq6_on_datagen_samples_stays_at_the_truth_and_returns_from_a_perturbed_material() {
-    use matedit_trainer::edit::optimize::{Eq6Config, Point, Priors, Problem, post_optimise};
+    use matedit_trainer::post_optimisation::{Eq6Config, Point, Priors, Problem, post_optimise};
     let (root, out) = make_dataset("eq6");
     let ds = Arc::new(Dataset::open(&out).unwrap());
     let layer = RenderingLayer::new(64);
@@ -217,7 +217,7 @@ fn eq6_on_datagen_samples_stays_at_the_truth_and_returns_from_a_perturbed_materi
         // view of a car or a chair (other (κ, γ) give the same pixels, and a sphere of all normals
         // under the same light shows them differing where the object has no normal): their L2
         // to the truth must not grow (measured: test-0000000 falls, test-0000001 rises 0.7 %).
-        // The synthetic-sphere test in `trainer/src/edit/optimize.rs`, which sees every normal,
+        // The synthetic-sphere test in `trainer/src/post_optimisation/mod.rs`, which sees every normal,
         // holds it to a fall.
         assert!(
             back.end.image < 0.5 * back.start.image,

@@ -3,9 +3,9 @@
 //! every job did, kept for the last few so their files can be downloaded.
 
 use super::upload::name_uploads;
-use crate::edit::optimize::Eq6Config;
-use crate::edit::progress::{Cancelled, Progress};
-use crate::edit::{Composite, EditReport, EditRequest, Model, edit_with, transfer_with};
+use crate::{Composite, EditReport, EditRequest, Model, edit_with, transfer_with};
+use matedit_trainer::post_optimisation::Eq6Config;
+use matedit_trainer::post_optimisation::progress::{Cancelled, Progress};
 use serde_json::{Value, json};
 use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};

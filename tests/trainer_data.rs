@@ -1,10 +1,13 @@
-//! The pipeline against a real (tiny) dataset rendered by datagen's library: 16² images, a 4×8
-//! environment, a procedural car (two regions) and an OBJ octahedron (one region), DSBRDF
-//! material files (no fitting), 12 training and 4 test samples.
+//! The trainer's data pipeline (`matedit_trainer::data`) against a real (tiny) dataset rendered
+//! by datagen's library: 16² images, a 4×8 environment, a procedural car (two regions) and an
+//! OBJ octahedron (one region), DSBRDF material files (no fitting), 12 training and 4 test
+//! samples. A workspace test, so that the trainer's own build never includes the factory.
 
-use super::*;
+use anyhow::Result;
 use matedit_contract::io::read_exr_channels;
 use matedit_fixtures::{OCTAHEDRON, Sources, copy_dir, five_materials, render_dataset};
+use matedit_trainer::data::*;
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
 const MANIFEST: &str = r#"

@@ -1,24 +1,22 @@
-//! No input can crash the trainer's readers: property-based fuzzing of training manifests,
-//! checkpoints (state and weights), photos, masks, region labels, and a dataset as the trainer
-//! loads it (the properties and the mutations: `tests/common/fuzz.rs` at the workspace root).
+//! No input can crash the editor's readers: property-based fuzzing of checkpoints (state and
+//! weights, as `matedit` loads a model), photos, masks and region labels (the properties and
+//! the mutations: `tests/common/fuzz.rs` at the workspace root).
 //!
-//! CI: `cargo test --release -p matedit-trainer --test fuzz`. The long run:
+//! CI: `cargo test --release -p matedit-edit --test fuzz`. The long run:
 //! `MATEDIT_FUZZ_SCALE=K` (K times each reader's CI cases) (and `MATEDIT_FUZZ_SEED`), `scripts/fuzz_long.sh`.
 
-#[path = "../../tests/common/fuzz.rs"]
+#[path = "../../../tests/common/fuzz.rs"]
 mod fuzz;
 
 use burn::optim::AdamConfig;
 use burn::tensor::Device;
-use fuzz::{Counting, Reader, Verdict, copy_tree, dataset, eval_assets, fuzz, radiance, seed_file};
-use matedit_trainer::data::Dataset;
-use matedit_trainer::edit::load_model;
-use matedit_trainer::edit::photo::{load_mask, load_photo};
-use matedit_trainer::edit::target::load_regions;
+use fuzz::{Counting, Reader, Verdict, copy_tree, eval_assets, fuzz, radiance, seed_file};
+use matedit_edit::load_model;
+use matedit_edit::photo::{load_mask, load_photo};
+use matedit_edit::target::load_regions;
 use matedit_trainer::model::Widths;
 use matedit_trainer::model::network::NetConfig;
 use matedit_trainer::train::checkpoint::{State, save};
-use matedit_trainer::train::manifest;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -32,41 +30,10 @@ fn err(e: impl std::fmt::Display) -> String {
 }
 
 fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("matedit-trainer-fuzz-{name}-{}", std::process::id()));
+    let d = std::env::temp_dir().join(format!("matedit-edit-fuzz-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
-}
-
-#[test]
-fn training_manifests() {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../manifests/train");
-    let mut seeds: Vec<_> = std::fs::read_dir(&dir)
-        .unwrap()
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
-        .filter_map(|p| seed_file(&p))
-        .collect();
-    seeds.sort();
-    assert!(!seeds.is_empty(), "the shipped training manifests");
-    let read = |p: &Path| -> Result<Verdict, String> {
-        let plan = manifest::load(p).map_err(err)?;
-        Ok(if plan.manifest.stages.is_empty() {
-            Err("a plan without stages".into())
-        } else {
-            Ok(())
-        })
-    };
-    fuzz(&Reader {
-        name: "train-manifest",
-        file_name: "train.toml",
-        seeds,
-        cases: 300,
-        floor_bytes: 8 * MB,
-        per_input_byte: None,
-        prepare: None,
-        read: &read,
-    });
 }
 
 /// A checkpoint of an untrained small network (16² input), written once per process.
@@ -195,7 +162,7 @@ fn jpeg(w: u32, h: u32) -> Vec<u8> {
     out.into_inner()
 }
 
-fn photo_valid(p: &matedit_trainer::edit::photo::Photo) -> Verdict {
+fn photo_valid(p: &matedit_edit::photo::Photo) -> Verdict {
     if p.width == 0 || p.height == 0 || p.rgb.len() != p.width * p.height {
         Err(format!("{}×{} with {} pixels", p.width, p.height, p.rgb.len()))
     } else if p.rgb.iter().flatten().any(|v| !v.is_finite() || *v < 0.0) {
@@ -313,61 +280,6 @@ fn masks_and_region_labels() {
         prepare: None,
         read: &read,
     });
-}
-
-/// The trainer's dataset reader (open, then every sample with its checksum verified) on the
-/// tiny dataset with one file mutated: a changed sample file never loads.
-fn dataset_file(name: &'static str, rel: &'static str, cases: u32) {
-    let dir = dataset();
-    let original = std::fs::read(dir.join(rel)).unwrap();
-    let prepare = move |case: &Path| copy_tree(dir, case);
-    let read = |p: &Path| -> Result<Verdict, String> {
-        let root = p.ancestors().find(|a| a.join("dataset.json").is_file()).unwrap_or(p);
-        let ds = Dataset::open(root).map_err(err)?;
-        let mut loaded = true;
-        for split in ds.split_names() {
-            for r in ds.records(split) {
-                if let Err(e) = ds.load(r, true) {
-                    let m = err(e);
-                    if !m.contains(&*root.to_string_lossy()) && !m.contains(&r.id) {
-                        return Err(m);
-                    }
-                    loaded = false;
-                }
-            }
-        }
-        let changed = std::fs::read(p).map(|b| b != original).unwrap_or(true);
-        Ok(if loaded && changed && rel.ends_with(".exr") {
-            Err("a changed sample file loaded".into())
-        } else {
-            Ok(())
-        })
-    };
-    fuzz(&Reader {
-        name,
-        file_name: rel,
-        seeds: vec![(rel.to_string(), std::fs::read(dir.join(rel)).unwrap())],
-        cases,
-        floor_bytes: 32 * MB,
-        per_input_byte: None,
-        prepare: Some(&prepare),
-        read: &read,
-    });
-}
-
-#[test]
-fn dataset_index_as_the_trainer_reads_it() {
-    dataset_file("trainer-dataset-index", "index.jsonl", 150);
-}
-
-#[test]
-fn dataset_metadata_as_the_trainer_reads_it() {
-    dataset_file("trainer-dataset-json", "dataset.json", 150);
-}
-
-#[test]
-fn dataset_samples_as_the_trainer_reads_them() {
-    dataset_file("trainer-dataset-sample", "shards/test-00000/test-0000000.exr", 100);
 }
 
 /// Found by this fuzzer: an EXR photo whose alpha channel holds NaN was accepted with a NaN

@@ -3,11 +3,11 @@
 //! uploads and hostile requests get their message and leave the server running.
 
 use super::*;
-use crate::model::Widths;
-use crate::model::network::NetConfig;
-use crate::train::checkpoint::{State as CkState, save};
 use burn::optim::AdamConfig;
 use burn::tensor::Device;
+use matedit_trainer::model::Widths;
+use matedit_trainer::model::network::NetConfig;
+use matedit_trainer::train::checkpoint::{State as CkState, save};
 use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::path::Path;
@@ -218,7 +218,7 @@ fn an_edit_matches_the_command_line_and_serves_only_its_own_files() {
         optimize: Some(Eq6Config::default()),
         ..EditRequest::default()
     };
-    crate::edit::edit(model(), &req, &d.join("out")).unwrap();
+    crate::edit(model(), &req, &d.join("out")).unwrap();
     for f in [
         "edited.png",
         "o_prime.exr",

@@ -2,11 +2,11 @@
 
 use super::photo::{Framing, TRAINING_FILL, load_photo, srgb_decode};
 use super::*;
-use crate::model::Widths;
-use crate::model::network::NetConfig;
-use crate::train::checkpoint::{State, save};
 use burn::optim::AdamConfig;
 use matedit_physics::tonemap::tonemap_u8;
+use matedit_trainer::model::Widths;
+use matedit_trainer::model::network::NetConfig;
+use matedit_trainer::train::checkpoint::{State, save};
 use std::sync::OnceLock;
 
 fn dir(name: &str) -> PathBuf {

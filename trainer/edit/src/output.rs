@@ -14,13 +14,13 @@
 
 use super::photo::{Encoding, Photo};
 use super::{EditReport, Predicted, Prepared};
-use crate::render::{Batch, RenderingLayer};
 use anyhow::{Context, Result, bail};
 use matedit_contract::io::{
     SheetLabels, normal_to_u8, write_atomically, write_exr_channels, write_labelled_contact_sheet,
 };
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::tonemap::{srgb_encode, tonemap_u8};
+use matedit_trainer::render::{Batch, RenderingLayer};
 use std::path::Path;
 
 /// Seconds per phase of an edit.
@@ -246,7 +246,7 @@ pub fn write_all(
         ],
     )?;
     let all = vec![1.0_f32; ehw];
-    let env_exposure = crate::metrics::metric_exposure(&pred.env, &all);
+    let env_exposure = matedit_trainer::metrics::metric_exposure(&pred.env, &all);
     write_png_rgb(&out.join("env.png"), we, he, |k| {
         [0, 1, 2].map(|c| tonemap_u8(pred.env[c * ehw + k], env_exposure))
     })?;
@@ -291,7 +291,7 @@ fn write_sheet(out: &Path, prep: &Prepared, pred: &Predicted, targets: &[Dsbrdf]
     let n = prep.size;
     let hw = n * n;
     let scale_tile = |h: usize, w: usize, px: &dyn Fn(usize) -> [u8; 4]| {
-        crate::eval::sheet::letterboxed(TILE, h, w, [0, 0, 0, 255], px)
+        matedit_trainer::eval::sheet::letterboxed(TILE, h, w, [0, 0, 0, 255], px)
     };
     let image_tile = |img: &[f32], mask: &[f32]| {
         scale_tile(n, n, &|k| {
@@ -328,7 +328,7 @@ fn write_sheet(out: &Path, prep: &Prepared, pred: &Predicted, targets: &[Dsbrdf]
     let (he, we) = (pred.env_height, 2 * pred.env_height);
     let ehw = he * we;
     let all = vec![1.0_f32; ehw];
-    let e = crate::metrics::metric_exposure(&pred.env, &all);
+    let e = matedit_trainer::metrics::metric_exposure(&pred.env, &all);
     columns.push("L'");
     tiles.push(scale_tile(he, we, &|k| {
         let c = |ch: usize| tonemap_u8(pred.env[ch * ehw + k], e);
@@ -344,7 +344,7 @@ fn write_sheet(out: &Path, prep: &Prepared, pred: &Predicted, targets: &[Dsbrdf]
     let ns = n.min(64);
     let sph = spheres(&mats, &pred.env, pred.env_height, ns)?;
     let sphere_tile = |img: &[f32], mask: &[f32]| {
-        let e = crate::metrics::metric_exposure(img, mask);
+        let e = matedit_trainer::metrics::metric_exposure(img, mask);
         scale_tile(ns, ns, &|k| {
             if mask[k] > 0.0 {
                 let c = |ch: usize| tonemap_u8(img[ch * ns * ns + k], e);
@@ -409,7 +409,7 @@ pub fn energy_plot(path: &Path, eq6: &super::Eq6Report) -> Result<()> {
             .y_desc("E")
             .draw()
             .map_err(e)?;
-        use super::optimize::Property;
+        use matedit_trainer::post_optimisation::Property;
         for (prop, colour, name) in [
             (Property::Normals, RGBColor(31, 119, 180), "normals"),
             (Property::Material, RGBColor(255, 127, 14), "material"),

@@ -1,3 +1,5 @@
+//! # matedit-edit
+//!
 //! Material editing of a photo (Sec. 3.4 and Fig. 2 applied to a real picture): the network
 //! predicts normals n', a DSBRDF m' per region and the illumination L' from the framed photo
 //! ([`photo`]); the rendering layer renders I' = R(n', m', L') and the edit O' = R(n', m_t, L')
@@ -6,27 +8,34 @@
 //!
 //! [`prepare`] and [`predict_and_render`] work in memory; [`edit`] adds reading the inputs and
 //! writing every output ([`output`]) after all of them succeeded, so a bad input writes nothing.
+//! [`transfer`] and [`swap`] are Fig. 4 and Fig. 10; [`serve`] is the editing web page over the
+//! same functions; [`cli`] is their command line, the `matedit` binary. The network, the rendering
+//! layer and Eq. 6 ([`matedit_trainer::post_optimisation`]) come from the trainer; target
+//! materials by name ([`target`]) from the material library, fitted on the fly.
 
+#![warn(missing_docs)]
+
+pub mod cli;
 pub mod composite;
-pub mod optimize;
 pub mod output;
 pub mod photo;
-pub mod progress;
+pub mod serve;
 pub mod target;
 #[cfg(test)]
 mod tests;
 
-use crate::model::network::Net;
-use crate::render::op::host;
-use crate::render::{Batch, RenderingLayer};
-use crate::train::batch::HostBatch;
-use crate::train::checkpoint;
 use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::brdf::dsbrdf::PARAMS;
+use matedit_trainer::model::network::Net;
+use matedit_trainer::post_optimisation as optimize;
+use matedit_trainer::post_optimisation::progress::{Progress, enter};
+use matedit_trainer::render::op::host;
+use matedit_trainer::render::{Batch, RenderingLayer};
+use matedit_trainer::train::batch::HostBatch;
+use matedit_trainer::train::checkpoint;
 use photo::{Framing, Photo, TRAINING_MEAN_LUMINANCE, luminance};
-use progress::{Progress, enter};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;

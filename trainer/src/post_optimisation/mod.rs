@@ -14,13 +14,15 @@
 //! Pixels of I that are not finite take no part. Each L-BFGS run starts where the previous
 //! ended and keeps its best point, so E never increases from one logged iteration to the next.
 
-use super::progress::{Cancelled, Progress};
+pub mod progress;
+
 use crate::render::{Batch, RenderingLayer};
 use anyhow::{Result, anyhow};
 use argmin::core::observers::{Observe, ObserverMode};
 use argmin::core::{CostFunction, Executor, Gradient, IterState, KV, State};
 use argmin::solver::linesearch::MoreThuenteLineSearch;
 use argmin::solver::quasinewton::LBFGS;
+use progress::{Cancelled, Progress};
 use std::cell::RefCell;
 use std::sync::{Arc, Mutex};
 

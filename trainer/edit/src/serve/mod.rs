@@ -2,8 +2,8 @@
 //! mask (a file, the photo's alpha, or painted on the page), picks a library material by its
 //! sphere or a second photo to transfer from, and shows what `matedit edit` / `transfer` write,
 //! which is what runs: the handlers only check uploads and queue jobs ([`jobs`]); one worker
-//! that owns the network runs them in order through [`crate::edit::edit_with`] and
-//! [`crate::edit::transfer_with`], showing Eq. 6's energy live and stopping when cancelled.
+//! that owns the network runs them in order through [`crate::edit_with`] and
+//! [`crate::transfer_with`], showing Eq. 6's energy live and stopping when cancelled.
 //!
 //! | route | what |
 //! |---|---|
@@ -21,8 +21,7 @@ pub mod library;
 mod tests;
 pub mod upload;
 
-use crate::edit::optimize::Eq6Config;
-use crate::edit::{Composite, EditRequest, Model};
+use crate::{Composite, EditRequest, Model};
 use anyhow::{Context, Result, bail};
 use axum::Router;
 use axum::extract::{DefaultBodyLimit, Multipart, Path as UrlPath, Query, State};
@@ -30,6 +29,7 @@ use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
 use jobs::{Job, Queue, Work};
+use matedit_trainer::post_optimisation::Eq6Config;
 use serde_json::{Value, json};
 use std::collections::HashMap;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
@@ -436,7 +436,7 @@ fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result<(Work, Vec
     let source_mask = save("source_mask", &mut f)?;
     // Messages name the uploads as the user called them, not by where they were saved.
     let check = |photo: &std::path::Path, mask: Option<&std::path::Path>| -> Result<()> {
-        crate::edit::read_photo(photo, mask, None)
+        crate::read_photo(photo, mask, None)
             .map(|_| ())
             .map_err(|e| anyhow::anyhow!(upload::name_uploads(&format!("{e:#}"), &names)))
     };

@@ -1,0 +1,307 @@
+//! The `trainer` command line: trains the material-editing network of Fig. 2 from manifests,
+//! evaluates it like Sec. 4 of the paper, and measures the rendering layer. The binary's
+//! `main` only hands over its allocator ([`main`]); tests run the same function.
+
+use crate::alloc::PeakAlloc;
+use crate::baseline::lombardi::LombardiConfig;
+use crate::bench;
+use crate::eval::{EvalOptions, evaluate};
+use crate::targets::{material_from_prediction, normalised_target};
+use crate::train::manifest;
+use crate::train::run::{Preempted, open_dataset_stream, run as run_manifest, stop_requested};
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "trainer", version, about = "Trainer for the material-editing network")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Train the stages of a training manifest (manifests/train/*.toml), then evaluate every
+    /// stage's final checkpoint on the manifest's [eval] split.
+    Run {
+        /// Training manifest.
+        manifest: PathBuf,
+        /// Output folder (default: the manifest's run.output).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Continue the run in the output folder from its latest checkpoint.
+        #[arg(long)]
+        resume: bool,
+        /// No progress bars.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Score checkpoints on a dataset split: METRICS.json and Markdown tables shaped like the
+    /// paper's Tables 1–3 (with both trivial baselines).
+    Eval {
+        /// Checkpoint folder (`OUT/checkpoints/STAGE`), or `LABEL=FOLDER` to name its row and
+        /// column (default: its stage name); repeat to compare several.
+        #[arg(long, required = true)]
+        checkpoint: Vec<String>,
+        /// Dataset folder.
+        #[arg(long)]
+        data: PathBuf,
+        /// Split to score.
+        #[arg(long, default_value = "test")]
+        split: String,
+        /// Dataset whose training splits define the mean-material baseline (default: --data).
+        #[arg(long)]
+        train_data: Option<PathBuf>,
+        /// Output JSON; the tables go next to it as .md.
+        #[arg(long)]
+        out: PathBuf,
+        /// Samples per batch.
+        #[arg(long, default_value_t = 8)]
+        batch: usize,
+        /// At most this many samples (0: all).
+        #[arg(long, default_value_t = 0)]
+        max_samples: usize,
+        /// Score only this shape category (repeat for several; default: all).
+        #[arg(long = "category")]
+        categories: Vec<String>,
+        /// Samples in the contact sheet written next to --out as .png (0: none).
+        #[arg(long, default_value_t = 8)]
+        sheet: usize,
+        /// Also score each checkpoint after the post-optimisation of every sample (Eq. 6, a = 1,
+        /// b = 10; slow: seconds per sample), as Table 3's "+ Eq. 6" column.
+        #[arg(long)]
+        eq6: bool,
+        /// Eq. 6's rounds of (normals, material, light).
+        #[arg(long, default_value_t = 1)]
+        eq6_rounds: usize,
+        /// Eq. 6's L-BFGS iterations per property and round.
+        #[arg(long, default_value_t = 4)]
+        eq6_iterations: usize,
+        /// Also score the Lombardi-style optimiser of material and light given the true normals
+        /// (Table 3's baseline; slow: seconds per sample).
+        #[arg(long)]
+        lombardi: bool,
+        /// Its reflectance prior's relative weight.
+        #[arg(long, default_value_t = LombardiConfig::default().material_weight)]
+        lombardi_material_weight: f64,
+        /// Its natural-illumination prior's relative weight.
+        #[arg(long, default_value_t = LombardiConfig::default().light_weight)]
+        lombardi_light_weight: f64,
+        /// Its rounds of (material, light).
+        #[arg(long, default_value_t = LombardiConfig::default().rounds)]
+        lombardi_rounds: usize,
+        /// Its L-BFGS iterations per property and round.
+        #[arg(long, default_value_t = LombardiConfig::default().iterations)]
+        lombardi_iterations: usize,
+        /// No progress bar.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Print a material file's 108 normalised parameters (the material module's target) as JSON.
+    MaterialTarget {
+        /// DSBRDF material file.
+        material: PathBuf,
+    },
+    /// Turn a predicted 108-vector (JSON array, tanh range) into a DSBRDF material file.
+    MaterialFromPrediction {
+        /// JSON array of 108 numbers.
+        prediction: PathBuf,
+        /// Output material file.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Rendering layer forward+backward time and peak memory (fused vs tensor reference), and
+    /// training images/s per network configuration.
+    Bench {
+        /// Batch size of the rendering-layer measurement.
+        #[arg(long, default_value_t = 8)]
+        batch: usize,
+        /// Image side of the rendering-layer measurement.
+        #[arg(long, default_value_t = 128)]
+        size: usize,
+        /// Timed runs of the fused layer (the median is printed).
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+        /// Skip the (slow) tensor reference.
+        #[arg(long)]
+        no_reference: bool,
+        /// Training configurations to time: NAME:SIZE:BATCH with NAME cpu-small or paper.
+        #[arg(long, value_delimiter = ',', default_value = "cpu-small:64:8,cpu-small:128:8")]
+        train: Vec<String>,
+        /// The device of both measurements, as in a training manifest: cpu (the fused CPU layer),
+        /// wgpu (`--features wgpu`: the layer's GPU kernels, the whole training step on the GPU).
+        #[arg(long, default_value = "cpu")]
+        device: String,
+    },
+}
+
+/// `LABEL=FOLDER` as (label, folder), or a folder (an existing path is never split, even with
+/// an '=' in its name) as ("", folder).
+fn labelled(arg: &str) -> (String, PathBuf) {
+    match arg.split_once('=') {
+        Some((label, folder)) if !std::path::Path::new(arg).exists() && !label.is_empty() => {
+            (label.to_owned(), PathBuf::from(folder))
+        }
+        _ => (String::new(), PathBuf::from(arg)),
+    }
+}
+
+/// Runs evaluation and writes `out` (JSON) and its `.md` tables; prints the tables.
+fn eval_to(checkpoints: &[PathBuf], opts: &EvalOptions, out: &std::path::Path) -> Result<()> {
+    let report = evaluate(checkpoints, opts)?;
+    crate::eval::run::write_report(&report, out)?;
+    let md = report.markdown();
+    let md_path = out.with_extension("md");
+    matedit_contract::io::write_atomically(&md_path, |p| Ok(std::fs::write(p, &md)?))?;
+    println!("{md}");
+    if let Some(last) = report.checkpoints.last() {
+        match report.beats_baselines(&last.name) {
+            Some(true) => println!("{}: O' beats the trivial baselines on L2 and SSIM.", last.name),
+            Some(false) => println!("{}: O' does NOT beat the trivial baselines on L2 and SSIM.", last.name),
+            None => {}
+        }
+    }
+    eprintln!("wrote {} and {}", out.display(), md_path.display());
+    Ok(())
+}
+
+fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
+    match cli.command {
+        Command::Run {
+            manifest: path,
+            out,
+            resume,
+            quiet,
+        } => {
+            let plan = manifest::load(&path)?;
+            let out = out.unwrap_or_else(|| PathBuf::from(&plan.manifest.run.output));
+            // A scheduler's notice (Slurm's --signal, Kubernetes' termination): checkpoint and stop.
+            #[cfg(unix)]
+            for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGUSR1] {
+                signal_hook::flag::register(sig, stop_requested().clone())
+                    .context("cannot install the SIGTERM/SIGUSR1 handler")?;
+            }
+            let summary = run_manifest(&plan, &out, resume, &open_dataset_stream, quiet)?;
+            eprintln!(
+                "{} steps run; checkpoints: {}",
+                summary.steps_run,
+                summary
+                    .stage_checkpoints
+                    .iter()
+                    .map(|(_, p)| p.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+            let e = &plan.manifest.eval;
+            let checkpoints: Vec<PathBuf> = summary.stage_checkpoints.iter().map(|(_, p)| p.clone()).collect();
+            let opts = EvalOptions {
+                data: plan.dataset.clone(),
+                split: e.split.clone(),
+                train_data: None,
+                batch: 8,
+                max_samples: e.max_samples,
+                categories: e.categories.clone(),
+                progress: !quiet,
+                sheet: Some((out.join("eval.png"), 8)),
+                eq6: None,
+                lombardi: None,
+                names: Vec::new(),
+            };
+            eval_to(&checkpoints, &opts, &out.join("eval.json"))?;
+        }
+        Command::Eval {
+            checkpoint,
+            data,
+            split,
+            train_data,
+            out,
+            batch,
+            max_samples,
+            categories,
+            sheet,
+            eq6,
+            eq6_rounds,
+            eq6_iterations,
+            lombardi,
+            lombardi_material_weight,
+            lombardi_light_weight,
+            lombardi_rounds,
+            lombardi_iterations,
+            quiet,
+        } => {
+            let (names, checkpoint): (Vec<String>, Vec<PathBuf>) = checkpoint.iter().map(|c| labelled(c)).unzip();
+            let opts = EvalOptions {
+                data,
+                split,
+                train_data,
+                batch,
+                max_samples,
+                categories,
+                progress: !quiet,
+                sheet: Some((out.with_extension("png"), sheet)),
+                eq6: eq6.then(|| crate::post_optimisation::Eq6Config {
+                    rounds: eq6_rounds,
+                    iterations: eq6_iterations,
+                    ..Default::default()
+                }),
+                lombardi: lombardi.then(|| LombardiConfig {
+                    material_weight: lombardi_material_weight,
+                    light_weight: lombardi_light_weight,
+                    rounds: lombardi_rounds,
+                    iterations: lombardi_iterations,
+                    ..Default::default()
+                }),
+                names,
+            };
+            eval_to(&checkpoint, &opts, &out)?;
+        }
+        Command::MaterialTarget { material } => {
+            println!("{}", serde_json::to_string(&normalised_target(&material)?.to_vec())?);
+        }
+        Command::MaterialFromPrediction { prediction, out } => {
+            let m = material_from_prediction(&prediction)?;
+            std::fs::write(&out, m.to_json())?;
+            eprintln!("wrote {}", out.display());
+        }
+        Command::Bench {
+            batch,
+            size,
+            runs,
+            no_reference,
+            train,
+            device,
+        } => {
+            let opts = bench::Options {
+                batch,
+                size,
+                runs,
+                reference: !no_reference,
+                train,
+            };
+            print!("{}", bench::report(&device, &opts, alloc)?);
+        }
+    }
+    Ok(())
+}
+
+/// `trainer run`'s status when it stopped on a signal after writing a checkpoint (EX_TEMPFAIL:
+/// try again), which `scripts/train_slurm.sh` turns into a requeue.
+pub const EXIT_PREEMPTED: u8 = 75;
+
+/// Runs the command line of this process's arguments. `alloc`, the binary's global allocator
+/// when it counts, gives `trainer bench` its peak-memory column.
+pub fn main(alloc: Option<&PeakAlloc>) -> ExitCode {
+    match run(Cli::parse(), alloc) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) if e.downcast_ref::<Preempted>().is_some() => {
+            eprintln!("{e:#}");
+            ExitCode::from(EXIT_PREEMPTED)
+        }
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
