@@ -23,7 +23,7 @@ when that bias estimate is within tolerance and the noise is at most half the to
 pass is never just noise hiding a bias. The error is the relative RMSE over object pixels
 whose 3x3 neighbourhood is covered (silhouette pixels are filtered differently by the two).
 
-Usage (after `cargo build --release`):
+Usage (after `cargo build --release --workspace`):
     pip install mitsuba numpy
     python3 scripts/crosscheck_mitsuba.py [--quick] [--assets ../shared/eval-assets] [--out out/crosscheck]
 Exit status is 1 if any case fails (tolerance 2% at 64x128, 1% at full environment resolution).

@@ -3,7 +3,7 @@
 several users at once (every edit must finish, none lost), then more users than the queue holds
 (the surplus is refused with 503 and nothing else is lost). Prints a Markdown table.
 
-Usage: scripts/serve_bench.py MODEL PHOTO [MASK] [--users 6] [--runs 5]
+Usage (after `cargo build --release -p matedit-edit`): scripts/serve_bench.py MODEL PHOTO [MASK] [--users 6] [--runs 5]
        (PHOTO's alpha is the mask when MASK is not given)
 """
 import argparse, json, os, re, signal, statistics, subprocess, sys, threading, time, urllib.error, urllib.request, uuid

@@ -384,7 +384,7 @@ def main():
         return
     for b in (a.trainer, a.datagen):
         if not b.is_file():
-            fail(f"{b} does not exist: build it with cargo build --release")
+            fail(f"{b} does not exist: build it with cargo build --release --workspace")
     docs = {name: yaml.safe_load((REPO / "scripts" / name).read_text())
             for name in ("train_k8s_job.yaml", "datagen_k8s_job.yaml")}
     validate(docs)

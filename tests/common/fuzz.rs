@@ -727,6 +727,7 @@ materials = 2
     })
 }
 
+#[allow(unused_imports)]
 pub use matedit_fixtures::copy_dir as copy_tree;
 
 /// EXRs of `w × h` whose channel sets a reader of RGB may not expect: R and G only, Y only,

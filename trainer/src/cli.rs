@@ -15,7 +15,12 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "trainer", version, about = "Trainer for the material-editing network")]
+#[command(
+    name = "trainer",
+    bin_name = "trainer",
+    version,
+    about = "Trainer for the material-editing network"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

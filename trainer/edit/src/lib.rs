@@ -6,7 +6,7 @@
 //! with the target material m_t (or R(n', m', L_new) under another illumination, Fig. 4); O'
 //! goes back into the photo at its original resolution inside the mask ([`composite`]).
 //!
-//! [`prepare`] and [`predict_and_render`] work in memory; [`edit`] adds reading the inputs and
+//! [`prepare`], [`network_prediction`] and [`render_all`] work in memory; [`edit`] adds reading the inputs and
 //! writing every output ([`output`]) after all of them succeeded, so a bad input writes nothing.
 //! [`transfer`] and [`swap`] are Fig. 4 and Fig. 10; [`serve`] is the editing web page over the
 //! same functions; [`cli`] is their command line, the `matedit` binary. The network, the rendering
@@ -29,7 +29,7 @@ use burn::tensor::Device;
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use matedit_trainer::model::network::Net;
-use matedit_trainer::post_optimisation as optimize;
+use matedit_trainer::post_optimisation;
 use matedit_trainer::post_optimisation::progress::{Progress, enter};
 use matedit_trainer::render::op::host;
 use matedit_trainer::render::{Batch, RenderingLayer};
@@ -68,7 +68,7 @@ pub struct EditRequest {
     /// How to composite.
     pub composite: Composite,
     /// Refine n', m', L' with Eq. 6 before rendering.
-    pub optimize: Option<optimize::Eq6Config>,
+    pub optimize: Option<post_optimisation::Eq6Config>,
 }
 
 /// The framed network input of one photo.
@@ -172,7 +172,7 @@ pub struct Predicted {
 }
 
 /// n', m', L': the network's prediction for `prep` (normals zero off the object).
-pub fn network_prediction(net: &Net, env_height: usize, prep: &Prepared) -> Result<optimize::Point> {
+pub fn network_prediction(net: &Net, env_height: usize, prep: &Prepared) -> Result<post_optimisation::Point> {
     let device = Device::flex();
     let (s, r) = (prep.size, prep.regions);
     let hb = HostBatch {
@@ -200,7 +200,7 @@ pub fn network_prediction(net: &Net, env_height: usize, prep: &Prepared) -> Resu
             }
         }
     }
-    Ok(optimize::Point {
+    Ok(post_optimisation::Point {
         normals,
         materials: host(&p.materials),
         env: p
@@ -217,7 +217,7 @@ pub fn network_prediction(net: &Net, env_height: usize, prep: &Prepared) -> Resu
 pub fn render_all(
     layer: &RenderingLayer,
     prep: &Prepared,
-    x: optimize::Point,
+    x: post_optimisation::Point,
     env_height: usize,
     targets: Option<&[f32]>,
     relight: Option<&[f32]>,
@@ -259,13 +259,13 @@ pub fn render_all(
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Eq6Report {
     /// Weights and lengths.
-    pub config: optimize::Eq6Config,
+    pub config: post_optimisation::Eq6Config,
     /// E at the network's prediction.
-    pub start: optimize::Energy,
+    pub start: post_optimisation::Energy,
     /// E at the end.
-    pub end: optimize::Energy,
+    pub end: post_optimisation::Energy,
     /// E after every L-BFGS iteration.
-    pub steps: Vec<optimize::Step>,
+    pub steps: Vec<post_optimisation::Step>,
     /// Seconds.
     pub seconds: f64,
 }
@@ -343,7 +343,7 @@ pub struct Understood {
     /// The network input.
     pub prep: Prepared,
     /// n*, m*, L* (the network's, or after Eq. 6).
-    pub point: optimize::Point,
+    pub point: post_optimisation::Point,
     /// Eq. 6, when asked for.
     pub eq6: Option<Eq6Report>,
     /// Seconds the network took.
@@ -417,7 +417,7 @@ pub fn understand(
     model: &Model,
     read: ReadPhoto,
     path: &Path,
-    optimize: Option<&optimize::Eq6Config>,
+    optimize: Option<&post_optimisation::Eq6Config>,
     watcher: Option<&Arc<Progress>>,
 ) -> Result<Understood> {
     let w = watcher.map(|w| w.as_ref());
@@ -443,7 +443,7 @@ pub fn understand(
             enter(w, "eq6")?;
             let t = Instant::now();
             let prior = x.clone();
-            let problem = optimize::Problem {
+            let problem = post_optimisation::Problem {
                 layer: &model.layer,
                 size: prep.size,
                 regions: prep.regions,
@@ -453,9 +453,9 @@ pub fn understand(
                 env: &prior.env,
                 a: cfg.a,
                 b: cfg.b,
-                priors: optimize::Priors::NONE,
+                priors: post_optimisation::Priors::NONE,
             };
-            let r = optimize::post_optimise_watched(&problem, prior.clone(), cfg, watcher)?;
+            let r = post_optimisation::post_optimise_watched(&problem, prior.clone(), cfg, watcher)?;
             x = r.point;
             Some(Eq6Report {
                 config: cfg.clone(),
@@ -647,7 +647,7 @@ pub fn transfer(
     model: &Path,
     from: (&Path, Option<&Path>),
     to: (&Path, Option<&Path>),
-    optimize: Option<&optimize::Eq6Config>,
+    optimize: Option<&post_optimisation::Eq6Config>,
     how: Composite,
     out: &Path,
 ) -> Result<EditReport> {
@@ -663,7 +663,7 @@ pub fn transfer_with(
     model: &Model,
     from: (&Path, Option<&Path>),
     to: (&Path, Option<&Path>),
-    optimize: Option<&optimize::Eq6Config>,
+    optimize: Option<&post_optimisation::Eq6Config>,
     how: Composite,
     out: &Path,
     watcher: Option<&Arc<Progress>>,
@@ -679,7 +679,7 @@ fn transfer_checked(
     model: &Model,
     from: (&Path, Option<&Path>),
     to: (&Path, Option<&Path>),
-    optimize: Option<&optimize::Eq6Config>,
+    optimize: Option<&post_optimisation::Eq6Config>,
     how: Composite,
     out: &Path,
     watcher: Option<&Arc<Progress>>,
@@ -729,7 +729,7 @@ pub fn swap(
     model: &Path,
     a: (&Path, Option<&Path>),
     b: (&Path, Option<&Path>),
-    optimize: Option<&optimize::Eq6Config>,
+    optimize: Option<&post_optimisation::Eq6Config>,
     how: Composite,
     out: &Path,
 ) -> Result<[EditReport; 2]> {

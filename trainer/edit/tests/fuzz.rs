@@ -1,6 +1,7 @@
-//! No input can crash the editor's readers: property-based fuzzing of checkpoints (state and
-//! weights, as `matedit` loads a model), photos, masks and region labels (the properties and
-//! the mutations: `tests/common/fuzz.rs` at the workspace root).
+//! No input can crash the editor's readers: property-based fuzzing of photos, masks and region
+//! labels (the properties and the mutations: `tests/common/fuzz.rs` at the workspace root).
+//! The checkpoints `matedit` loads are read by the trainer's reader, fuzzed in
+//! `tests/fuzz_trainer.rs`.
 //!
 //! CI: `cargo test --release -p matedit-edit --test fuzz`. The long run:
 //! `MATEDIT_FUZZ_SCALE=K` (K times each reader's CI cases) (and `MATEDIT_FUZZ_SEED`), `scripts/fuzz_long.sh`.
@@ -8,17 +9,10 @@
 #[path = "../../../tests/common/fuzz.rs"]
 mod fuzz;
 
-use burn::optim::AdamConfig;
-use burn::tensor::Device;
-use fuzz::{Counting, Reader, Verdict, copy_tree, eval_assets, fuzz, radiance, seed_file};
-use matedit_edit::load_model;
+use fuzz::{Counting, Reader, Verdict, eval_assets, fuzz, radiance, seed_file};
 use matedit_edit::photo::{load_mask, load_photo};
 use matedit_edit::target::load_regions;
-use matedit_trainer::model::Widths;
-use matedit_trainer::model::network::NetConfig;
-use matedit_trainer::train::checkpoint::{State, save};
-use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::path::Path;
 
 #[global_allocator]
 static ALLOCATOR: Counting = Counting;
@@ -27,114 +21,6 @@ const MB: usize = 1 << 20;
 
 fn err(e: impl std::fmt::Display) -> String {
     format!("{e:#}")
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("matedit-edit-fuzz-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// A checkpoint of an untrained small network (16² input), written once per process.
-fn checkpoint() -> &'static Path {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let root = scratch("checkpoint");
-        let cfg = NetConfig::new(16, Widths::cpu_small()).with_env_height(4);
-        let net = cfg.init(&Device::flex());
-        let state = State::untrained(cfg, "untrained");
-        save(&root, "untrained", &net, &AdamConfig::new().init(), state).unwrap()
-    })
-}
-
-/// Found by this fuzzer: a checkpoint whose state.json gives a dropout of −1 (or widths of 0, or
-/// sizes beyond reason) made Burn panic, or the loader allocate without bound, while building
-/// the network; the state is now validated first, naming the file.
-#[test]
-fn regression_checkpoint_state_with_impossible_network() {
-    let dir = checkpoint();
-    let state = std::fs::read_to_string(dir.join("state.json")).unwrap();
-    let prepare = move |case: &Path| copy_tree(dir, case);
-    let read = |p: &Path| -> Result<Verdict, String> {
-        load_model(p.parent().unwrap_or(p)).map_err(err)?;
-        Ok(Ok(()))
-    };
-    let reader = Reader {
-        name: "checkpoint-state",
-        file_name: "state.json",
-        seeds: Vec::new(),
-        cases: 0,
-        floor_bytes: 256 * MB,
-        per_input_byte: None,
-        prepare: Some(&prepare),
-        read: &read,
-    };
-    let largest = state
-        .replace("\"input_size\": 16", "\"input_size\": 1024")
-        .replace("\"env_height\": 4", "\"env_height\": 256")
-        .replace("\"base_channels\": 8", "\"base_channels\": 4096")
-        .replace("\"max_channels\": 64", "\"max_channels\": 4096")
-        .replace("\"hidden\": 128", "\"hidden\": 4096")
-        .replace("\"normal_channels\": 16", "\"normal_channels\": 4096");
-    assert!(
-        !fuzz::regression(&reader, largest.as_bytes()),
-        "the largest network the bounds allow"
-    );
-    for (from, to) in [
-        ("\"dropout\": 0.5", "\"dropout\": -1"),
-        ("\"dropout\": 0.5", "\"dropout\": 1.0"),
-        ("\"hidden\": 128", "\"hidden\": 0"),
-        ("\"input_size\": 16", "\"input_size\": 1099511627776"),
-        ("\"env_height\": 4", "\"env_height\": 65536"),
-        ("\"max_channels\": 64", "\"max_channels\": 1000000"),
-        // Inside the bounds but far larger than the weights file: refused without building it.
-        ("\"hidden\": 128", "\"hidden\": 4096"),
-        ("\"input_size\": 16", "\"input_size\": 1024"),
-    ] {
-        assert!(state.contains(from), "{from}");
-        assert!(!fuzz::regression(&reader, state.replace(from, to).as_bytes()), "{to}");
-    }
-}
-
-/// `matedit`'s model loader on a checkpoint folder with one file mutated.
-fn checkpoint_file(name: &'static str, file: &'static str, cases: u32) {
-    let dir = checkpoint();
-    let original = std::fs::read(dir.join(file)).unwrap();
-    let prepare = move |case: &Path| copy_tree(dir, case);
-    let read = |p: &Path| -> Result<Verdict, String> {
-        let folder = p.parent().unwrap_or(p);
-        let (_, state, _) = load_model(folder).map_err(err)?;
-        let changed = std::fs::read(p).map(|b| b != original).unwrap_or(true);
-        // The weights are checksummed in state.json: a changed weights file never loads.
-        Ok(if changed && file == "model.bpk" {
-            Err("a changed weights file loaded".into())
-        } else if state.net.input_size == 0 {
-            Err("a network of size 0".into())
-        } else {
-            Ok(())
-        })
-    };
-    fuzz(&Reader {
-        name,
-        file_name: file,
-        seeds: vec![(file.to_string(), std::fs::read(dir.join(file)).unwrap())],
-        cases,
-        floor_bytes: 256 * MB,
-        per_input_byte: None,
-        prepare: Some(&prepare),
-        read: &read,
-    });
-}
-
-#[test]
-fn checkpoint_state() {
-    checkpoint_file("checkpoint-state", "state.json", 150);
-}
-
-#[test]
-fn checkpoint_weights() {
-    checkpoint_file("checkpoint-weights", "model.bpk", 60);
 }
 
 fn png(w: u32, h: u32, sixteen: bool, alpha: bool) -> Vec<u8> {

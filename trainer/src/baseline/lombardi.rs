@@ -425,7 +425,7 @@ mod tests {
                 assert!(e.total.is_finite() && g.iter().all(|v| v.is_finite()));
                 assert!(e.material_prior > 0.0 && e.light_prior > 0.0);
                 // The priors' part of the gradient: with priors less without (the layer's own
-                // gradient is checked in render/tests.rs and edit/optimize.rs).
+                // gradient is checked in render/tests.rs and post_optimisation/mod.rs).
                 let bare = Problem {
                     priors: Priors::NONE,
                     ..problem

@@ -1,6 +1,7 @@
-//! Watching and stopping a running edit: the phase it is in, Eq. 6's energy after every L-BFGS
-//! iteration as it happens, and a cancel flag checked between phases and after every iteration.
-//! The command line passes none; `matedit serve` shows it live and cancels through it.
+//! Watching and stopping a running post-optimisation (Eq. 6) and the edit around it
+//! (`matedit-edit`): the phase, Eq. 6's energy after every L-BFGS iteration as it happens, and a
+//! cancel flag checked between phases and before every evaluation. `matedit edit` and `trainer
+//! eval --eq6` pass none; `matedit serve` shows it live and cancels through it.
 
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -20,7 +21,7 @@ pub struct Progress {
 /// What a watcher sees.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Snapshot {
-    /// The phase running now ("reading", "network", "eq6", "render", "write").
+    /// The phase running now (the editor's: "reading", "network", "eq6", "render", "write").
     pub phase: &'static str,
     /// Eq. 6's energy: at the network's prediction, then after every L-BFGS iteration.
     pub energies: Vec<f64>,

@@ -1,6 +1,6 @@
 //! The material library as the page shows it: every library material with a sphere rendered by
 //! the rendering layer under the studio environment, fitted and rendered on first request and
-//! kept (the fit is shared with edits through `edit::target`'s memo).
+//! kept (the fit is shared with edits through the memo in [`crate::target`]).
 
 use crate::output::spheres;
 use crate::target::dsbrdf_of;
