@@ -242,6 +242,28 @@ fn angle_weighted_normals(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec
 mod tests {
     use super::*;
 
+    #[test]
+    fn every_up_axis_name_turns_its_axis_to_plus_y_and_others_are_refused() {
+        for &(name, axis) in UpAxis::NAMES {
+            let sign = if name.starts_with('-') { -1.0 } else { 1.0 };
+            let v = match name.trim_start_matches(['+', '-']) {
+                "x" => Vec3::X,
+                "y" => Vec3::Y,
+                "z" => Vec3::Z,
+                other => panic!("unexpected name {other}"),
+            } * sign;
+            assert_eq!(name.parse::<UpAxis>(), Ok(axis), "{name}");
+            assert_eq!(axis.to_y_up(v), Vec3::Y, "{name}");
+        }
+        for bad in ["", "Y", "xx", "+-x", " y", "w"] {
+            let e = bad.parse::<UpAxis>().unwrap_err();
+            assert!(
+                e.starts_with("up axis") && e.contains("expected x, +x, -x"),
+                "{bad:?}: {e}"
+            );
+        }
+    }
+
     fn quad_mesh() -> Mesh {
         Mesh {
             positions: vec![
