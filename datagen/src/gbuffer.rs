@@ -6,6 +6,7 @@ use crate::shapes::{Mesh, Shape};
 use glam::{Mat3, Vec3};
 use matedit_physics::camera::pixel_center;
 use rayon::prelude::*;
+use std::cell::RefCell;
 use std::sync::{Arc, OnceLock, RwLock};
 
 /// Per-pixel geometry of an `res × res` view, row-major from the top row.
@@ -76,25 +77,40 @@ impl GBuffer {
     /// surface (the object itself blocks them) or behind the shading normal (they contribute
     /// nothing) get no ray.
     pub fn shadow_visibility(&self, scene: &Scene, to_object: Mat3, p: usize, dirs: &[[f32; 3]], out: &mut [f32]) {
+        let turned: Vec<Vec3> = dirs.iter().map(|&d| to_object * Vec3::from(d)).collect();
+        self.shadow_rays(scene, to_object, p, dirs, &turned, out);
+    }
+
+    /// [`shadow_visibility`](GBuffer::shadow_visibility) with the directions also given in the
+    /// scene's frame (`turned[t] = to_object · dirs[t]`), which every pixel of a view shares.
+    fn shadow_rays(&self, scene: &Scene, to_object: Mat3, p: usize, dirs: &[[f32; 3]], turned: &[Vec3], out: &mut [f32]) {
         let ng = Vec3::from(self.geometric_normal[p]);
         let ns = Vec3::from(self.normal[p]);
         let origin = to_object * (Vec3::from(self.position[p]) + ng * 1e-4);
-        // The rays worth tracing, traced together (Embree takes them in packets).
-        let mut traced = Vec::with_capacity(dirs.len());
-        let mut rays = Vec::with_capacity(dirs.len());
-        for (t, d) in dirs.iter().enumerate() {
-            let d = Vec3::from(*d);
-            out[t] = 0.0;
-            if d.dot(ng) > 0.0 && d.dot(ns) > 0.0 {
-                traced.push(t);
-                rays.push(to_object * d);
+        // The rays worth tracing, traced together (Embree takes them in packets of eight, so
+        // which rays share a packet stays as it always was), in per-thread buffers: this runs
+        // once per pixel.
+        thread_local! {
+            static SCRATCH: RefCell<(Vec<usize>, Vec<Vec3>, Vec<bool>)> = const { RefCell::new((Vec::new(), Vec::new(), Vec::new())) };
+        }
+        SCRATCH.with_borrow_mut(|(traced, rays, blocked)| {
+            traced.clear();
+            rays.clear();
+            for (t, ((d, &r), o)) in dirs.iter().zip(turned).zip(out.iter_mut()).enumerate() {
+                let d = Vec3::from(*d);
+                *o = 0.0;
+                if d.dot(ng) > 0.0 && d.dot(ns) > 0.0 {
+                    traced.push(t);
+                    rays.push(r);
+                }
             }
-        }
-        let mut blocked = vec![false; rays.len()];
-        scene.occluded_from(origin, &rays, 0.0, &mut blocked);
-        for (&t, b) in traced.iter().zip(blocked) {
-            out[t] = if b { 0.0 } else { 1.0 };
-        }
+            blocked.clear();
+            blocked.resize(rays.len(), false);
+            scene.occluded_from(origin, rays, 0.0, blocked);
+            for (&t, &b) in traced.iter().zip(blocked.iter()) {
+                out[t] = if b { 0.0 } else { 1.0 };
+            }
+        });
     }
 
     /// Number of covered pixels.
@@ -119,6 +135,8 @@ pub struct SharedVisibility<'a> {
 
 struct VisibilityTable {
     dirs: Vec<[f32; 3]>,
+    /// `dirs` in the scene's frame.
+    turned: Vec<Vec3>,
     open: Vec<OnceLock<Box<[u64]>>>,
 }
 
@@ -137,30 +155,36 @@ impl<'a> SharedVisibility<'a> {
     pub fn fill(&self, p: usize, dirs: &[[f32; 3]], out: &mut [f32]) {
         let table = self.table(dirs);
         let open = table.open[p].get_or_init(|| {
-            self.g.shadow_visibility(self.scene, self.to_object, p, dirs, out);
-            let mut bits = vec![0u64; dirs.len().div_ceil(64)];
-            for (t, &v) in out.iter().enumerate() {
-                if v > 0.0 {
-                    bits[t / 64] |= 1 << (t % 64);
-                }
-            }
-            bits.into_boxed_slice()
+            self.g.shadow_rays(self.scene, self.to_object, p, dirs, &table.turned, out);
+            out.chunks(64)
+                .map(|chunk| {
+                    let mut word = 0_u64;
+                    for (j, &v) in chunk.iter().enumerate() {
+                        word |= u64::from(v > 0.0) << j;
+                    }
+                    word
+                })
+                .collect()
         });
-        for (t, o) in out.iter_mut().enumerate() {
-            *o = if (open[t / 64] >> (t % 64)) & 1 == 1 { 1.0 } else { 0.0 };
+        for (chunk, &word) in out.chunks_mut(64).zip(open.iter()) {
+            for (j, o) in chunk.iter_mut().enumerate() {
+                *o = ((word >> j) & 1) as f32;
+            }
         }
     }
 
     /// The table of `dirs`, made on first sight. Directions are compared by value, bit for bit
     /// (each shader owns its own copy), under a shared lock: pixels look up concurrently.
     fn table(&self, dirs: &[[f32; 3]]) -> Arc<VisibilityTable> {
+        // Every pixel asks, so the comparison has no early exit (it vectorises).
         let same = |t: &&Arc<VisibilityTable>| {
             t.dirs.len() == dirs.len()
                 && t.dirs
+                    .as_flattened()
                     .iter()
-                    .flatten()
-                    .zip(dirs.iter().flatten())
-                    .all(|(a, b)| a.to_bits() == b.to_bits())
+                    .zip(dirs.as_flattened())
+                    .fold(0, |diff, (a, b)| diff | (a.to_bits() ^ b.to_bits()))
+                    == 0
         };
         if let Some(t) = self.tables.read().unwrap_or_else(|e| e.into_inner()).iter().find(same) {
             return t.clone();
@@ -171,6 +195,7 @@ impl<'a> SharedVisibility<'a> {
         }
         let t = Arc::new(VisibilityTable {
             dirs: dirs.to_vec(),
+            turned: dirs.iter().map(|&d| self.to_object * Vec3::from(d)).collect(),
             open: (0..self.g.mask.len()).map(|_| OnceLock::new()).collect(),
         });
         tables.push(t.clone());

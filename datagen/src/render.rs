@@ -179,10 +179,11 @@ pub fn render(opts: &RenderOptions) -> Result<Rendered> {
         }
     };
 
-    // The zonal quality shades the whole image at once (without shadows only: with them, every
-    // quality goes through the per-pixel shader below).
-    if !trace && opts.quality == Quality::Zonal {
-        let (rgb, bad) = shade_with(&brdf, &env, opts.quality, &g.normal, &g.mask, None);
+    // The zonal quality shades the whole image at once (with shadows, it then takes the blocked
+    // light off per pixel).
+    if opts.quality == Quality::Zonal {
+        let vis: Option<&VisibilityFn<'_>> = if trace { Some(&visibility) } else { None };
+        let (rgb, bad) = shade_with(&brdf, &env, opts.quality, &g.normal, &g.mask, vis);
         stats.sanitized_pixels = bad;
         stats.shading_s = t2.elapsed().as_secs_f64();
         return Ok(Rendered {

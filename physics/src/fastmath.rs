@@ -96,7 +96,20 @@ pub fn ln_1m(t: f32) -> f32 {
 /// [`exp`].
 #[inline(always)]
 pub fn expm1(x: f32) -> f32 {
-    // Taylor series to x^8/8! for |x| < 0.35 (truncation < 3e-10 relative), exp(x) − 1 beyond.
+    if expm1_uses_series(x) { expm1_series(x) } else { exp(x) - 1.0 }
+}
+
+/// Whether [`expm1`] takes [`expm1_series`] at `x` (and `exp(x) − 1` elsewhere, NaN included).
+/// Vectorised callers test it over a block of lanes and evaluate only the branch every lane takes
+/// when they agree: the same operations per lane, so the same bits, at half the cost.
+#[inline(always)]
+pub fn expm1_uses_series(x: f32) -> bool {
+    x.abs() < 0.35
+}
+
+/// [`expm1`] for `|x| < 0.35`: the Taylor series to x^8/8! (truncation < 3e-10 relative).
+#[inline(always)]
+pub fn expm1_series(x: f32) -> f32 {
     let mut t = 1.0 / 40320.0_f32;
     t = t * x + 1.0 / 5040.0;
     t = t * x + 1.0 / 720.0;
@@ -104,9 +117,7 @@ pub fn expm1(x: f32) -> f32 {
     t = t * x + 1.0 / 24.0;
     t = t * x + 1.0 / 6.0;
     t = t * x + 0.5;
-    let small = (t * x) * x + x;
-    let big = exp(x) - 1.0;
-    if x.abs() < 0.35 { small } else { big }
+    (t * x) * x + x
 }
 
 #[cfg(test)]

@@ -10,7 +10,9 @@
 //! no shadow rays for convex shapes under `shadows = "auto"`; a pixel's shadow rays traced once for
 //! I and O (visibility does not depend on the material); a region that no pixel shows gets no
 //! shader; the `zonal` quality shades a grid of normals per material instead of every pixel,
-//! and shares one set of environment spectra between all materials on the same grid.
+//! and shares one set of environment spectra between all materials on the same grid; with
+//! shadows, it sums per pixel only the texels a shadow ray found blocked and takes their light
+//! off.
 
 use super::catalogue::ShapeItem;
 use super::materials::MaterialEntry;
@@ -27,7 +29,8 @@ use matedit_contract::io::{encode_env_exr, encode_exr_channels};
 use matedit_contract::records::SampleRecord;
 use matedit_physics::EnvMap;
 use matedit_physics::shading::zonal::{PolarNormals, ZonalEnv, ZonalKernel, ZonalRefusal, shade_image_zonal};
-use matedit_physics::shading::{Quality, VisibilityFn, shade_with};
+use matedit_physics::shading::fast::FastShader;
+use matedit_physics::shading::{Quality, VisibilityFn, remove_blocked_light, shade_with};
 use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex, OnceLock};
@@ -258,8 +261,9 @@ impl<'a> Renderer<'a> {
         let vis: Option<&VisibilityFn<'_>> = if shadows { Some(&visibility) } else { None };
 
         // The zonal quality shares the pixels' polar normals between I and O and every region,
-        // and the environment's spectra between materials on the same grid.
-        let zonal = st.quality == Quality::Zonal && vis.is_none();
+        // and the environment's spectra between materials on the same grid; with shadows, the
+        // blocked light is then taken off per pixel.
+        let zonal = st.quality == Quality::Zonal;
         let polar = zonal.then(|| PolarNormals::new(&g.normal, &g.mask));
         let mut spectra: Vec<ZonalEnv> = Vec::new();
         let mut image_i = vec![[0.0_f32; 3]; res * res];
@@ -285,7 +289,14 @@ impl<'a> Renderer<'a> {
                                 spectra.len() - 1
                             }
                         };
-                        shade_image_zonal(kernel, &spectra[at], polar, &mask_r)
+                        let unshadowed = shade_image_zonal(kernel, &spectra[at], polar, &mask_r);
+                        match (vis, FastShader::new(&self.material(mat)?.render, &env)) {
+                            (Some(vis), Some(fast)) => {
+                                let (rgb, bad, _) = remove_blocked_light(&fast, &unshadowed.0, &g.normal, &mask_r, vis);
+                                (rgb, unshadowed.1 + bad)
+                            }
+                            _ => unshadowed,
+                        }
                     }
                     // Shadows, or a material the zonal grid cannot resolve (or a measured one,
                     // which the fast shader hands to the exact path): shade per pixel.

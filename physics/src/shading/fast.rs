@@ -209,6 +209,47 @@ impl FastShader {
         self.dirs.len()
     }
 
+    /// For stored normal `n` and a visibility slice: how many blocks of eight texels hold at
+    /// least one open texel in front of the surface, and how many at least one blocked one. The
+    /// cost of shading the open or the blocked light is in proportion (other blocks are skipped).
+    pub fn blocks_in_front(&self, n: [f32; 3], visibility: &[f32]) -> (usize, usize) {
+        let Some(n) = shading_normal(n) else {
+            return (0, 0);
+        };
+        let n = [n.x as f32, n.y as f32, n.z as f32];
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is set only when the running CPU reports AVX2.
+            return unsafe { self.blocks_in_front_avx2(n, visibility) };
+        }
+        self.blocks_in_front_portable(n, visibility)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn blocks_in_front_avx2(&self, n: [f32; 3], visibility: &[f32]) -> (usize, usize) {
+        self.blocks_in_front_portable(n, visibility)
+    }
+
+    #[inline(always)]
+    fn blocks_in_front_portable(&self, n: [f32; 3], visibility: &[f32]) -> (usize, usize) {
+        let (mut open, mut blocked) = (0, 0);
+        for chunk in 0..self.chunks() {
+            let b = chunk * LANES;
+            let (ci, v) = (self.cos_i(n, b), vis_chunk(visibility, b, self.dirs.len()));
+            // Padding texels have a zero direction, so they are never in front.
+            let (mut o, mut k) = (0.0_f32, 0.0_f32);
+            for l in 0..LANES {
+                let front = if ci[l] > 0.0 { 1.0 } else { 0.0 };
+                o += front * v[l];
+                k += front * (1.0 - v[l]);
+            }
+            open += usize::from(o > 0.0);
+            blocked += usize::from(k > 0.0);
+        }
+        (open, blocked)
+    }
+
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     fn shade_avx2(&self, n: [f64; 3], vis: Option<&[f32]>) -> [f32; 3] {
@@ -358,15 +399,19 @@ impl FastShader {
                 [1.0; LANES]
             };
             let ci = self.cos_i(n, b);
-            let (ch, omc) = s.h.cos_h(n64, b);
-            let (mut lc, mut wt) = ([0.0; LANES], [0.0; LANES]);
+            let mut wt = [0.0; LANES];
             for l in 0..LANES {
-                lc[l] = fastmath::ln_1m(omc[l]);
                 wt[l] = if ci[l] > 0.0 { ci[l] * v[l] } else { 0.0 };
             }
-            // Eight texels behind the surface (or shadowed) add exactly nothing.
+            // Eight texels behind the surface (or shadowed) add exactly nothing: tested before
+            // the half vectors' f64 dot product and the logarithm.
             if wt.iter().all(|&w| w == 0.0) {
                 continue;
+            }
+            let (ch, omc) = s.h.cos_h(n64, b);
+            let mut lc = [0.0; LANES];
+            for l in 0..LANES {
+                lc[l] = fastmath::ln_1m(omc[l]);
             }
             for (c, acc) in acc.iter_mut().enumerate() {
                 let mut rho = [0.0_f32; LANES];
@@ -382,12 +427,29 @@ impl FastShader {
                     if top < SKIP_LOG_LOBE {
                         continue;
                     }
+                    let mut x = [0.0_f32; LANES];
                     for l in 0..LANES {
                         // cos^γ, computed unconditionally (so the loop stays branch-free), then
                         // zeroed at cos θ_h = 0 where ln's floor would give a wrong limit.
                         let p = fastmath::exp(gam[l] * lc[l]);
                         let p = if ch[l] > 0.0 { p } else { 0.0 };
-                        rho[l] += fastmath::expm1(kap[l] * p);
+                        x[l] = kap[l] * p;
+                    }
+                    // expm1 has two branches; where all eight lanes take the same one, only that
+                    // one is evaluated (identical bits either way).
+                    let series = x.map(fastmath::expm1_uses_series);
+                    if series.iter().all(|&s| s) {
+                        for l in 0..LANES {
+                            rho[l] += fastmath::expm1_series(x[l]);
+                        }
+                    } else if series.iter().all(|&s| !s) {
+                        for l in 0..LANES {
+                            rho[l] += fastmath::exp(x[l]) - 1.0;
+                        }
+                    } else {
+                        for l in 0..LANES {
+                            rho[l] += fastmath::expm1(x[l]);
+                        }
                     }
                 }
                 let w = lanes(&s.w[c], b);

@@ -9,9 +9,11 @@
 //!   Fresnel term and the DSBRDF lobe parameters depend on the texel only, so they are computed
 //!   once per texel; per pixel only n·ω_i and n·h remain. Texels of zero radiance are dropped.
 //!
-//! * [`zonal`]: without shadows, Eq. 2 as a circular convolution about the view axis, per-material
-//!   kernel spectra and per-sample FFTs (the dataset factory's default). A material whose lobes
-//!   the grid cannot resolve is shaded by the fast path instead ([`zonal::ZonalPlan`]).
+//! * [`zonal`]: Eq. 2 without shadows as a circular convolution about the view axis,
+//!   per-material kernel spectra and per-sample FFTs (the dataset factory's default); shadows are
+//!   then taken off per pixel by summing only the blocked texels ([`remove_blocked_light`]). A
+//!   material whose lobes the grid cannot resolve is shaded by the fast path instead
+//!   ([`zonal::ZonalPlan`]).
 //!
 //! All apply the same [normal policy](shading_normal) and never return NaN or Inf.
 
@@ -61,8 +63,8 @@ pub enum Quality {
     #[default]
     Fast,
     /// Convolution about the view axis ([`zonal`]): per-material kernel spectra, per-sample FFTs;
-    /// falls back to `Fast` where shadows make radiance depend on more than the normal, and to
-    /// `Exact` for measured BRDFs.
+    /// with shadows, the blocked light is then taken off per pixel ([`remove_blocked_light`]).
+    /// Falls back to `Fast` for lobes the grid cannot resolve, and to `Exact` for measured BRDFs.
     Zonal,
 }
 
@@ -187,9 +189,64 @@ pub fn shade_image(
     (out.into_iter().map(|o| o.0).collect(), bad)
 }
 
-/// Shades an image with the requested quality: the zonal method for `Zonal` without visibility
-/// where it resolves the material, otherwise [`make_shader`] and [`shade_image`]. Returns radiance
-/// and the number of non-finite values replaced.
+/// Shadows added to an unshadowed image: the zonal quality with shadow rays.
+///
+/// Shadows break the symmetry the zonal method relies on, but all they do is remove light. So a
+/// pixel's radiance is its unshadowed radiance (`unshadowed`, from the zonal grid) minus the
+/// light of the texels its shadow rays find blocked, which `fast` sums over those texels only
+/// (a block of eight open texels costs one test). A pixel is shaded from its open texels
+/// directly instead where that touches fewer blocks, and where the blocked light exceeds half
+/// the unshadowed radiance in any channel (what remained would carry more than twice the grid's
+/// relative error). `fast` must be the per-pixel shader of the same material and environment.
+/// Returns radiance, the number of non-finite values replaced and the number of pixels shaded
+/// directly.
+pub fn remove_blocked_light(
+    fast: &fast::FastShader,
+    unshadowed: &[[f32; 3]],
+    normals: &[[f32; 3]],
+    mask: &[f32],
+    visibility: &VisibilityFn<'_>,
+) -> (Vec<[f32; 3]>, usize, usize) {
+    let dirs = fast.light_dirs();
+    let out: Vec<([f32; 3], usize, usize)> = normals
+        .par_iter()
+        .zip(mask.par_iter())
+        .zip(unshadowed.par_iter())
+        .enumerate()
+        .map_init(
+            || (vec![1.0_f32; dirs.len()], vec![0.0_f32; dirs.len()]),
+            |(open, blocked), (p, ((n, &m), u))| {
+                if m <= 0.0 {
+                    return ([0.0; 3], 0, 0);
+                }
+                visibility(p, dirs, open);
+                let (open_blocks, blocked_blocks) = fast.blocks_in_front(*n, open);
+                let subtracted = (blocked_blocks < open_blocks).then(|| {
+                    for (b, o) in blocked.iter_mut().zip(open.iter()) {
+                        *b = 1.0 - *o;
+                    }
+                    let lost = fast.shade(*n, Some(blocked));
+                    (0..3)
+                        .all(|c| 2.0 * lost[c] <= u[c])
+                        .then(|| [0, 1, 2].map(|c| u[c] - lost[c]))
+                });
+                let (mut rgb, direct) = match subtracted.flatten() {
+                    Some(rgb) => (rgb, 0),
+                    None => (fast.shade(*n, Some(open)), 1),
+                };
+                let bad = sanitize(&mut rgb);
+                (rgb, bad, direct)
+            },
+        )
+        .collect();
+    let bad = out.iter().map(|o| o.1).sum();
+    let direct = out.iter().map(|o| o.2).sum();
+    (out.into_iter().map(|o| o.0).collect(), bad, direct)
+}
+
+/// Shades an image with the requested quality: the zonal method for `Zonal` where it resolves the
+/// material (with visibility, through [`remove_blocked_light`]), otherwise [`make_shader`] and
+/// [`shade_image`]. Returns radiance and the number of non-finite values replaced.
 pub fn shade_with(
     brdf: &BrdfModel,
     env: &EnvMap,
@@ -199,10 +256,14 @@ pub fn shade_with(
     visibility: Option<&VisibilityFn<'_>>,
 ) -> (Vec<[f32; 3]>, usize) {
     if quality == Quality::Zonal
-        && visibility.is_none()
-        && let Some(out) = zonal::shade_image_once(brdf, env, normals, mask)
+        && let Some((unshadowed, bad)) = zonal::shade_image_once(brdf, env, normals, mask)
     {
-        return out;
+        let fast = visibility.zip(fast::FastShader::new(brdf, env));
+        let Some((visibility, fast)) = fast else {
+            return (unshadowed, bad);
+        };
+        let (rgb, bad_after, _) = remove_blocked_light(&fast, &unshadowed, normals, mask, visibility);
+        return (rgb, bad + bad_after);
     }
     let shader = make_shader(brdf, env, quality);
     shade_image(shader.as_ref(), normals, mask, visibility)
