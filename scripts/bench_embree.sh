@@ -3,9 +3,11 @@
 # one run, alternating (obvhs, embree, obvhs, embree): 4 chairs and 3 sofas of the evaluation
 # assets, 96 samples at 128², shadows on. Prints each time and the ratio of the medians.
 #   scripts/bench_embree.sh            (MATEDIT_EVAL_ASSETS: default ../shared/eval-assets)
+#   QUALITY=fast scripts/bench_embree.sh   (the shading quality; default zonal, the factory's)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 assets=${MATEDIT_EVAL_ASSETS:-../shared/eval-assets}/meshes
+quality=${QUALITY:-zonal}
 [ -d "$assets" ] || { echo "no evaluation meshes at $assets (set MATEDIT_EVAL_ASSETS)" >&2; exit 1; }
 eval "$(scripts/install_embree.sh)"
 cargo build --release --quiet -p matedit-datagen --features embree --bin datagen
@@ -30,7 +32,7 @@ shard_size = 8
 [render]
 resolution = 128
 env_resolution = "32x64"
-quality = "fast"
+quality = "$quality"
 shadows = "on"
 accel = "$accel"
 
@@ -80,8 +82,8 @@ for run in 1 2; do
     printf '%s run %d: %.1f s (%s samples)\n' "$accel" "$run" "$t" "$(wc -l < "$work/out/index.jsonl")"
   done
 done
-python3 - "${times[obvhs]}" "${times[embree]}" <<'PY'
+python3 - "${times[obvhs]}" "${times[embree]}" "$quality" <<'PY'
 import statistics, sys
 o, e = (statistics.median(map(float, a.split())) for a in sys.argv[1:])
-print(f"median: obvhs {o:.1f} s, embree {e:.1f} s: embree {o / e:.2f}x the samples/s of obvhs")
+print(f"median: obvhs {o:.1f} s, embree {e:.1f} s: embree {o / e:.2f}x the samples/s of obvhs ({sys.argv[3]} quality)")
 PY

@@ -13,7 +13,7 @@ use matedit_physics::brdf::{BrdfModel, Dsbrdf, Fresnel, Ggx, Lambert, Plastic};
 use matedit_physics::camera::unit_sphere_normals;
 use matedit_physics::shading::exact::ExactShader;
 use matedit_physics::shading::zonal::{PolarNormals, ZonalEnv, ZonalGrid, ZonalKernel, shade_image_zonal};
-use matedit_physics::shading::{Quality, shade_image, shade_with};
+use matedit_physics::shading::{Quality, VisibilityFn, shade_image, shade_with};
 
 /// Materials the grid resolves (their sharpest energetic lobe is at least ~2 grid spacings
 /// wide at the 128-row cap), with the relative RMSE each may have against the exact path.
@@ -373,4 +373,133 @@ fn zonal_stays_within_half_a_percent_over_the_dsbrdf_range() {
         on_grid >= 5 && off_grid >= 5,
         "{on_grid} on the grid, {off_grid} off it"
     );
+}
+
+/// Shadow patterns by pixel and direction, as a shadow ray would report them (1 open, 0 blocked):
+/// a wall on one side of half the image, a cap around the sun over a disk of pixels, and
+/// independent noise (adversarial: no coherence between texels or pixels).
+fn shadow_patterns(res: usize, sun: [f32; 3]) -> Vec<(&'static str, Box<VisibilityFn<'static>>)> {
+    let px = move |p: usize| matedit_physics::camera::pixel_center(p % res, p / res, res);
+    vec![
+        (
+            "wall",
+            Box::new(move |p, dirs: &[[f32; 3]], out: &mut [f32]| {
+                let (x, _) = px(p);
+                for (o, d) in out.iter_mut().zip(dirs) {
+                    *o = if x < 0.0 && d[0] > 0.2 { 0.0 } else { 1.0 };
+                }
+            }),
+        ),
+        (
+            "sun blocked",
+            Box::new(move |p, dirs: &[[f32; 3]], out: &mut [f32]| {
+                let (x, y) = px(p);
+                let inside = (x - 0.2).powi(2) + (y + 0.1).powi(2) < 0.3;
+                for (o, d) in out.iter_mut().zip(dirs) {
+                    let near_sun = d[0] * sun[0] + d[1] * sun[1] + d[2] * sun[2] > 0.8;
+                    *o = if inside && near_sun { 0.0 } else { 1.0 };
+                }
+            }),
+        ),
+        (
+            "noise",
+            Box::new(move |p, dirs: &[[f32; 3]], out: &mut [f32]| {
+                for (t, (o, _)) in out.iter_mut().zip(dirs).enumerate() {
+                    let h = (p as u64 * 0x9E37_79B9_7F4A_7C15) ^ (t as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+                    *o = if (h >> 29) % 3 == 0 { 0.0 } else { 1.0 };
+                }
+            }),
+        ),
+    ]
+}
+
+#[test]
+fn zonal_with_shadows_matches_the_fast_path_with_the_same_shadows() {
+    // The zonal quality with shadows is the grid's unshadowed image minus the blocked texels'
+    // light (or the open texels' light directly, where most light is blocked). It must hold
+    // the fast path's image under the same visibility to within twice the grid's own budget,
+    // over resolvable materials and maps with suns and sharp-edged lights; the shadows must be
+    // real (one pattern at least changes the image by 10 %).
+    let res = 48;
+    let (normals, mask) = unit_sphere_normals(res);
+    let pixels: Vec<usize> = (0..mask.len()).filter(|&p| mask[p] > 0.0).collect();
+    let mut worst = (0.0_f64, String::new());
+    for (map, env) in hard_maps() {
+        let sun = brightest_direction(&env);
+        for (name, brdf, tol) in resolvable() {
+            let unshadowed = shade_with(&brdf, &env, Quality::Fast, &normals, &mask, None).0;
+            let mut strongest: f64 = 0.0;
+            for (pattern, vis) in shadow_patterns(res, sun) {
+                let fast = shade_with(&brdf, &env, Quality::Fast, &normals, &mask, Some(vis.as_ref())).0;
+                let (zonal, bad) = shade_with(&brdf, &env, Quality::Zonal, &normals, &mask, Some(vis.as_ref()));
+                assert_eq!(bad, 0, "{name} under {map}, {pattern}");
+                let e = rel_rmse(&zonal, &fast, &pixels);
+                if e > worst.0 {
+                    worst = (e, format!("{name} under {map}, {pattern}"));
+                }
+                assert!(
+                    e < 2.0 * tol,
+                    "{name} under {map}, {pattern}: relative RMSE {e:.2e} (allowed {:.0e})",
+                    2.0 * tol
+                );
+                assert!(
+                    zonal.iter().flatten().all(|v| v.is_finite() && *v >= 0.0),
+                    "{name} under {map}, {pattern}: negative or non-finite radiance"
+                );
+                strongest = strongest.max(rel_rmse(&fast, &unshadowed, &pixels));
+            }
+            assert!(strongest > 0.1, "{name} under {map}: the shadows change only {strongest:.2e}");
+        }
+    }
+    eprintln!("worst {:.3} % ({})", 100.0 * worst.0, worst.1);
+}
+
+#[test]
+fn zonal_with_shadows_is_the_grid_where_all_is_open_and_black_where_all_is_blocked() {
+    let (normals, mask) = unit_sphere_normals(32);
+    let env = builtin("sky").expect("builtin").resampled(32, 0.0);
+    let open = |_: usize, _: &[[f32; 3]], out: &mut [f32]| out.fill(1.0);
+    let closed = |_: usize, _: &[[f32; 3]], out: &mut [f32]| out.fill(0.0);
+    for (name, brdf, _) in resolvable() {
+        let grid = shade_with(&brdf, &env, Quality::Zonal, &normals, &mask, None).0;
+        let all_open = shade_with(&brdf, &env, Quality::Zonal, &normals, &mask, Some(&open)).0;
+        assert_eq!(grid, all_open, "{name}: nothing blocked must leave the grid's image as it is");
+        let all_closed = shade_with(&brdf, &env, Quality::Zonal, &normals, &mask, Some(&closed)).0;
+        assert!(all_closed.iter().flatten().all(|&v| v == 0.0), "{name}: everything blocked must be black");
+    }
+}
+
+#[test]
+fn zonal_with_shadows_does_not_depend_on_the_thread_count() {
+    let res = 40;
+    let (normals, mask) = unit_sphere_normals(res);
+    let env = builtin("studio").expect("builtin").resampled(32, 30.0);
+    let sun = brightest_direction(&env);
+    for (name, brdf, _) in resolvable() {
+        for (pattern, vis) in shadow_patterns(res, sun) {
+            let bits = |threads: usize| {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+                let img = pool.install(|| shade_with(&brdf, &env, Quality::Zonal, &normals, &mask, Some(vis.as_ref())).0);
+                img.iter().flatten().map(|v| v.to_bits()).collect::<Vec<u32>>()
+            };
+            assert_eq!(bits(1), bits(3), "{name}, {pattern}");
+        }
+    }
+}
+
+/// The direction of a map's brightest texel.
+fn brightest_direction(env: &EnvMap) -> [f32; 3] {
+    let (w, h) = (env.width(), env.height());
+    let mut best = (0.0_f32, (0, 0));
+    for j in 0..h {
+        for i in 0..w {
+            let l = env.texel(i, j);
+            let y = l[0] + l[1] + l[2];
+            if y > best.0 {
+                best = (y, (i, j));
+            }
+        }
+    }
+    let d = matedit_physics::envmap::texel_direction(best.1.0, best.1.1, w, h);
+    [d.x as f32, d.y as f32, d.z as f32]
 }
