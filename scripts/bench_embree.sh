@@ -84,6 +84,6 @@ for run in 1 2; do
 done
 python3 - "${times[obvhs]}" "${times[embree]}" "$quality" <<'PY'
 import statistics, sys
-o, e = (statistics.median(map(float, a.split())) for a in sys.argv[1:])
+o, e = (statistics.median(map(float, a.split())) for a in sys.argv[1:3])
 print(f"median: obvhs {o:.1f} s, embree {e:.1f} s: embree {o / e:.2f}x the samples/s of obvhs ({sys.argv[3]} quality)")
 PY

@@ -276,9 +276,9 @@ struct RenderArgs {
     /// Shadow rays towards every texel (meshes only; the sphere is convex).
     #[arg(long, default_value = "off")]
     shadows: Shadows,
-    /// Eq. 2 implementation: fast (f32, vectorised), exact (f64 reference, slow), or without
-    /// shadows zonal (convolution about the view axis; materials it cannot resolve use fast); see
-    /// docs/PERFORMANCE.md for their speed and error.
+    /// Eq. 2 implementation: fast (f32, vectorised), exact (f64 reference, slow), or zonal
+    /// (convolution about the view axis; with shadows, the blocked light is taken off per pixel;
+    /// materials it cannot resolve use fast); see docs/PERFORMANCE.md for their speed and error.
     #[arg(long, default_value = "fast")]
     quality: Quality,
     /// Ray queries: obvhs, or embree in a build with `--features embree`.

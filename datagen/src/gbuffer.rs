@@ -83,7 +83,15 @@ impl GBuffer {
 
     /// [`shadow_visibility`](GBuffer::shadow_visibility) with the directions also given in the
     /// scene's frame (`turned[t] = to_object · dirs[t]`), which every pixel of a view shares.
-    fn shadow_rays(&self, scene: &Scene, to_object: Mat3, p: usize, dirs: &[[f32; 3]], turned: &[Vec3], out: &mut [f32]) {
+    fn shadow_rays(
+        &self,
+        scene: &Scene,
+        to_object: Mat3,
+        p: usize,
+        dirs: &[[f32; 3]],
+        turned: &[Vec3],
+        out: &mut [f32],
+    ) {
         let ng = Vec3::from(self.geometric_normal[p]);
         let ns = Vec3::from(self.normal[p]);
         let origin = to_object * (Vec3::from(self.position[p]) + ng * 1e-4);
@@ -155,7 +163,8 @@ impl<'a> SharedVisibility<'a> {
     pub fn fill(&self, p: usize, dirs: &[[f32; 3]], out: &mut [f32]) {
         let table = self.table(dirs);
         let open = table.open[p].get_or_init(|| {
-            self.g.shadow_rays(self.scene, self.to_object, p, dirs, &table.turned, out);
+            self.g
+                .shadow_rays(self.scene, self.to_object, p, dirs, &table.turned, out);
             out.chunks(64)
                 .map(|chunk| {
                     let mut word = 0_u64;

@@ -350,7 +350,11 @@ mod tests {
     /// with the same rays, where the shadows themselves change the image by several percent.
     #[test]
     fn zonal_renders_with_shadows_agree_with_the_fast_path() {
-        let material = concat!("dsbrdf:", env!("CARGO_MANIFEST_DIR"), "/../assets/materials/red_plastic.dsbrdf.json");
+        let material = concat!(
+            "dsbrdf:",
+            env!("CARGO_MANIFEST_DIR"),
+            "/../assets/materials/red_plastic.dsbrdf.json"
+        );
         let opts = |shape: &str, brdf: &str, env: &str, quality, shadows| RenderOptions {
             shape: shape.into(),
             up: Default::default(),
@@ -387,7 +391,10 @@ mod tests {
                     };
                     let (e, shadows) = (rel(&zonal, &fast), rel(&open, &fast));
                     assert!(e < 1e-2, "{shape} {brdf} {env}: zonal vs fast with shadows {e:.2e}");
-                    assert!(shadows > 2e-2, "{shape} {brdf} {env}: shadows change only {shadows:.2e}");
+                    assert!(
+                        shadows > 2e-2,
+                        "{shape} {brdf} {env}: shadows change only {shadows:.2e}"
+                    );
                     assert!(zonal.iter().flatten().all(|v| v.is_finite() && *v >= 0.0));
                 }
             }

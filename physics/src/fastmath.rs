@@ -96,7 +96,11 @@ pub fn ln_1m(t: f32) -> f32 {
 /// [`exp`].
 #[inline(always)]
 pub fn expm1(x: f32) -> f32 {
-    if expm1_uses_series(x) { expm1_series(x) } else { exp(x) - 1.0 }
+    if expm1_uses_series(x) {
+        expm1_series(x)
+    } else {
+        exp(x) - 1.0
+    }
 }
 
 /// Whether [`expm1`] takes [`expm1_series`] at `x` (and `exp(x) − 1` elsewhere, NaN included).

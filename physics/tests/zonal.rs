@@ -406,7 +406,7 @@ fn shadow_patterns(res: usize, sun: [f32; 3]) -> Vec<(&'static str, Box<Visibili
             Box::new(move |p, dirs: &[[f32; 3]], out: &mut [f32]| {
                 for (t, (o, _)) in out.iter_mut().zip(dirs).enumerate() {
                     let h = (p as u64 * 0x9E37_79B9_7F4A_7C15) ^ (t as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
-                    *o = if (h >> 29) % 3 == 0 { 0.0 } else { 1.0 };
+                    *o = if (h >> 29).is_multiple_of(3) { 0.0 } else { 1.0 };
                 }
             }),
         ),
@@ -448,7 +448,10 @@ fn zonal_with_shadows_matches_the_fast_path_with_the_same_shadows() {
                 );
                 strongest = strongest.max(rel_rmse(&fast, &unshadowed, &pixels));
             }
-            assert!(strongest > 0.1, "{name} under {map}: the shadows change only {strongest:.2e}");
+            assert!(
+                strongest > 0.1,
+                "{name} under {map}: the shadows change only {strongest:.2e}"
+            );
         }
     }
     eprintln!("worst {:.3} % ({})", 100.0 * worst.0, worst.1);
@@ -463,9 +466,15 @@ fn zonal_with_shadows_is_the_grid_where_all_is_open_and_black_where_all_is_block
     for (name, brdf, _) in resolvable() {
         let grid = shade_with(&brdf, &env, Quality::Zonal, &normals, &mask, None).0;
         let all_open = shade_with(&brdf, &env, Quality::Zonal, &normals, &mask, Some(&open)).0;
-        assert_eq!(grid, all_open, "{name}: nothing blocked must leave the grid's image as it is");
+        assert_eq!(
+            grid, all_open,
+            "{name}: nothing blocked must leave the grid's image as it is"
+        );
         let all_closed = shade_with(&brdf, &env, Quality::Zonal, &normals, &mask, Some(&closed)).0;
-        assert!(all_closed.iter().flatten().all(|&v| v == 0.0), "{name}: everything blocked must be black");
+        assert!(
+            all_closed.iter().flatten().all(|&v| v == 0.0),
+            "{name}: everything blocked must be black"
+        );
     }
 }
 
@@ -478,8 +487,12 @@ fn zonal_with_shadows_does_not_depend_on_the_thread_count() {
     for (name, brdf, _) in resolvable() {
         for (pattern, vis) in shadow_patterns(res, sun) {
             let bits = |threads: usize| {
-                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
-                let img = pool.install(|| shade_with(&brdf, &env, Quality::Zonal, &normals, &mask, Some(vis.as_ref())).0);
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .expect("pool");
+                let img =
+                    pool.install(|| shade_with(&brdf, &env, Quality::Zonal, &normals, &mask, Some(vis.as_ref())).0);
                 img.iter().flatten().map(|v| v.to_bits()).collect::<Vec<u32>>()
             };
             assert_eq!(bits(1), bits(3), "{name}, {pattern}");
