@@ -290,12 +290,17 @@ impl<'a> Renderer<'a> {
                             }
                         };
                         let unshadowed = shade_image_zonal(kernel, &spectra[at], polar, &mask_r);
-                        match (vis, FastShader::new(&self.material(mat)?.render, &env)) {
-                            (Some(vis), Some(fast)) => {
+                        // The per-texel tables of the fast shader only where shadows need them.
+                        let fast = match vis {
+                            Some(vis) => FastShader::new(&self.material(mat)?.render, &env).map(|f| (vis, f)),
+                            None => None,
+                        };
+                        match fast {
+                            Some((vis, fast)) => {
                                 let (rgb, bad, _) = remove_blocked_light(&fast, &unshadowed.0, &g.normal, &mask_r, vis);
                                 (rgb, unshadowed.1 + bad)
                             }
-                            _ => unshadowed,
+                            None => unshadowed,
                         }
                     }
                     // Shadows, or a material the zonal grid cannot resolve (or a measured one,

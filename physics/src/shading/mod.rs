@@ -258,7 +258,7 @@ pub fn shade_with(
     if quality == Quality::Zonal
         && let Some((unshadowed, bad)) = zonal::shade_image_once(brdf, env, normals, mask)
     {
-        let fast = visibility.zip(fast::FastShader::new(brdf, env));
+        let fast = visibility.and_then(|v| fast::FastShader::new(brdf, env).map(|f| (v, f)));
         let Some((visibility, fast)) = fast else {
             return (unshadowed, bad);
         };
