@@ -543,7 +543,65 @@ mod tests {
             for n in [[0.0, 0.0, 1.0], [0.3, -0.2, 0.5], [0.9, 0.1, 0.01]] {
                 let (x, y) = (a.shade(n, None), b.shade(n, None));
                 assert_eq!(x.map(f32::to_bits), y.map(f32::to_bits));
+                // With shadows (every third texel blocked) too.
+                let vis: Vec<f32> = (0..a.texel_count())
+                    .map(|t| if t % 3 == 0 { 0.0 } else { 1.0 })
+                    .collect();
+                let (x, y) = (a.shade(n, Some(&vis)), b.shade(n, Some(&vis)));
+                assert_eq!(x.map(f32::to_bits), y.map(f32::to_bits));
             }
         }
+    }
+
+    /// The block counts that choose between summing the blocked and the open light, against a
+    /// count texel by texel, for normals from head-on to grazing, hard normals and patterns from
+    /// all open to all blocked; the SIMD and portable builds agree.
+    #[test]
+    fn blocks_in_front_counts_blocks_with_an_open_or_a_blocked_texel_in_front() {
+        let env = EnvMap::from_fn(16, |d| [(1.0 + d.x) as f32, 0.5, 0.3]);
+        let s = FastShader::new(&BrdfModel::Lambert(Lambert { albedo: [0.5; 3] }), &env).unwrap();
+        let portable = FastShader::new(&BrdfModel::Lambert(Lambert { albedo: [0.5; 3] }), &env)
+            .unwrap()
+            .without_simd_dispatch();
+        let n_tex = s.texel_count();
+        let patterns: Vec<Vec<f32>> = vec![
+            vec![1.0; n_tex],
+            vec![0.0; n_tex],
+            (0..n_tex).map(|t| if t % 5 == 0 { 0.0 } else { 1.0 }).collect(),
+            (0..n_tex).map(|t| if (t / 8) % 2 == 0 { 0.0 } else { 1.0 }).collect(),
+            s.dirs.iter().map(|d| if d[0] > 0.3 { 0.0 } else { 1.0 }).collect(),
+        ];
+        let normals = [
+            [0.0, 0.0, 1.0],
+            [0.6, 0.3, 0.2],
+            [-0.9, 0.1, 0.01],
+            [0.0, 1.0, -0.5],
+            [0.0, 0.0, 0.0],
+            [f32::NAN, 0.0, 1.0],
+        ];
+        for n in normals {
+            for vis in &patterns {
+                let expected = match shading_normal(n) {
+                    None => (0, 0),
+                    Some(m) => {
+                        let m = [m.x as f32, m.y as f32, m.z as f32];
+                        let (mut open, mut blocked) = (0, 0);
+                        for block in 0..n_tex.div_ceil(LANES) {
+                            let texels = block * LANES..((block + 1) * LANES).min(n_tex);
+                            let front = |t: usize| s.dx[t] * m[0] + s.dy[t] * m[1] + s.dz[t] * m[2] > 0.0;
+                            open += usize::from(texels.clone().any(|t| front(t) && vis[t] > 0.0));
+                            blocked += usize::from(texels.clone().any(|t| front(t) && vis[t] == 0.0));
+                        }
+                        (open, blocked)
+                    }
+                };
+                assert_eq!(s.blocks_in_front(n, vis), expected, "n {n:?}");
+                assert_eq!(portable.blocks_in_front(n, vis), expected, "n {n:?}");
+            }
+        }
+        let all_open = s.blocks_in_front([0.0, 0.0, 1.0], &patterns[0]);
+        assert!(all_open.0 > 0 && all_open.1 == 0);
+        let all_blocked = s.blocks_in_front([0.0, 0.0, 1.0], &patterns[1]);
+        assert!(all_blocked.0 == 0 && all_blocked.1 > 0);
     }
 }
