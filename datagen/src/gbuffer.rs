@@ -77,19 +77,18 @@ impl GBuffer {
     /// surface (the object itself blocks them) or behind the shading normal (they contribute
     /// nothing) get no ray.
     pub fn shadow_visibility(&self, scene: &Scene, to_object: Mat3, p: usize, dirs: &[[f32; 3]], out: &mut [f32]) {
-        let turned: Vec<Vec3> = dirs.iter().map(|&d| to_object * Vec3::from(d)).collect();
-        self.shadow_rays(scene, to_object, p, dirs, &turned, out);
+        self.shadow_rays(scene, to_object, p, dirs, |_, d| to_object * d, out);
     }
 
-    /// [`shadow_visibility`](GBuffer::shadow_visibility) with the directions also given in the
-    /// scene's frame (`turned[t] = to_object · dirs[t]`), which every pixel of a view shares.
+    /// [`shadow_visibility`](GBuffer::shadow_visibility) with `turn(t, d)` giving direction `t`
+    /// in the scene's frame: a table of a view's turned directions serves every pixel.
     fn shadow_rays(
         &self,
         scene: &Scene,
         to_object: Mat3,
         p: usize,
         dirs: &[[f32; 3]],
-        turned: &[Vec3],
+        turn: impl Fn(usize, Vec3) -> Vec3,
         out: &mut [f32],
     ) {
         let ng = Vec3::from(self.geometric_normal[p]);
@@ -104,12 +103,12 @@ impl GBuffer {
         SCRATCH.with_borrow_mut(|(traced, rays, blocked)| {
             traced.clear();
             rays.clear();
-            for (t, ((d, &r), o)) in dirs.iter().zip(turned).zip(out.iter_mut()).enumerate() {
+            for (t, (d, o)) in dirs.iter().zip(out.iter_mut()).enumerate() {
                 let d = Vec3::from(*d);
                 *o = 0.0;
                 if d.dot(ng) > 0.0 && d.dot(ns) > 0.0 {
                     traced.push(t);
-                    rays.push(r);
+                    rays.push(turn(t, d));
                 }
             }
             blocked.clear();
@@ -164,7 +163,7 @@ impl<'a> SharedVisibility<'a> {
         let table = self.table(dirs);
         let open = table.open[p].get_or_init(|| {
             self.g
-                .shadow_rays(self.scene, self.to_object, p, dirs, &table.turned, out);
+                .shadow_rays(self.scene, self.to_object, p, dirs, |t, _| table.turned[t], out);
             out.chunks(64)
                 .map(|chunk| {
                     let mut word = 0_u64;

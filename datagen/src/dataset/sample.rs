@@ -297,7 +297,7 @@ impl<'a> Renderer<'a> {
                         };
                         match fast {
                             Some((vis, fast)) => {
-                                let (rgb, bad, _) = remove_blocked_light(&fast, &unshadowed.0, &g.normal, &mask_r, vis);
+                                let (rgb, bad) = remove_blocked_light(&fast, &unshadowed.0, &g.normal, &mask_r, vis);
                                 (rgb, unshadowed.1 + bad)
                             }
                             None => unshadowed,

@@ -198,17 +198,16 @@ pub fn shade_image(
 /// directly instead where that touches fewer blocks, and where the blocked light exceeds half
 /// the unshadowed radiance in any channel (what remained would carry more than twice the grid's
 /// relative error). `fast` must be the per-pixel shader of the same material and environment.
-/// Returns radiance, the number of non-finite values replaced and the number of pixels shaded
-/// directly.
+/// Returns radiance and the number of non-finite values replaced.
 pub fn remove_blocked_light(
     fast: &fast::FastShader,
     unshadowed: &[[f32; 3]],
     normals: &[[f32; 3]],
     mask: &[f32],
     visibility: &VisibilityFn<'_>,
-) -> (Vec<[f32; 3]>, usize, usize) {
+) -> (Vec<[f32; 3]>, usize) {
     let dirs = fast.light_dirs();
-    let out: Vec<([f32; 3], usize, usize)> = normals
+    let out: Vec<([f32; 3], usize)> = normals
         .par_iter()
         .zip(mask.par_iter())
         .zip(unshadowed.par_iter())
@@ -217,7 +216,7 @@ pub fn remove_blocked_light(
             || (vec![1.0_f32; dirs.len()], vec![0.0_f32; dirs.len()]),
             |(open, blocked), (p, ((n, &m), u))| {
                 if m <= 0.0 {
-                    return ([0.0; 3], 0, 0);
+                    return ([0.0; 3], 0);
                 }
                 visibility(p, dirs, open);
                 let (open_blocks, blocked_blocks) = fast.blocks_in_front(*n, open);
@@ -230,18 +229,14 @@ pub fn remove_blocked_light(
                         .all(|c| 2.0 * lost[c] <= u[c])
                         .then(|| [0, 1, 2].map(|c| u[c] - lost[c]))
                 });
-                let (mut rgb, direct) = match subtracted.flatten() {
-                    Some(rgb) => (rgb, 0),
-                    None => (fast.shade(*n, Some(open)), 1),
-                };
+                let mut rgb = subtracted.flatten().unwrap_or_else(|| fast.shade(*n, Some(open)));
                 let bad = sanitize(&mut rgb);
-                (rgb, bad, direct)
+                (rgb, bad)
             },
         )
         .collect();
     let bad = out.iter().map(|o| o.1).sum();
-    let direct = out.iter().map(|o| o.2).sum();
-    (out.into_iter().map(|o| o.0).collect(), bad, direct)
+    (out.into_iter().map(|o| o.0).collect(), bad)
 }
 
 /// Shades an image with the requested quality: the zonal method for `Zonal` where it resolves the
@@ -262,7 +257,7 @@ pub fn shade_with(
         let Some((visibility, fast)) = fast else {
             return (unshadowed, bad);
         };
-        let (rgb, bad_after, _) = remove_blocked_light(&fast, &unshadowed, normals, mask, visibility);
+        let (rgb, bad_after) = remove_blocked_light(&fast, &unshadowed, normals, mask, visibility);
         return (rgb, bad + bad_after);
     }
     let shader = make_shader(brdf, env, quality);
