@@ -516,3 +516,52 @@ fn brightest_direction(env: &EnvMap) -> [f32; 3] {
     let d = matedit_physics::envmap::texel_direction(best.1.0, best.1.1, w, h);
     [d.x as f32, d.y as f32, d.z as f32]
 }
+
+#[test]
+fn zonal_with_shadows_holds_over_the_dsbrdf_range() {
+    // The documented range's corners and random materials (the property test's), as the
+    // factory shades them with shadows: the grid's image minus the blocked light where the grid
+    // resolves the material, against the fast path under the same visibility; within twice the
+    // range's zonal budget (5e-3).
+    use matedit_physics::shading::fast::FastShader;
+    use matedit_physics::shading::remove_blocked_light;
+    let res = 40;
+    let (normals, mask) = unit_sphere_normals(res);
+    let pixels: Vec<usize> = (0..mask.len()).filter(|&p| mask[p] > 0.0).collect();
+    let polar = PolarNormals::new(&normals, &mask);
+    let maps: Vec<(String, EnvMap)> = hard_maps().into_iter().take(2).collect();
+    let (mut on_grid, mut worst) = (0, (0.0_f64, String::new()));
+    for (name, brdf) in range_materials(12) {
+        let Some(kernel) = ZonalKernel::for_brdf(&brdf) else {
+            continue;
+        };
+        on_grid += 1;
+        for (map, env) in &maps {
+            let unshadowed = shade_image_zonal(&kernel, &ZonalEnv::new(env, kernel.grid()), &polar, &mask).0;
+            let fast = FastShader::new(&brdf, env).expect("analytic");
+            for (pattern, vis) in shadow_patterns(res, brightest_direction(env)) {
+                let reference = shade_image(&fast, &normals, &mask, Some(vis.as_ref())).0;
+                let (zonal, bad) = remove_blocked_light(&fast, &unshadowed, &normals, &mask, vis.as_ref());
+                assert_eq!(bad, 0, "{name} under {map}, {pattern}");
+                let e = rel_rmse(&zonal, &reference, &pixels);
+                if e > worst.0 {
+                    worst = (e, format!("{name} under {map}, {pattern}"));
+                }
+                assert!(
+                    e < 1e-2,
+                    "{name} under {map}, {pattern}: relative RMSE {e:.2e} (allowed 1e-2)"
+                );
+                assert!(
+                    zonal.iter().flatten().all(|v| v.is_finite() && *v >= 0.0),
+                    "{name}, {pattern}"
+                );
+            }
+        }
+    }
+    eprintln!(
+        "{on_grid} materials on the grid; worst {:.3} % ({})",
+        100.0 * worst.0,
+        worst.1
+    );
+    assert!(on_grid >= 5, "only {on_grid} of the range's materials on the grid");
+}
