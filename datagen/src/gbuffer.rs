@@ -160,7 +160,21 @@ impl<'a> SharedVisibility<'a> {
 
     /// [`GBuffer::shadow_visibility`] for pixel `p` towards `dirs`, traced on the first request.
     pub fn fill(&self, p: usize, dirs: &[[f32; 3]], out: &mut [f32]) {
-        let table = self.table(dirs);
+        self.fill_from(&self.table(dirs), p, dirs, out);
+    }
+
+    /// The table of `dirs` looked up once, for a shader that asks every pixel for the same
+    /// directions ([`SharedView::fill`]): the lookup compares every direction, which costs as
+    /// much as handing out the bits.
+    pub fn view<'v>(&'v self, dirs: &'v [[f32; 3]]) -> SharedView<'v> {
+        SharedView {
+            shared: self,
+            table: self.table(dirs),
+            dirs,
+        }
+    }
+
+    fn fill_from(&self, table: &VisibilityTable, p: usize, dirs: &[[f32; 3]], out: &mut [f32]) {
         let open = table.open[p].get_or_init(|| {
             self.g
                 .shadow_rays(self.scene, self.to_object, p, dirs, |t, _| table.turned[t], out);
@@ -208,6 +222,26 @@ impl<'a> SharedVisibility<'a> {
         });
         tables.push(t.clone());
         t
+    }
+}
+
+/// [`SharedVisibility`] for one set of directions, its table looked up once.
+pub struct SharedView<'v> {
+    shared: &'v SharedVisibility<'v>,
+    table: Arc<VisibilityTable>,
+    dirs: &'v [[f32; 3]],
+}
+
+impl SharedView<'_> {
+    /// [`SharedVisibility::fill`]. `dirs` is the very slice the view was made for (the same
+    /// address and length, so the same values: it is borrowed for the view's life) or any other,
+    /// which is looked up as usual.
+    pub fn fill(&self, p: usize, dirs: &[[f32; 3]], out: &mut [f32]) {
+        if std::ptr::eq(dirs, self.dirs) {
+            self.shared.fill_from(&self.table, p, dirs, out);
+        } else {
+            self.shared.fill(p, dirs, out);
+        }
     }
 }
 
@@ -295,6 +329,19 @@ mod tests {
         }
         assert!(blocked > 0, "the chair shadows some directions");
         assert_eq!(shared.tables.read().unwrap().len(), 2, "one table per direction set");
+        // A view hands out the same bits for the slice it was made for, and for any other slice
+        // (an equal copy, a subset) looks it up as usual.
+        let view = shared.view(&all);
+        let copy = all.clone();
+        for dirs in [&all, &copy, &some] {
+            for &p in &covered {
+                let (mut a, mut b) = (vec![0.5; dirs.len()], vec![0.5; dirs.len()]);
+                view.fill(p, dirs, &mut a);
+                g.shadow_visibility(&scene, rotation.transpose(), p, dirs, &mut b);
+                assert_eq!(a, b, "view, pixel {p}");
+            }
+        }
+        assert_eq!(shared.tables.read().unwrap().len(), 2, "no new table for the view");
     }
 
     #[test]

@@ -30,7 +30,7 @@ use matedit_contract::records::SampleRecord;
 use matedit_physics::EnvMap;
 use matedit_physics::shading::fast::FastShader;
 use matedit_physics::shading::zonal::{PolarNormals, ZonalEnv, ZonalKernel, ZonalRefusal, shade_image_zonal};
-use matedit_physics::shading::{Quality, VisibilityFn, remove_blocked_light, shade_with};
+use matedit_physics::shading::{Quality, Shader, VisibilityFn, remove_blocked_light, shade_with};
 use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex, OnceLock};
@@ -297,7 +297,14 @@ impl<'a> Renderer<'a> {
                         };
                         match fast {
                             Some((vis, fast)) => {
-                                let (rgb, bad) = remove_blocked_light(&fast, &unshadowed.0, &g.normal, &mask_r, vis);
+                                // Every pixel asks for the fast shader's directions: their table
+                                // is looked up once.
+                                let view = shared.as_ref().map(|s| s.view(fast.light_dirs()));
+                                let vis = |p: usize, dirs: &[[f32; 3]], out: &mut [f32]| match &view {
+                                    Some(view) => view.fill(p, dirs, out),
+                                    None => vis(p, dirs, out),
+                                };
+                                let (rgb, bad) = remove_blocked_light(&fast, &unshadowed.0, &g.normal, &mask_r, &vis);
                                 (rgb, unshadowed.1 + bad)
                             }
                             None => unshadowed,
