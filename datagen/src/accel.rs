@@ -201,6 +201,45 @@ mod embree {
         Ok(())
     }
 
+    /// A packet query of `$w` rays from one origin through `sys::$occluded` (Embree wants the
+    /// validity mask aligned to the packet's size in bytes, `$align`). Unused lanes are invalid.
+    macro_rules! occluded_packets {
+        ($(#[$doc:meta])* $name:ident, $w:literal, $ray:ident, $occluded:ident, $align:literal) => {
+            $(#[$doc])*
+            pub(crate) fn $name(&self, origin: Vec3, dirs: &[Vec3], tmin: f32, out: &mut [bool]) {
+                #[repr(C, align($align))]
+                struct Valid([i32; $w]);
+                for (dirs, out) in dirs.chunks($w).zip(out.chunks_mut($w)) {
+                    let mut valid = Valid([0; $w]);
+                    let mut r = sys::$ray {
+                        org_x: [origin.x; $w],
+                        org_y: [origin.y; $w],
+                        org_z: [origin.z; $w],
+                        tnear: [tmin; $w],
+                        dir_x: [0.0; $w],
+                        dir_y: [0.0; $w],
+                        dir_z: [1.0; $w],
+                        time: [0.0; $w],
+                        tfar: [f32::INFINITY; $w],
+                        mask: [u32::MAX; $w],
+                        id: [0; $w],
+                        flags: [0; $w],
+                    };
+                    for (k, d) in dirs.iter().enumerate() {
+                        valid.0[k] = -1;
+                        r.dir_x[k] = d.x;
+                        r.dir_y[k] = d.y;
+                        r.dir_z[k] = d.z;
+                    }
+                    unsafe { sys::$occluded(valid.0.as_ptr(), self.scene, &mut r, null_mut()) };
+                    for (k, o) in out.iter_mut().enumerate() {
+                        *o = r.tfar[k] == f32::NEG_INFINITY;
+                    }
+                }
+            }
+        };
+    }
+
     impl EmbreeScene {
         pub fn new(mesh: &Mesh) -> Result<Self> {
             unsafe {
@@ -310,71 +349,14 @@ mod embree {
             }
         }
 
-        /// [`occluded_from`](Self::occluded_from) in packets of sixteen.
-        pub(crate) fn occluded_from16(&self, origin: Vec3, dirs: &[Vec3], tmin: f32, out: &mut [bool]) {
-            #[repr(C, align(64))]
-            struct Valid([i32; 16]);
-            for (dirs, out) in dirs.chunks(16).zip(out.chunks_mut(16)) {
-                let mut valid = Valid([0; 16]);
-                let mut r = sys::RTCRay16 {
-                    org_x: [origin.x; 16],
-                    org_y: [origin.y; 16],
-                    org_z: [origin.z; 16],
-                    tnear: [tmin; 16],
-                    dir_x: [0.0; 16],
-                    dir_y: [0.0; 16],
-                    dir_z: [1.0; 16],
-                    time: [0.0; 16],
-                    tfar: [f32::INFINITY; 16],
-                    mask: [u32::MAX; 16],
-                    id: [0; 16],
-                    flags: [0; 16],
-                };
-                for (k, d) in dirs.iter().enumerate() {
-                    valid.0[k] = -1;
-                    r.dir_x[k] = d.x;
-                    r.dir_y[k] = d.y;
-                    r.dir_z[k] = d.z;
-                }
-                unsafe { sys::rtcOccluded16(valid.0.as_ptr(), self.scene, &mut r, null_mut()) };
-                for (k, o) in out.iter_mut().enumerate() {
-                    *o = r.tfar[k] == f32::NEG_INFINITY;
-                }
-            }
-        }
-
-        /// [`occluded_from`](Self::occluded_from) in packets of eight.
-        pub(crate) fn occluded_from8(&self, origin: Vec3, dirs: &[Vec3], tmin: f32, out: &mut [bool]) {
-            #[repr(C, align(32))]
-            struct Valid([i32; 8]);
-            for (dirs, out) in dirs.chunks(8).zip(out.chunks_mut(8)) {
-                let mut valid = Valid([0; 8]);
-                let mut r = sys::RTCRay8 {
-                    org_x: [origin.x; 8],
-                    org_y: [origin.y; 8],
-                    org_z: [origin.z; 8],
-                    tnear: [tmin; 8],
-                    dir_x: [0.0; 8],
-                    dir_y: [0.0; 8],
-                    dir_z: [1.0; 8],
-                    time: [0.0; 8],
-                    tfar: [f32::INFINITY; 8],
-                    mask: [u32::MAX; 8],
-                    id: [0; 8],
-                    flags: [0; 8],
-                };
-                for (k, d) in dirs.iter().enumerate() {
-                    valid.0[k] = -1;
-                    r.dir_x[k] = d.x;
-                    r.dir_y[k] = d.y;
-                    r.dir_z[k] = d.z;
-                }
-                unsafe { sys::rtcOccluded8(valid.0.as_ptr(), self.scene, &mut r, null_mut()) };
-                for (k, o) in out.iter_mut().enumerate() {
-                    *o = r.tfar[k] == f32::NEG_INFINITY;
-                }
-            }
-        }
+        occluded_packets!(
+            /// [`occluded_from`](Self::occluded_from) in packets of sixteen.
+            occluded_from16, 16, RTCRay16, rtcOccluded16, 64
+        );
+        occluded_packets!(
+            /// [`occluded_from`](Self::occluded_from) in packets of eight.
+            occluded_from8, 8, RTCRay8, rtcOccluded8, 32
+        );
 
         /// Whether anything is hit at t > `tmin` (Embree sets tfar to −∞ then).
         pub fn occluded(&self, origin: Vec3, dir: Vec3, tmin: f32) -> bool {
