@@ -74,16 +74,25 @@ enum Command {
         /// Samples in the contact sheet written next to --out as .png (0: none).
         #[arg(long, default_value_t = 8)]
         sheet: usize,
-        /// Also score each checkpoint after the post-optimisation of every sample (Eq. 6, a = 1,
-        /// b = 10; slow: seconds per sample), as Table 3's "+ Eq. 6" column.
+        /// Also score each checkpoint after the post-optimisation of every sample (Eq. 6; slow:
+        /// seconds per sample), as Table 3's "+ Eq. 6" column.
         #[arg(long)]
         eq6: bool,
-        /// Eq. 6's rounds of (normals, material, light).
-        #[arg(long, default_value_t = 1)]
+        /// Eq. 6's weight a of the normal prior.
+        #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().a)]
+        eq6_a: f64,
+        /// Eq. 6's weight b of the light prior.
+        #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().b)]
+        eq6_b: f64,
+        /// Eq. 6's rounds of (light, material, normals).
+        #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().rounds)]
         eq6_rounds: usize,
         /// Eq. 6's L-BFGS iterations per property and round.
-        #[arg(long, default_value_t = 4)]
+        #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().iterations)]
         eq6_iterations: usize,
+        /// Objects of more pixels run Eq. 6's alternation on every k-th pixel (0: never).
+        #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().coarse_pixels)]
+        eq6_coarse_pixels: usize,
         /// Also score the Lombardi-style optimiser of material and light given the true normals
         /// (Table 3's baseline; slow: seconds per sample).
         #[arg(long)]
@@ -227,8 +236,11 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
             categories,
             sheet,
             eq6,
+            eq6_a,
+            eq6_b,
             eq6_rounds,
             eq6_iterations,
+            eq6_coarse_pixels,
             lombardi,
             lombardi_material_weight,
             lombardi_light_weight,
@@ -247,8 +259,11 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
                 progress: !quiet,
                 sheet: Some((out.with_extension("png"), sheet)),
                 eq6: eq6.then(|| crate::post_optimisation::Eq6Config {
+                    a: eq6_a,
+                    b: eq6_b,
                     rounds: eq6_rounds,
                     iterations: eq6_iterations,
+                    coarse_pixels: eq6_coarse_pixels,
                     ..Default::default()
                 }),
                 lombardi: lombardi.then(|| LombardiConfig {

@@ -31,7 +31,7 @@ enum Command {
   matedit edit --model M --image car.out.png --material 1=library:oak --material 2=library:rubber-black \\
       --regions parts.png --out out/edit-parts/
   matedit edit --model M --image car.jpg --mask car-mask.png --relight sunset.hdr --out out/relit/
-  matedit edit ... --optimize          # refine with Eq. 6 (a = 1, b = 10) first
+  matedit edit ... --optimize          # refine with Eq. 6 first (a = 1, b = 0.1: see --eq6-b)
 
 Outputs (written only when every input is good): edited.png/.exr at the photo's resolution,
 I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and report.json.")]
@@ -65,17 +65,20 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         #[arg(long)]
         optimize: bool,
         /// Eq. 6's weight a of the normal prior.
-        #[arg(long, default_value_t = 1.0)]
+        #[arg(long, default_value_t = Eq6Config::default().a)]
         eq6_a: f64,
-        /// Eq. 6's weight b of the light prior.
-        #[arg(long, default_value_t = 10.0)]
+        /// Eq. 6's weight b of the light prior (the paper's 10 is for its units: see docs/PERFORMANCE.md).
+        #[arg(long, default_value_t = Eq6Config::default().b)]
         eq6_b: f64,
-        /// Rounds of (normals, material, light).
-        #[arg(long, default_value_t = 1)]
+        /// Rounds of (light, material, normals).
+        #[arg(long, default_value_t = Eq6Config::default().rounds)]
         eq6_rounds: usize,
         /// L-BFGS iterations per property and round.
-        #[arg(long, default_value_t = 4)]
+        #[arg(long, default_value_t = Eq6Config::default().iterations)]
         eq6_iterations: usize,
+        /// Objects of more pixels run Eq. 6's alternation on every k-th pixel (0: never).
+        #[arg(long, default_value_t = Eq6Config::default().coarse_pixels)]
+        eq6_coarse_pixels: usize,
         /// Output folder.
         #[arg(long)]
         out: PathBuf,
@@ -216,6 +219,7 @@ fn run(cli: Cli) -> Result<()> {
             eq6_b,
             eq6_rounds,
             eq6_iterations,
+            eq6_coarse_pixels,
             out,
         } => {
             let req = EditRequest {
@@ -230,6 +234,7 @@ fn run(cli: Cli) -> Result<()> {
                     b: eq6_b,
                     rounds: eq6_rounds,
                     iterations: eq6_iterations,
+                    coarse_pixels: eq6_coarse_pixels,
                     ..Eq6Config::default()
                 }),
             };

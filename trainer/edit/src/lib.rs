@@ -266,6 +266,11 @@ pub struct Eq6Report {
     pub end: post_optimisation::Energy,
     /// E after every L-BFGS iteration.
     pub steps: Vec<post_optimisation::Step>,
+    /// Passes of the rendering layer.
+    pub evaluations: usize,
+    /// The alternation's pixel stride (1: every pixel of the object; k: every k-th of each row
+    /// and column, the whole image's E at the first and last step).
+    pub stride: usize,
     /// Seconds.
     pub seconds: f64,
 }
@@ -462,6 +467,8 @@ pub fn understand(
                 start: r.start,
                 end: r.end,
                 steps: r.steps,
+                evaluations: r.evaluations,
+                stride: r.stride,
                 seconds: t.elapsed().as_secs_f64(),
             })
         }

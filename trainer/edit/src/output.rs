@@ -405,7 +405,14 @@ pub fn energy_plot(path: &Path, eq6: &super::Eq6Report) -> Result<()> {
             .map_err(e)?;
         chart
             .configure_mesh()
-            .x_desc("L-BFGS iteration (all runs in order)")
+            .x_desc(if eq6.stride > 1 {
+                format!(
+                    "L-BFGS iteration (all runs in order; hollow: on every {}th pixel, scaled)",
+                    eq6.stride
+                )
+            } else {
+                "L-BFGS iteration (all runs in order)".to_string()
+            })
             .y_desc("E")
             .draw()
             .map_err(e)?;
@@ -415,15 +422,19 @@ pub fn energy_plot(path: &Path, eq6: &super::Eq6Report) -> Result<()> {
             (Property::Material, RGBColor(255, 127, 14), "material"),
             (Property::Light, RGBColor(44, 160, 44), "light"),
         ] {
-            let pts: Vec<(usize, f64)> = eq6
+            // Filled: E of the whole image; hollow: the coarse alternation's estimate of it.
+            let pts: Vec<(usize, f64, bool)> = eq6
                 .steps
                 .iter()
                 .enumerate()
                 .filter(|(_, s)| s.property == prop)
-                .map(|(i, s)| (i, s.energy.max(1e-30)))
+                .map(|(i, s)| (i, s.energy.max(1e-30), s.stride == 1))
                 .collect();
             chart
-                .draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour.filled())))
+                .draw_series(pts.iter().map(|&(i, v, whole)| {
+                    let style = if whole { colour.filled() } else { colour.stroke_width(1) };
+                    Circle::new((i, v), 3, style)
+                }))
                 .map_err(e)?
                 .label(name)
                 .legend(move |(x, y)| Circle::new((x, y), 4, colour.filled()));

@@ -254,6 +254,7 @@ pub fn recover(
         rounds: cfg.rounds,
         iterations: cfg.iterations,
         history: cfg.history,
+        coarse_pixels: 0,
     };
     alternate(&problem, start, &solver, &[Property::Material, Property::Light], None)
 }

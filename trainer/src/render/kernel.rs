@@ -15,6 +15,68 @@ use super::simd::Avx2;
 use super::simd::{F8, Portable, exp_fast, expm1, ln_1m};
 use super::texels::{LANES, TexelTable};
 
+/// `[e(0), e(1), …]` without a closure: `std::array::from_fn`'s closure is not compiled with the
+/// kernel's target features, so the AVX2 intrinsics inside it were calls, not instructions
+/// (a fifth of Eq. 6's time in `perf`).
+macro_rules! unrolled {
+    (3, |$i:ident| $e:expr) => {
+        [
+            {
+                let $i = 0;
+                $e
+            },
+            {
+                let $i = 1;
+                $e
+            },
+            {
+                let $i = 2;
+                $e
+            },
+        ]
+    };
+    (9, |$i:ident| $e:expr) => {
+        [
+            {
+                let $i = 0;
+                $e
+            },
+            {
+                let $i = 1;
+                $e
+            },
+            {
+                let $i = 2;
+                $e
+            },
+            {
+                let $i = 3;
+                $e
+            },
+            {
+                let $i = 4;
+                $e
+            },
+            {
+                let $i = 5;
+                $e
+            },
+            {
+                let $i = 6;
+                $e
+            },
+            {
+                let $i = 7;
+                $e
+            },
+            {
+                let $i = 8;
+                $e
+            },
+        ]
+    };
+}
+
 /// A lobe whose γ·ln cos θ_h is below this on all lanes is skipped.
 const SKIP_EXPONENT: f32 = -30.0;
 
@@ -48,7 +110,7 @@ fn geometry<V: F8>(n: [V; 3], tex: &TexelTable, b: usize) -> (V::M, V, V, V) {
         V::load(&tex.w[2][b..]),
     ];
     let ci = n[0].mul_add(w[0], n[1].mul_add(w[1], n[2].mul(w[2])));
-    let d: [V; 3] = std::array::from_fn(|a| n[a].sub(V::load(&tex.h[a][b..])));
+    let d: [V; 3] = unrolled!(3, |a| n[a].sub(V::load(&tex.h[a][b..])));
     let o = d[0]
         .mul_add(d[0], d[1].mul_add(d[1], d[2].mul(d[2])))
         .mul(V::splat(0.5));
@@ -116,9 +178,9 @@ fn forward<V: F8>(
         .map(|(i, n)| (i, splat3(*n)))
         .collect();
     for b in (0..tex.padded()).step_by(LANES) {
-        let light: [V; 3] = std::array::from_fn(|c| V::load(&lsa[c][b..]));
-        let kap: [V; MEMBERS] = std::array::from_fn(|q| V::load(&mat.kappa[q][b..]));
-        let gam: [V; MEMBERS] = std::array::from_fn(|q| V::load(&mat.gamma[q][b..]));
+        let light: [V; 3] = unrolled!(3, |c| V::load(&lsa[c][b..]));
+        let kap: [V; MEMBERS] = unrolled!(9, |q| V::load(&mat.kappa[q][b..]));
+        let gam: [V; MEMBERS] = unrolled!(9, |q| V::load(&mat.gamma[q][b..]));
         for &(i, n) in &pixels {
             let (front, wt, lc, _) = geometry(n, tex, b);
             if !V::any(front) {
@@ -166,8 +228,63 @@ impl TexelGrads {
     }
 }
 
+/// Which gradients a backward pass computes; the others are left untouched (zero). Eq. 6 moves one
+/// property at a time and needs only that property's gradient, which skips most of the
+/// per-lobe work of the others.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Wanted {
+    /// ∂/∂n.
+    pub normals: bool,
+    /// ∂/∂m (through the texel accumulators of κ and γ).
+    pub materials: bool,
+    /// ∂/∂L.
+    pub env: bool,
+}
+
+impl Wanted {
+    /// Every gradient.
+    pub const ALL: Wanted = Wanted {
+        normals: true,
+        materials: true,
+        env: true,
+    };
+    /// Only ∂/∂n.
+    pub const NORMALS: Wanted = Wanted {
+        normals: true,
+        materials: false,
+        env: false,
+    };
+    /// Only ∂/∂m.
+    pub const MATERIALS: Wanted = Wanted {
+        normals: false,
+        materials: true,
+        env: false,
+    };
+    /// Only ∂/∂L.
+    pub const ENV: Wanted = Wanted {
+        normals: false,
+        materials: false,
+        env: true,
+    };
+}
+
+/// Calls `$f::<$V, N, M, L>($args)` with the const flags of `$want` (one of [`Wanted`]'s
+/// constants; any other combination computes everything).
+macro_rules! by_wanted {
+    ($want:expr, $f:ident, $V:ty, ($($arg:expr),*)) => {
+        match $want {
+            Wanted::NORMALS => $f::<$V, true, false, false>($($arg),*),
+            Wanted::MATERIALS => $f::<$V, false, true, false>($($arg),*),
+            Wanted::ENV => $f::<$V, false, false, true>($($arg),*),
+            _ => $f::<$V, true, true, true>($($arg),*),
+        }
+    };
+}
+
 /// Vector–Jacobian product of [`forward_tile`]: given ∂loss/∂out per pixel (`upstream`), adds
-/// ∂loss/∂n into `grad_n` and the texel gradients into `acc`. `lsa` is L·dω.
+/// ∂loss/∂n into `grad_n` and the texel gradients into `acc`, each only where `want` asks for
+/// it. `lsa` is L·dω.
+#[allow(clippy::too_many_arguments)]
 pub fn backward_tile(
     normals: &[[f32; 3]],
     upstream: &[[f32; 3]],
@@ -176,18 +293,25 @@ pub fn backward_tile(
     lsa: &[Vec<f32>; 3],
     grad_n: &mut [[f32; 3]],
     acc: &mut TexelGrads,
+    want: Wanted,
 ) {
     #[cfg(target_arch = "x86_64")]
     if simd_available() {
         // SAFETY: the CPU supports AVX2 and FMA, checked just above.
-        unsafe { backward_avx2(normals, upstream, tex, mat, lsa, grad_n, acc) };
+        unsafe { backward_avx2(normals, upstream, tex, mat, lsa, grad_n, acc, want) };
         return;
     }
-    backward::<Portable>(normals, upstream, tex, mat, lsa, grad_n, acc);
+    by_wanted!(
+        want,
+        backward,
+        Portable,
+        (normals, upstream, tex, mat, lsa, grad_n, acc)
+    );
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
 fn backward_avx2(
     normals: &[[f32; 3]],
     upstream: &[[f32; 3]],
@@ -196,12 +320,13 @@ fn backward_avx2(
     lsa: &[Vec<f32>; 3],
     grad_n: &mut [[f32; 3]],
     acc: &mut TexelGrads,
+    want: Wanted,
 ) {
-    backward::<Avx2>(normals, upstream, tex, mat, lsa, grad_n, acc)
+    by_wanted!(want, backward, Avx2, (normals, upstream, tex, mat, lsa, grad_n, acc))
 }
 
 #[inline(always)]
-fn backward<V: F8>(
+fn backward<V: F8, const N: bool, const M: bool, const L: bool>(
     normals: &[[f32; 3]],
     upstream: &[[f32; 3]],
     tex: &TexelTable,
@@ -221,11 +346,11 @@ fn backward<V: F8>(
         .map(|(i, (n, g))| (i, splat3(*n), *g))
         .collect();
     for b in (0..tex.padded()).step_by(LANES) {
-        let light: [V; 3] = std::array::from_fn(|c| V::load(&lsa[c][b..]));
-        let kap: [V; MEMBERS] = std::array::from_fn(|q| V::load(&mat.kappa[q][b..]));
-        let gam: [V; MEMBERS] = std::array::from_fn(|q| V::load(&mat.gamma[q][b..]));
-        let w: [V; 3] = std::array::from_fn(|a| V::load(&tex.w[a][b..]));
-        let h: [V; 3] = std::array::from_fn(|a| V::load(&tex.h[a][b..]));
+        let light: [V; 3] = unrolled!(3, |c| V::load(&lsa[c][b..]));
+        let kap: [V; MEMBERS] = unrolled!(9, |q| V::load(&mat.kappa[q][b..]));
+        let gam: [V; MEMBERS] = unrolled!(9, |q| V::load(&mat.gamma[q][b..]));
+        let w: [V; 3] = unrolled!(3, |a| V::load(&tex.w[a][b..]));
+        let h: [V; 3] = unrolled!(3, |a| V::load(&tex.h[a][b..]));
         let mut gk = [zero; MEMBERS];
         let mut gg = [zero; MEMBERS];
         let mut gl = [zero; 3];
@@ -240,7 +365,11 @@ fn backward<V: F8>(
             let mut cw = zero;
             let mut chh = zero;
             // ci/cos θ_h: at most 2 for a unit normal, so grazing pixels stay finite.
-            let ratio = V::select(ch.ge(V::splat(1e-20)), wt.div(ch.max(V::splat(1e-20))), zero);
+            let ratio = if N {
+                V::select(ch.ge(V::splat(1e-20)), wt.div(ch.max(V::splat(1e-20))), zero)
+            } else {
+                zero
+            };
             for c in 0..3 {
                 if g[c] == 0.0 {
                     continue;
@@ -258,32 +387,51 @@ fn backward<V: F8>(
                     let pw = exp_fast(gam[q].mul(lc));
                     let kp = kap[q].mul(pw);
                     let e = expm1(kp);
-                    // ∂ρ/∂ln κ = e^{κ c^γ} κ c^γ; ∂ρ/∂ln γ = that · γ ln c.
-                    let d = e.add(V::splat(1.0)).mul(kp);
-                    let wd = wc.mul(d);
-                    rho = rho.add(e);
-                    gk[q] = gk[q].add(wd);
-                    gg[q] = wd.mul(gam[q]).mul_add(lc, gg[q]);
-                    dsum = d.mul_add(gam[q], dsum);
+                    if N || L {
+                        rho = rho.add(e);
+                    }
+                    if N || M {
+                        // ∂ρ/∂ln κ = e^{κ c^γ} κ c^γ; ∂ρ/∂ln γ = that · γ ln c.
+                        let d = e.add(V::splat(1.0)).mul(kp);
+                        if M {
+                            let wd = wc.mul(d);
+                            gk[q] = gk[q].add(wd);
+                            gg[q] = wd.mul(gam[q]).mul_add(lc, gg[q]);
+                        }
+                        if N {
+                            dsum = d.mul_add(gam[q], dsum);
+                        }
+                    }
                 }
-                gl[c] = gc.mul(rho).mul_add(wt, gl[c]);
-                cw = V::select(front, gl_c.mul_add(rho, cw), cw);
-                chh = gl_c.mul(dsum).mul_add(ratio, chh);
+                if L {
+                    gl[c] = gc.mul(rho).mul_add(wt, gl[c]);
+                }
+                if N {
+                    cw = V::select(front, gl_c.mul_add(rho, cw), cw);
+                    chh = gl_c.mul(dsum).mul_add(ratio, chh);
+                }
             }
-            for a in 0..3 {
-                let dir = h[a].sub(n[a]);
-                gw[i][a] = cw.mul_add(w[a], chh.mul_add(dir, gw[i][a]));
+            if N {
+                for a in 0..3 {
+                    let dir = h[a].sub(n[a]);
+                    gw[i][a] = cw.mul_add(w[a], chh.mul_add(dir, gw[i][a]));
+                }
             }
         }
-        if touched {
+        if touched && M {
             for q in 0..MEMBERS {
                 V::load(&acc.kappa[q][b..]).add(gk[q]).store(&mut acc.kappa[q][b..]);
                 V::load(&acc.gamma[q][b..]).add(gg[q]).store(&mut acc.gamma[q][b..]);
             }
+        }
+        if touched && L {
             for (c, g) in gl.iter().enumerate() {
                 V::load(&acc.light[c][b..]).add(*g).store(&mut acc.light[c][b..]);
             }
         }
+    }
+    if !N {
+        return;
     }
     for (o, g) in grad_n.iter_mut().zip(&gw) {
         for (o, g) in o.iter_mut().zip(g) {
@@ -327,8 +475,8 @@ mod tests {
         forward::<Portable>(&normals, &tex, &mat, &lsa, &mut fp);
         let (mut ga, mut gp) = (vec![[0.0; 3]; 40], vec![[0.0; 3]; 40]);
         let (mut aa, mut ap) = (TexelGrads::zeros(tex.padded()), TexelGrads::zeros(tex.padded()));
-        backward_tile(&normals, &up, &tex, &mat, &lsa, &mut ga, &mut aa);
-        backward::<Portable>(&normals, &up, &tex, &mat, &lsa, &mut gp, &mut ap);
+        backward_tile(&normals, &up, &tex, &mat, &lsa, &mut ga, &mut aa, Wanted::ALL);
+        backward::<Portable, true, true, true>(&normals, &up, &tex, &mat, &lsa, &mut gp, &mut ap);
         let close = |a: f32, b: f32, scale: f32| (a - b).abs() <= 2e-5 * scale;
         let scale = |v: &[[f32; 3]]| v.iter().flatten().fold(0.0f32, |m, x| m.max(x.abs()));
         let (sf, sg) = (scale(&fp), scale(&gp));

@@ -34,6 +34,7 @@ mod tests;
 pub mod texels;
 
 use kernel::TexelGrads;
+pub use kernel::Wanted;
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use material::MaterialTexels;
 use rayon::prelude::*;
@@ -371,6 +372,12 @@ impl RenderingLayer {
     /// Gradients of a loss with respect to every input, given ∂loss/∂output (`upstream`,
     /// `[B, 3, H, W]`).
     pub fn backward(&self, b: &Batch, upstream: &[f32]) -> Result<Gradients, RenderError> {
+        self.backward_wanted(b, upstream, Wanted::ALL)
+    }
+
+    /// [`RenderingLayer::backward`] for the gradients `want` asks for only; the others come back
+    /// as zeros.
+    pub fn backward_wanted(&self, b: &Batch, upstream: &[f32], want: Wanted) -> Result<Gradients, RenderError> {
         self.check(b)?;
         let (h, w) = b.size;
         let p = h * w;
@@ -410,7 +417,16 @@ impl RenderingLayer {
                                 })
                             })
                             .collect();
-                        kernel::backward_tile(&normals, &up, &self.tex, &mats[k], &lights[part.image], gn, &mut acc);
+                        kernel::backward_tile(
+                            &normals,
+                            &up,
+                            &self.tex,
+                            &mats[k],
+                            &lights[part.image],
+                            gn,
+                            &mut acc,
+                            want,
+                        );
                     }
                     (gn, acc)
                 })
@@ -423,16 +439,22 @@ impl RenderingLayer {
                         grads.normals[(part.image * 3 + c) * p + px] = *g;
                     }
                 }
-                for (sums, group) in gk.iter_mut().zip(&acc.kappa).chain(gg.iter_mut().zip(&acc.gamma)) {
-                    add_f64(sums, group);
+                if want.materials {
+                    for (sums, group) in gk.iter_mut().zip(&acc.kappa).chain(gg.iter_mut().zip(&acc.gamma)) {
+                        add_f64(sums, group);
+                    }
                 }
-                for (sums, group) in light_acc[part.image].iter_mut().zip(&acc.light) {
-                    add_f64(sums, group);
+                if want.env {
+                    for (sums, group) in light_acc[part.image].iter_mut().zip(&acc.light) {
+                        add_f64(sums, group);
+                    }
                 }
             }
-            let o = (part.image * b.regions + part.region) * PARAMS;
-            let gm = material::knot_gradient(&b.materials[o..o + PARAMS], &gk, &gg, &self.tex);
-            grads.materials[o..o + PARAMS].copy_from_slice(&gm);
+            if want.materials {
+                let o = (part.image * b.regions + part.region) * PARAMS;
+                let gm = material::knot_gradient(&b.materials[o..o + PARAMS], &gk, &gg, &self.tex);
+                grads.materials[o..o + PARAMS].copy_from_slice(&gm);
+            }
         }
         for (i, acc) in light_acc.iter().enumerate() {
             for (c, acc) in acc.iter().enumerate() {

@@ -281,6 +281,48 @@ fn gradients_match_finite_differences_of_the_exact_renderer() {
 }
 
 #[test]
+fn a_backward_pass_for_one_input_gives_that_inputs_gradient_bit_for_bit() {
+    // Two regions, sharp and broad lobes, and the hard normals of the test below: the pass that
+    // computes one gradient must skip only work whose results it discards.
+    for sharp in [false, true] {
+        let mut s = sphere(10, 2, 4, sharp, 17);
+        let p = 100;
+        s.normals[33] = f32::NAN;
+        s.normals[2 * p + 34] = 1e-6;
+        let layer = RenderingLayer::new(4);
+        let g = upstream(&s, 3);
+        let all = layer.backward(&s.batch(), &g).unwrap();
+        for (want, name) in [
+            (Wanted::NORMALS, "normals"),
+            (Wanted::MATERIALS, "materials"),
+            (Wanted::ENV, "env"),
+        ] {
+            let one = layer.backward_wanted(&s.batch(), &g, want).unwrap();
+            let pick = |g: &Gradients, input: &str| match input {
+                "normals" => g.normals.clone(),
+                "materials" => g.materials.clone(),
+                _ => g.env.clone(),
+            };
+            for input in ["normals", "materials", "env"] {
+                let (got, full) = (pick(&one, input), pick(&all, input));
+                if input == name {
+                    assert!(
+                        full.iter().any(|v| *v != 0.0),
+                        "{input}: the full pass gives no gradient"
+                    );
+                    assert_eq!(got, full, "{input} alone differs from the full pass (sharp {sharp})");
+                } else {
+                    assert!(
+                        got.iter().all(|v| *v == 0.0),
+                        "{input} computed when only {name} was asked for"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
 fn hard_inputs_give_finite_values_and_gradients() {
     let mut s = sphere(8, 1, 4, true, 1);
     let p = 64;
