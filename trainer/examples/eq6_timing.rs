@@ -46,8 +46,8 @@ fn main() -> Result<()> {
             region_map: &hb.region_map,
             normals: &start.normals,
             env: &start.env,
-            a: 1.0,
-            b: 10.0,
+            a: cfg.a,
+            b: cfg.b,
             priors: Priors::NONE,
         };
         let t = Instant::now();
