@@ -38,8 +38,8 @@ pub const EVALUATIONS_PER_ITERATION: usize = 3;
 /// The paper sets a = 1, b = 10 "experimentally" for its own scaling of the three terms, which it
 /// does not state. In ours (sums over the object's pixels and the texels, linear radiance) b = 10
 /// holds L* at L' (the light term ends near 10⁻³ of E), and the network's L', not n', is most of
-/// O''s error; b = 0.1 was measured best on the quickstart split (docs/PERFORMANCE.md, "Eq. 6's
-/// weights"). The paper's values remain one flag away (`--eq6-b 10`).
+/// O''s error; b = 0.1 was measured best on the quickstart split (docs/PERFORMANCE.md, "Eq. 6:
+/// its weights, its order …"). The paper's values remain one flag away (`--eq6-b 10`).
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Eq6Config {
     /// Weight a of the normal prior (the paper: 1).
