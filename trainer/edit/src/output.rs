@@ -407,7 +407,7 @@ pub fn energy_plot(path: &Path, eq6: &super::Eq6Report) -> Result<()> {
             .configure_mesh()
             .x_desc(if eq6.stride > 1 {
                 format!(
-                    "L-BFGS iteration (all runs in order; hollow: on every {}th pixel, scaled)",
+                    "L-BFGS iteration (all runs in order; hollow: every k-th pixel, k = {}, scaled)",
                     eq6.stride
                 )
             } else {

@@ -711,10 +711,9 @@ pub fn coarse_to_fine(
         materials: start.materials.clone(),
         env: start.env.clone(),
     };
-    let r = alternate_scaled(&coarse, coarse_start.clone(), cfg, &ORDER, watcher, (k * k) as f64)?;
+    let r = alternate_on_subset(&coarse, coarse_start.clone(), cfg, &ORDER, watcher, k)?;
     let (e0, _) = problem.energy(&start, false)?;
     // The normals' correction at every pixel of the object, from the coarse pixels around it.
-    let on = |j: usize| region_map[j] > 0 && coarse.on(j);
     let mut normals = start.normals.clone();
     for y in 0..s {
         for x in 0..s {
@@ -731,7 +730,7 @@ pub fn coarse_to_fine(
                 for (dx, wx) in [(0, 1.0 - tx), (1, tx)] {
                     let (cy, cx) = (y0 + dy, x0 + dx);
                     let wt = wy * wx;
-                    if cy >= c || cx >= c || wt <= 0.0 || !on(cy * c + cx) {
+                    if cy >= c || cx >= c || wt <= 0.0 || !coarse.on(cy * c + cx) {
                         continue;
                     }
                     let j = cy * c + cx;
@@ -802,20 +801,20 @@ pub fn alternate(
     properties: &[Property],
     watcher: Option<&Arc<Progress>>,
 ) -> Result<Optimised> {
-    alternate_scaled(problem, start, cfg, properties, watcher, 1.0)
+    alternate_on_subset(problem, start, cfg, properties, watcher, 1)
 }
 
-/// [`alternate`] on a coarse problem: its steps and the watcher's energies are multiplied by
-/// `scale` (k²), and the steps carry the stride √scale.
-fn alternate_scaled(
+/// [`alternate`] on the problem of every `stride`-th pixel: its steps carry the stride, and they
+/// and the watcher's energies are multiplied by stride², the whole image's units.
+fn alternate_on_subset(
     problem: &Problem,
     start: Point,
     cfg: &Eq6Config,
     properties: &[Property],
     watcher: Option<&Arc<Progress>>,
-    scale: f64,
+    stride: usize,
 ) -> Result<Optimised> {
-    let stride = scale.sqrt().round() as usize;
+    let scale = (stride * stride) as f64;
     let (e0, _) = problem.energy(&start, false)?;
     if let Some(w) = watcher {
         w.energy(e0.total * scale);
@@ -947,8 +946,13 @@ mod tests {
     }
 
     fn scene(seed: u64) -> Scene {
+        sphere_scene(12, seed)
+    }
+
+    /// The layer's own rendering of a sphere of `size`² under a small sky.
+    fn sphere_scene(size: usize, seed: u64) -> Scene {
         let layer = RenderingLayer::new(4);
-        let hb = sphere_batch(1, 12, 4, seed, &layer);
+        let hb = sphere_batch(1, size, 4, seed, &layer);
         Scene {
             image: hb.input.clone(),
             region_map: hb.region_map.clone(),
@@ -957,7 +961,7 @@ mod tests {
                 materials: hb.materials.clone(),
                 env: hb.env.clone(),
             },
-            size: 12,
+            size,
             layer,
         }
     }
@@ -1034,19 +1038,7 @@ mod tests {
 
     /// A sphere of `size`² under a small sky, its material, light and normals perturbed.
     fn perturbed(size: usize, seed: u64) -> (Scene, Point) {
-        let layer = RenderingLayer::new(4);
-        let hb = sphere_batch(1, size, 4, seed, &layer);
-        let s = Scene {
-            image: hb.input.clone(),
-            region_map: hb.region_map.clone(),
-            truth: Point {
-                normals: hb.normals.clone(),
-                materials: hb.materials.clone(),
-                env: hb.env.clone(),
-            },
-            size,
-            layer,
-        };
+        let s = sphere_scene(size, seed);
         let mut start = s.truth.clone();
         for (k, v) in start.materials.iter_mut().enumerate() {
             *v = (*v + if k % 3 == 0 { 0.25 } else { -0.15 }).clamp(-0.95, 0.95);

@@ -19,61 +19,11 @@ use super::texels::{LANES, TexelTable};
 /// kernel's target features, so the AVX2 intrinsics inside it were calls, not instructions
 /// (a fifth of Eq. 6's time in `perf`).
 macro_rules! unrolled {
-    (3, |$i:ident| $e:expr) => {
-        [
-            {
-                let $i = 0;
-                $e
-            },
-            {
-                let $i = 1;
-                $e
-            },
-            {
-                let $i = 2;
-                $e
-            },
-        ]
-    };
-    (9, |$i:ident| $e:expr) => {
-        [
-            {
-                let $i = 0;
-                $e
-            },
-            {
-                let $i = 1;
-                $e
-            },
-            {
-                let $i = 2;
-                $e
-            },
-            {
-                let $i = 3;
-                $e
-            },
-            {
-                let $i = 4;
-                $e
-            },
-            {
-                let $i = 5;
-                $e
-            },
-            {
-                let $i = 6;
-                $e
-            },
-            {
-                let $i = 7;
-                $e
-            },
-            {
-                let $i = 8;
-                $e
-            },
-        ]
+    ([$($n:literal),*], |$i:ident| $e:expr) => {
+        [$({
+            let $i = $n;
+            $e
+        }),*]
     };
 }
 
@@ -110,7 +60,7 @@ fn geometry<V: F8>(n: [V; 3], tex: &TexelTable, b: usize) -> (V::M, V, V, V) {
         V::load(&tex.w[2][b..]),
     ];
     let ci = n[0].mul_add(w[0], n[1].mul_add(w[1], n[2].mul(w[2])));
-    let d: [V; 3] = unrolled!(3, |a| n[a].sub(V::load(&tex.h[a][b..])));
+    let d: [V; 3] = unrolled!([0, 1, 2], |a| n[a].sub(V::load(&tex.h[a][b..])));
     let o = d[0]
         .mul_add(d[0], d[1].mul_add(d[1], d[2].mul(d[2])))
         .mul(V::splat(0.5));
@@ -178,9 +128,9 @@ fn forward<V: F8>(
         .map(|(i, n)| (i, splat3(*n)))
         .collect();
     for b in (0..tex.padded()).step_by(LANES) {
-        let light: [V; 3] = unrolled!(3, |c| V::load(&lsa[c][b..]));
-        let kap: [V; MEMBERS] = unrolled!(9, |q| V::load(&mat.kappa[q][b..]));
-        let gam: [V; MEMBERS] = unrolled!(9, |q| V::load(&mat.gamma[q][b..]));
+        let light: [V; 3] = unrolled!([0, 1, 2], |c| V::load(&lsa[c][b..]));
+        let kap: [V; MEMBERS] = unrolled!([0, 1, 2, 3, 4, 5, 6, 7, 8], |q| V::load(&mat.kappa[q][b..]));
+        let gam: [V; MEMBERS] = unrolled!([0, 1, 2, 3, 4, 5, 6, 7, 8], |q| V::load(&mat.gamma[q][b..]));
         for &(i, n) in &pixels {
             let (front, wt, lc, _) = geometry(n, tex, b);
             if !V::any(front) {
@@ -346,11 +296,11 @@ fn backward<V: F8, const N: bool, const M: bool, const L: bool>(
         .map(|(i, (n, g))| (i, splat3(*n), *g))
         .collect();
     for b in (0..tex.padded()).step_by(LANES) {
-        let light: [V; 3] = unrolled!(3, |c| V::load(&lsa[c][b..]));
-        let kap: [V; MEMBERS] = unrolled!(9, |q| V::load(&mat.kappa[q][b..]));
-        let gam: [V; MEMBERS] = unrolled!(9, |q| V::load(&mat.gamma[q][b..]));
-        let w: [V; 3] = unrolled!(3, |a| V::load(&tex.w[a][b..]));
-        let h: [V; 3] = unrolled!(3, |a| V::load(&tex.h[a][b..]));
+        let light: [V; 3] = unrolled!([0, 1, 2], |c| V::load(&lsa[c][b..]));
+        let kap: [V; MEMBERS] = unrolled!([0, 1, 2, 3, 4, 5, 6, 7, 8], |q| V::load(&mat.kappa[q][b..]));
+        let gam: [V; MEMBERS] = unrolled!([0, 1, 2, 3, 4, 5, 6, 7, 8], |q| V::load(&mat.gamma[q][b..]));
+        let w: [V; 3] = unrolled!([0, 1, 2], |a| V::load(&tex.w[a][b..]));
+        let h: [V; 3] = unrolled!([0, 1, 2], |a| V::load(&tex.h[a][b..]));
         let mut gk = [zero; MEMBERS];
         let mut gg = [zero; MEMBERS];
         let mut gl = [zero; 3];
