@@ -423,6 +423,7 @@ mod tests {
     use super::*;
 
     /// Eq. 2 in f64, straight from the texel table: the sum the kernel's tiles must give.
+    #[allow(clippy::needless_range_loop)] // t indexes five parallel texel arrays
     fn eq2_f64(n: [f32; 3], tex: &TexelTable, mat: &MaterialTexels, lsa: &[Vec<f32>; 3]) -> [f64; 3] {
         let mut out = [0.0f64; 3];
         if !usable(n) {

@@ -520,8 +520,15 @@ mod tests {
             xs.extend([t, -t]);
             t *= 1.013;
         }
-        xs.extend([0.0, -0.0, EXPM1_TINY, -EXPM1_TINY, 0.349_999_98, -0.349_999_98]);
-        while xs.len() % 8 != 0 {
+        xs.extend([
+            0.0,
+            -0.0,
+            EXPM1_TINY,
+            -EXPM1_TINY,
+            f32::from_bits(0.35f32.to_bits() - 1),
+            -f32::from_bits(0.35f32.to_bits() - 1),
+        ]);
+        while !xs.len().is_multiple_of(8) {
             xs.push(0.0);
         }
         for chunk in xs.chunks_exact(8) {
