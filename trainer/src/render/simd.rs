@@ -8,9 +8,9 @@
 //! operation is one instruction.
 //!
 //! The transcendental functions follow `matedit_physics::fastmath` (same reductions, same
-//! polynomials, same saturation: `exp` never returns ∞, `ln(0)` is −103.3), with the polynomial
-//! steps as multiply–adds. On [`Avx2`] these are fused (one rounding), so the two implementations
-//! agree to rounding, not bit for bit; each is deterministic on its own, and the layer picks one
+//! polynomials, `ln(0)` is −103.3), with the polynomial steps as multiply–adds, and `exp` is
+//! restricted to the kernel's arguments (finite, at most 88). On [`Avx2`] these are fused (one
+//! rounding), so the two implementations agree to rounding, not bit for bit; each is deterministic on its own, and the layer picks one
 //! per CPU, so results depend neither on the thread count nor on timing.
 
 /// Eight `f32` lanes.
@@ -45,8 +45,6 @@ pub(crate) trait F8: Copy {
     fn ge(self, b: Self) -> Self::M;
     /// `self == b` (false for NaN).
     fn eq(self, b: Self) -> Self::M;
-    /// Lanes that are NaN.
-    fn nan(self) -> Self::M;
     /// Mask AND.
     fn and(a: Self::M, b: Self::M) -> Self::M;
     /// Mask OR.
@@ -129,10 +127,6 @@ impl F8 for Portable {
     #[inline(always)]
     fn eq(self, b: Self) -> [bool; 8] {
         std::array::from_fn(|l| self.0[l] == b.0[l])
-    }
-    #[inline(always)]
-    fn nan(self) -> [bool; 8] {
-        self.0.map(f32::is_nan)
     }
     #[inline(always)]
     fn and(a: [bool; 8], b: [bool; 8]) -> [bool; 8] {
@@ -248,10 +242,6 @@ mod avx2 {
             unsafe { _mm256_cmp_ps::<_CMP_EQ_OQ>(self.0, b.0) }
         }
         #[inline(always)]
-        fn nan(self) -> __m256 {
-            unsafe { _mm256_cmp_ps::<_CMP_UNORD_Q>(self.0, self.0) }
-        }
-        #[inline(always)]
         fn and(a: __m256, b: __m256) -> __m256 {
             unsafe { _mm256_and_ps(a, b) }
         }
@@ -302,32 +292,28 @@ mod avx2 {
     }
 }
 
-/// `e^x`, saturating like `fastmath::exp`: 0 below −87.3, `f32::MAX` above 88.7, NaN stays NaN.
+/// e^x for finite x ≤ 88, the kernel's arguments (γ·ln cos θ_h ≤ 0 and κ·cos^γ ≤ 20):
+/// `fastmath::exp`'s reduction and polynomial, the polynomial by Estrin's scheme (three levels of
+/// dependent multiply–adds instead of Horner's six: the kernel waits on this chain) and one power
+/// of two. Arguments below −87.3 count as −87.3 (about 1e-38, where `fastmath::exp` gives 0);
+/// larger or NaN arguments are outside its domain.
 #[inline(always)]
 pub(crate) fn exp<V: F8>(x: V) -> V {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
     const LN2_HI: f32 = 0.693_359_4;
     const LN2_LO: f32 = -2.121_944_4e-4;
-    let xc = x.max(V::splat(-87.3)).min(V::splat(88.7));
+    let xc = x.max(V::splat(-87.3));
     let k = xc.mul(V::splat(LOG2E)).add(V::splat(0.5)).floor();
     let r = k.mul_add(V::splat(-LN2_HI), xc);
     let r = k.mul_add(V::splat(-LN2_LO), r);
-    // The polynomial by Estrin's scheme: three levels of dependent multiply–adds instead of
-    // Horner's six (the kernel waits on this chain).
     let r2 = r.mul(r);
     let r4 = r2.mul(r2);
     let a = V::splat(1.666_666_5e-1).mul_add(r, V::splat(0.5));
     let b = V::splat(8.333_452e-3).mul_add(r, V::splat(4.166_579_6e-2));
     let c = V::splat(1.987_569_1e-4).mul_add(r, V::splat(1.398_199_9e-3));
     let p = c.mul_add(r4, b.mul_add(r2, a));
-    let er = p.mul_add(r2, r.add(V::splat(1.0)));
-    // 2^k in two halves so that k = 128 and k = −126 stay normal.
-    let k1 = k.mul(V::splat(0.5)).floor();
-    let k2 = k.sub(k1);
-    let y = er.mul(V::pow2i(k1)).mul(V::pow2i(k2));
-    let y = V::select(x.ge(V::splat(88.7)), V::splat(f32::MAX), y);
-    let y = V::select(x.lt(V::splat(-87.3)), V::splat(0.0), y);
-    V::select(x.nan(), x, y)
+    // k ∈ [−126, 127]: 2^k is one normal number.
+    p.mul_add(r2, r.add(V::splat(1.0))).mul(V::pow2i(k))
 }
 
 /// Natural logarithm of lanes in [0, ∞), like `fastmath::ln`: 0 and subnormals give −103.3.
@@ -402,8 +388,8 @@ pub(crate) fn expm1_tiny<V: F8>(x: V) -> V {
     p.mul_add(x2, x)
 }
 
-/// e^x − 1, accurate for small |x| (the Taylor polynomial below 0.35, e^x − 1 beyond), with the
-/// saturation of [`exp`]. A group whose lanes are all small skips the general path.
+/// e^x − 1 for finite x ≤ 88, accurate for small |x| (the Taylor polynomial
+/// below 0.35, e^x − 1 beyond). A group whose lanes are all small skips the general path.
 #[inline(always)]
 pub(crate) fn expm1<V: F8>(x: V) -> V {
     let small = expm1_taylor(x);
@@ -415,7 +401,8 @@ pub(crate) fn expm1<V: F8>(x: V) -> V {
     V::select(is_small, small, big)
 }
 
-/// e^x with the same shortcut for groups of small arguments (broad lobes, γ ≪ 1).
+/// e^x for finite x ≤ 88, with the same shortcut for groups of small arguments
+/// (broad lobes, γ ≪ 1).
 #[inline(always)]
 pub(crate) fn exp_fast<V: F8>(x: V) -> V {
     if all_small(x) {
@@ -473,7 +460,7 @@ mod tests {
 
     #[test]
     fn exp_ln_ln1m_expm1_match_std_in_both_implementations() {
-        let grid: Vec<f32> = (-8700..8870).map(|i| i as f32 * 0.01 + 0.003).collect();
+        let grid: Vec<f32> = (-8700..8796).map(|i| i as f32 * 0.01 + 0.003).collect();
         for chunk in grid.chunks_exact(8) {
             let xs = lanes(|l| chunk[l]);
             both(xs, |which, xs| {
@@ -556,20 +543,27 @@ mod tests {
     }
 
     #[test]
-    fn edges_saturate_and_stay_finite() {
-        let xs = [-1e4, -87.4, 88.8, 1e4, 0.0, f32::MIN_POSITIVE / 4.0, 1.0, 2.0];
+    fn edges_stay_finite_and_positive() {
+        let xs = [-1e4, -87.4, 88.0, -1e-30, 0.0, f32::MIN_POSITIVE / 4.0, 1.0, 2.0];
         both(xs, |which, xs| {
             let e = apply(which, xs, exp, avx!(exp));
-            assert_eq!(&e[..5], &[0.0, 0.0, f32::MAX, f32::MAX, 1.0], "{which}");
+            // Below −87.3: the smallest value exp gives there, not 0 and not a subnormal.
+            assert!(
+                e[0] > 0.0 && e[0] < 1.3e-38 && e[0].is_normal() && e[1] == e[0],
+                "{which} {e:?}"
+            );
+            assert!(((e[2] as f64) / (88.0f64).exp() - 1.0).abs() < 4e-7, "{which} {}", e[2]);
+            assert_eq!((e[3], e[4]), (1.0, 1.0), "{which}");
+            let m = apply(which, xs, expm1, avx!(expm1));
+            assert!(
+                m.iter().all(|v| v.is_finite()) && m[0] == -1.0 && m[4] == 0.0,
+                "{which} {m:?}"
+            );
             let l = apply(which, xs, ln, avx!(ln));
             assert_eq!((l[4], l[5], l[6]), (-103.3, -103.3, 0.0), "{which}");
             let m = apply(which, xs, ln_1m, avx!(ln_1m));
             assert_eq!((m[4], m[6], m[7]), (0.0, -103.3, -103.3), "{which}");
             assert!(m.iter().all(|v| v.is_finite()), "{which} {m:?}");
-        });
-        let nan = [f32::NAN; 8];
-        both(nan, |which, xs| {
-            assert!(apply(which, xs, exp, avx!(exp)).iter().all(|v| v.is_nan()), "{which}");
         });
     }
 
