@@ -4,7 +4,8 @@
 //! Loops run texel-group-outer, pixel-inner: one group's constants (directions, half vectors,
 //! L·dω and 18 lobe parameters) stay in L1 while every pixel of the tile uses them, and in the
 //! backward pass the group's gradient accumulators stay in registers instead of streaming
-//! 21 × T floats per pixel. Lane arithmetic goes through [`F8`] (AVX2 with FMA where the CPU
+//! 21 × T floats per pixel. The forward pass then runs lobe by lobe over the group's front
+//! pixels (docs/PERFORMANCE.md, "The rendering layer's forward pass: lobe by lobe"). Lane arithmetic goes through [`F8`] (AVX2 with FMA where the CPU
 //! has it, plain arrays otherwise). Groups of eight texels behind every pixel's surface, and lobes
 //! whose cos^γ is below e^−30 on a whole group, are skipped (they add less than
 //! κ·e^−30 ≤ 2e-12 of L·dω to a value or a gradient).
