@@ -5,10 +5,11 @@
 //! L·dω and 18 lobe parameters) stay in L1 while every pixel of the tile uses them, and in the
 //! backward pass the group's gradient accumulators stay in registers instead of streaming
 //! 21 × T floats per pixel. The forward pass then runs lobe by lobe over the group's front
-//! pixels (docs/PERFORMANCE.md, "The rendering layer's forward pass: lobe by lobe"). Lane arithmetic goes through [`F8`] (AVX2 with FMA where the CPU
-//! has it, plain arrays otherwise). Groups of eight texels behind every pixel's surface, and lobes
-//! whose cos^γ is below e^−30 on a whole group, are skipped (they add less than
-//! κ·e^−30 ≤ 2e-12 of L·dω to a value or a gradient).
+//! pixels (docs/PERFORMANCE.md, "The rendering layer's forward pass: lobe by lobe"). Lane
+//! arithmetic goes through [`F8`] (AVX2 with FMA where the CPU has it, plain arrays otherwise).
+//! Groups of eight texels behind every pixel's surface, and lobes whose cos^γ is below e^−30 on a
+//! whole group, are skipped (they add less than κ·e^−30 ≤ 3e-12 of L·dω to a value or a
+//! gradient; κ ≤ 29.3 at the normalised parameters' clamp of ±1).
 
 use super::material::{MEMBERS, MaterialTexels};
 #[cfg(target_arch = "x86_64")]
@@ -458,7 +459,8 @@ mod tests {
     #[test]
     fn every_lobe_path_of_the_forward_kernel_matches_eq2_in_f64() {
         use matedit_physics::brdf::dsbrdf::KNOTS;
-        let tex = TexelTable::new(12);
+        // 13 × 26 texels: padded with six inert ones.
+        let tex = TexelTable::new(13);
         let lsa: [Vec<f32>; 3] = std::array::from_fn(|c| {
             (0..tex.padded())
                 .map(|t| {
@@ -478,8 +480,9 @@ mod tests {
                 [r * a.cos(), r * a.sin(), z]
             })
             .collect();
-        // (κ, γ) per lobe k, in the normalised coordinates: κ below 0.04 (x < 0.13), between 0.04
-        // and 0.35 (x < 0.42) and above, with broad to sharp γ, and one material mixing them.
+        // (κ, γ) per lobe k, in the normalised coordinates: κ below 0.04 (x < 0.13), around
+        // 0.04–0.37 (x ≤ 0.43, so mostly the eighth-degree path) and above, with broad to sharp
+        // γ, and one material mixing them.
         let regimes: [[(f32, f32); 3]; 4] = [
             [(-0.95, -0.9), (-0.6, -0.2), (-0.5, 0.3)],
             [(0.39, -0.9), (0.35, -0.5), (0.3, 0.0)],

@@ -41,7 +41,8 @@ use rayon::prelude::*;
 pub use texels::TexelTable;
 
 /// Radiance above this counts as this (the brightest real probes here peak at 7e4): it keeps
-/// L·ρ·dω sums within `f32` even for the largest lobes (expm1(20) ≈ 4.9e8).
+/// L·ρ·dω sums within `f32` even for the largest lobes (expm1(29.3) ≈ 5e12, κ's largest at the
+/// normalised parameters' clamp).
 pub const MAX_RADIANCE: f32 = 1e6;
 
 /// Pixels per tile: one texel group's constants are reused by this many pixels.
