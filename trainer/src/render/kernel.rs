@@ -423,6 +423,18 @@ fn backward<V: F8, const N: bool, const M: bool, const L: bool>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::render::material::knot_index;
+
+    /// `count` unit normals on a spiral: azimuth `turn`·i, n_z from `z0` up by `dz`·i/`steps`.
+    fn spiral_normals(count: usize, turn: f32, z0: f32, dz: f32, steps: f32) -> Vec<[f32; 3]> {
+        (0..count)
+            .map(|i| {
+                let (a, z) = (i as f32 * turn, z0 + dz * (i as f32 / steps));
+                let r = (1.0 - z * z).sqrt();
+                [r * a.cos(), r * a.sin(), z]
+            })
+            .collect()
+    }
 
     /// Eq. 2 in f64, straight from the texel table: the sum the kernel's tiles must give.
     #[allow(clippy::needless_range_loop)] // t indexes five parallel texel arrays
@@ -473,13 +485,7 @@ mod tests {
                 })
                 .collect()
         });
-        let normals: Vec<[f32; 3]> = (0..37)
-            .map(|i| {
-                let (a, z) = (i as f32 * 0.83, 0.001 + 0.999 * (i as f32 / 36.0));
-                let r = (1.0 - z * z).sqrt();
-                [r * a.cos(), r * a.sin(), z]
-            })
-            .collect();
+        let normals = spiral_normals(37, 0.83, 0.001, 0.999, 36.0);
         // (κ, γ) per lobe k, in the normalised coordinates: κ below 0.04 (x < 0.13), around
         // 0.04–0.37 (x ≤ 0.43, so mostly the eighth-degree path) and above, with broad to sharp
         // γ, and one material mixing them.
@@ -495,8 +501,8 @@ mod tests {
                 for (k, &(kx, gx)) in lobes.iter().enumerate() {
                     for j in 0..KNOTS {
                         let wobble = 0.005 * (j as f32 - 2.5) * (c as f32 + 1.0);
-                        x[super::super::material::knot_index(c * 3 + k, false, j)] = (kx + wobble).clamp(-1.0, 1.0);
-                        x[super::super::material::knot_index(c * 3 + k, true, j)] = (gx + wobble).clamp(-1.0, 1.0);
+                        x[knot_index(c * 3 + k, false, j)] = (kx + wobble).clamp(-1.0, 1.0);
+                        x[knot_index(c * 3 + k, true, j)] = (gx + wobble).clamp(-1.0, 1.0);
                     }
                 }
             }
@@ -540,13 +546,7 @@ mod tests {
                 .map(|t| tex.sa[t] * (1.0 + ((t * 7 + c) % 13) as f32))
                 .collect()
         });
-        let normals: Vec<[f32; 3]> = (0..40)
-            .map(|i| {
-                let (a, z) = (i as f32 * 0.61, 0.02 + 0.98 * (i as f32 / 40.0));
-                let r = (1.0 - z * z).sqrt();
-                [r * a.cos(), r * a.sin(), z]
-            })
-            .collect();
+        let normals = spiral_normals(40, 0.61, 0.02, 0.98, 40.0);
         let up: Vec<[f32; 3]> = (0..40).map(|i| [1.0, -0.5, (i % 3) as f32 - 1.0]).collect();
         let mut fa = vec![[0.0; 3]; 40];
         let mut fp = vec![[0.0; 3]; 40];

@@ -309,16 +309,16 @@ pub(crate) fn exp<V: F8>(x: V) -> V {
     let r = k.mul_add(V::splat(-LN2_LO), r);
     let r2 = r.mul(r);
     let r4 = r2.mul(r2);
-    let a = V::splat(1.666_666_5e-1).mul_add(r, V::splat(0.5));
-    let b = V::splat(8.333_452e-3).mul_add(r, V::splat(4.166_579_6e-2));
-    let c = V::splat(1.987_569_1e-4).mul_add(r, V::splat(1.398_199_9e-3));
-    let p = c.mul_add(r4, b.mul_add(r2, a));
+    let p = pair(1.987_569_1e-4, 1.398_199_9e-3, r).mul_add(
+        r4,
+        pair(8.333_452e-3, 4.166_579_6e-2, r).mul_add(r2, pair(1.666_666_5e-1, 0.5, r)),
+    );
     // k ∈ [−126, 127]: 2^k is one normal number.
     let y = p.mul_add(r2, r.add(V::splat(1.0))).mul(V::pow2i(k));
     V::select(x.lt(V::splat(-87.3)), V::splat(0.0), y)
 }
 
-/// hi·m + lo: one pair of Estrin's scheme.
+/// hi·m + lo: one pair of Estrin's scheme (`exp`, `ln`, the e^x − 1 polynomials).
 #[inline(always)]
 fn pair<V: F8>(hi: f32, lo: f32, m: V) -> V {
     V::splat(hi).mul_add(m, V::splat(lo))
@@ -375,11 +375,11 @@ pub(crate) fn expm1_taylor<V: F8>(x: V) -> V {
     // Estrin's scheme, as in `exp`: the kernel's hottest chain, four levels deep instead of eight.
     let x2 = x.mul(x);
     let x4 = x2.mul(x2);
-    let a = V::splat(1.0 / 6.0).mul_add(x, V::splat(0.5));
-    let b = V::splat(1.0 / 120.0).mul_add(x, V::splat(1.0 / 24.0));
-    let c = V::splat(1.0 / 5040.0).mul_add(x, V::splat(1.0 / 720.0));
-    let high = V::splat(1.0 / 40320.0).mul_add(x2, c);
-    let p = high.mul_add(x4, b.mul_add(x2, a));
+    let high = V::splat(1.0 / 40320.0).mul_add(x2, pair(1.0 / 5040.0, 1.0 / 720.0, x));
+    let p = high.mul_add(
+        x4,
+        pair(1.0 / 120.0, 1.0 / 24.0, x).mul_add(x2, pair(1.0 / 6.0, 0.5, x)),
+    );
     p.mul_add(x2, x)
 }
 
@@ -391,7 +391,7 @@ pub(crate) const EXPM1_TINY: f32 = 0.04;
 #[inline(always)]
 pub(crate) fn expm1_tiny<V: F8>(x: V) -> V {
     let x2 = x.mul(x);
-    let p = V::splat(1.0 / 24.0).mul_add(x2, V::splat(1.0 / 6.0).mul_add(x, V::splat(0.5)));
+    let p = V::splat(1.0 / 24.0).mul_add(x2, pair(1.0 / 6.0, 0.5, x));
     p.mul_add(x2, x)
 }
 
