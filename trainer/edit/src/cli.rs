@@ -59,7 +59,7 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         #[arg(long)]
         relight: Option<String>,
         /// How the render goes back into the photo.
-        #[arg(long, value_enum, default_value_t = Composite::Render)]
+        #[arg(long, value_enum, default_value_t = Composite::default())]
         composite: Composite,
         /// Refine n', m', L' with the paper's post-optimisation (Eq. 6) first.
         #[arg(long)]
@@ -174,7 +174,7 @@ struct Finish {
     #[arg(long)]
     optimize: bool,
     /// How the render goes back into the photo.
-    #[arg(long, value_enum, default_value_t = Composite::Render)]
+    #[arg(long, value_enum, default_value_t = Composite::default())]
     composite: Composite,
     /// Output folder.
     #[arg(long)]

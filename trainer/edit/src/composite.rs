@@ -1,6 +1,7 @@
 //! The re-rendered object back in the photo, at the photo's resolution: inside the mask (blended
-//! by its soft coverage) the render, bilinearly upsampled from the network's pixels and scaled
-//! back from the training exposure; outside it the photo, untouched.
+//! by its soft coverage) the render (or the photo changed by it), bilinearly resampled from the
+//! detail square's pixels ([`crate::detail`]) and scaled back from the training exposure;
+//! outside it the photo, untouched.
 
 use super::photo::Photo;
 use super::{Composite, Prepared};
@@ -62,6 +63,12 @@ pub fn composite(
         };
         let new = match how {
             Composite::Render => r.map(|v| v * back),
+            Composite::Delta => {
+                let Some(i) = sample(i_prime, &prep.mask, n, u, v) else {
+                    continue;
+                };
+                std::array::from_fn(|ch| p.rgb[k][ch] + (r[ch] - i[ch]) * back)
+            }
             Composite::Ratio => {
                 let Some(i) = sample(i_prime, &prep.mask, n, u, v) else {
                     continue;

@@ -17,6 +17,7 @@
 
 pub mod cli;
 pub mod composite;
+pub mod detail;
 pub mod output;
 pub mod photo;
 pub mod serve;
@@ -44,9 +45,12 @@ use std::time::Instant;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Composite {
-    /// The paper's: the object's pixels are O' (upsampled from the network's resolution).
-    #[default]
+    /// The paper's: the object's pixels are O', rendered at the photo's resolution.
     Render,
+    /// The photo plus the edit's change, I + O' − I*: what the rendering layer cannot explain
+    /// (texture, decals, inter-reflections, shadows) stays as the photo has it (not in the paper).
+    #[default]
+    Delta,
     /// The photo times O'/I': the edit's change of shading and colour, with the photo's own
     /// detail kept at full resolution (not in the paper).
     Ratio,
@@ -94,6 +98,19 @@ pub struct Prepared {
 /// `labels` (optional) the region of every photo pixel (0: none).
 pub fn prepare(p: &Photo, coverage: &[f32], labels: Option<(&[u8], usize)>, size: usize) -> Result<Prepared> {
     let framing = Framing::around(coverage, p.width, p.height, size);
+    prepare_framed(p, coverage, labels, framing, None)
+}
+
+/// [`prepare`] with a given framing, and a given exposure (`None`: the one that brings the
+/// object's mean luminance to [`TRAINING_MEAN_LUMINANCE`]).
+pub fn prepare_framed(
+    p: &Photo,
+    coverage: &[f32],
+    labels: Option<(&[u8], usize)>,
+    framing: Framing,
+    exposure: Option<f64>,
+) -> Result<Prepared> {
+    let size = framing.size;
     let object = framing.area_average(p.width, p.height, |k| [if coverage[k] > 0.0 { 1.0 } else { 0.0 }]);
     let mut mask: Vec<f32> = object.iter().map(|o| if o[0] > 0.5 { 1.0 } else { 0.0 }).collect();
     if !mask.iter().any(|&m| m > 0.0) {
@@ -133,7 +150,7 @@ pub fn prepare(p: &Photo, coverage: &[f32], labels: Option<(&[u8], usize)>, size
     if on.is_empty() || mean.is_nan() || mean <= 1e-12 {
         bail!("the object is black in the photo (mean luminance {mean:.3e}): nothing to edit");
     }
-    let exposure = TRAINING_MEAN_LUMINANCE / mean;
+    let exposure = exposure.unwrap_or(TRAINING_MEAN_LUMINANCE / mean);
     let p2 = size * size;
     let mut input = vec![0.0_f32; 3 * p2];
     for &k in &on {
@@ -347,8 +364,10 @@ pub struct Understood {
     pub mask_name: String,
     /// The network input.
     pub prep: Prepared,
-    /// n*, m*, L* (the network's, or after Eq. 6).
+    /// n*, m*, L* (the network's, or after Eq. 6) at the network's resolution.
     pub point: post_optimisation::Point,
+    /// The object at the photo's resolution and n* there.
+    pub detail: detail::Detail,
     /// Eq. 6, when asked for.
     pub eq6: Option<Eq6Report>,
     /// Seconds the network took.
@@ -442,26 +461,40 @@ pub fn understand(
     let t = Instant::now();
     let mut x = network_prediction(&model.net, model.state.net.env_height, &prep)?;
     let network_seconds = t.elapsed().as_secs_f64();
+    let labels = labels.as_ref().map(|(l, n)| (l.as_slice(), *n));
+    let mut detail = detail::detail(&p, &coverage, labels, &prep, &x.normals)?;
     let eq6 = match optimize {
         None => None,
         Some(cfg) => {
             enter(w, "eq6")?;
             let t = Instant::now();
-            let prior = x.clone();
+            let fine = &detail.prep;
+            // Eq. 6 on the photo's own pixels: its image and normal terms sum over F² pixels
+            // where the weights were chosen for S², so the light prior's weight grows with them
+            // (the same balance per unit of the object's area).
+            let area = (fine.size * fine.size) as f64 / (prep.size * prep.size) as f64;
+            let prior = post_optimisation::Point {
+                normals: detail.normals.clone(),
+                materials: x.materials.clone(),
+                env: x.env.clone(),
+            };
             let problem = post_optimisation::Problem {
                 layer: &model.layer,
-                size: prep.size,
-                regions: prep.regions,
-                image: &prep.input,
-                region_map: &prep.region_map,
+                size: fine.size,
+                regions: fine.regions,
+                image: &fine.input,
+                region_map: &fine.region_map,
                 normals: &prior.normals,
                 env: &prior.env,
                 a: cfg.a,
-                b: cfg.b,
+                b: cfg.b * area,
                 priors: post_optimisation::Priors::NONE,
             };
             let r = post_optimisation::post_optimise_watched(&problem, prior.clone(), cfg, watcher)?;
-            x = r.point;
+            x.normals = detail::downsample_normals(&detail.prep, &r.point.normals, &prep, &x.normals);
+            x.materials = r.point.materials;
+            x.env = r.point.env;
+            detail.normals = r.point.normals;
             Some(Eq6Report {
                 config: cfg.clone(),
                 start: r.start,
@@ -480,6 +513,7 @@ pub fn understand(
         mask_name,
         prep,
         point: x,
+        detail,
         eq6,
         network_seconds,
     })
@@ -515,26 +549,41 @@ fn finish(
         mask_name,
         prep,
         point,
+        detail,
         eq6,
         network_seconds,
     } = u;
+    let relight_env = relight.as_ref().map(|(_, l)| l.as_slice());
+    let fine_point = post_optimisation::Point {
+        normals: detail.normals,
+        materials: point.materials.clone(),
+        env: point.env.clone(),
+    };
+    let fine = render_all(
+        &model.layer,
+        &detail.prep,
+        fine_point,
+        env_height,
+        target_params.as_deref(),
+        relight_env,
+    )?;
     let pred = render_all(
         &model.layer,
         &prep,
         point,
         env_height,
         target_params.as_deref(),
-        relight.as_ref().map(|(_, l)| l.as_slice()),
+        relight_env,
     )?;
     let t_render = t1.elapsed().as_secs_f64();
     let t_eq6 = eq6.as_ref().map_or(0.0, |e| e.seconds);
     let t2 = Instant::now();
     let mut composites = Vec::new();
-    for (name, img) in [("edited", &pred.o_prime), ("relit", &pred.relit)] {
+    for (name, img) in [("edited", &fine.o_prime), ("relit", &fine.relit)] {
         if let Some(img) = img {
             composites.push((
                 name,
-                composite::composite(&p, &coverage, &prep, img, &pred.i_prime, how),
+                composite::composite(&p, &coverage, &detail.prep, img, &fine.i_prime, how),
             ));
         }
     }

@@ -311,12 +311,16 @@ async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
             "optimize" => f.optimize = matches!(text().as_str(), "on" | "true" | "1"),
             "composite" => {
                 f.composite = match text().as_str() {
-                    "" | "render" => Composite::Render,
+                    "" | "delta" => Composite::Delta,
+                    "render" => Composite::Render,
                     "ratio" => Composite::Ratio,
                     other => {
                         return Err(error(
                             StatusCode::BAD_REQUEST,
-                            format!("composite “{}”: expected render or ratio", upload::display_name(other)),
+                            format!(
+                                "composite “{}”: expected delta, render or ratio",
+                                upload::display_name(other)
+                            ),
                         ));
                     }
                 }
