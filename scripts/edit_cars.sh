@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
 # The README's figure of real photos edited: each car photo of the evaluation assets (with the
-# alpha matte rembg wrote as its mask) edited to a diffuse, a glossy paint and a metal, and the
-# metal again with the post-optimisation (Eq. 6).
+# alpha matte rembg wrote as its mask) edited to a diffuse, a glossy paint and a metal with each
+# composite: the paper's `render`, `ratio`, and the default `delta`, and `delta` after Eq. 6.
 #   scripts/edit_cars.sh MODEL [ASSETS] [OUT]
 # MODEL: a `trainer run` output folder (e.g. out/train/quickstart) or a checkpoint folder;
 # ASSETS: the folder holding photos/rembg_cars/ (default ../shared/eval-assets, or $MATEDIT_EVAL_ASSETS);
-# OUT: default out/edit-cars. Writes OUT/car-N/MATERIAL/ (every output of `matedit edit`) and
-# OUT/cars.png and a smaller OUT/cars.jpg (rows: cars; columns: photo, the three edits, the metal
-# with Eq. 6).
+# OUT: default out/edit-cars. Writes OUT/car-N/COMPOSITE/MATERIAL/ (every output of `matedit
+# edit`) and OUT/cars.png and a smaller OUT/cars.jpg (rows: each car with each composite;
+# columns: the photo and the three edits).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 model=${1:?usage: scripts/edit_cars.sh MODEL [ASSETS] [OUT]}
@@ -20,16 +20,19 @@ rows=()
 for n in 1 2 3; do
     photo="$assets/photos/rembg_cars/car-$n.jpg"
     mask="$assets/photos/rembg_cars/car-$n.out.png"
-    row="$photo"
-    for m in $materials; do
-        "$bin" edit --model "$model" --image "$photo" --mask "$mask" --material "library:$m" --out "$out/car-$n/$m"
-        row="$row,$out/car-$n/$m/edited.png"
+    for how in render ratio delta delta+eq6; do
+        args=(--composite "${how%+eq6}")
+        [ "$how" = delta+eq6 ] && args+=(--optimize)
+        row="car-$n, $how::$photo"
+        for m in $materials; do
+            "$bin" edit --model "$model" --image "$photo" --mask "$mask" --material "library:$m" "${args[@]}" \
+                --out "$out/car-$n/$how/$m" >/dev/null
+            row="$row,$out/car-$n/$how/$m/edited.png"
+        done
+        rows+=("$row")
     done
-    "$bin" edit --model "$model" --image "$photo" --mask "$mask" --material library:gold-polished --optimize \
-        --out "$out/car-$n/gold-polished-eq6"
-    rows+=("$row,$out/car-$n/gold-polished-eq6/edited.png")
 done
 for fig in "$out/cars.png" "$out/cars.jpg"; do
     target/release/examples/edit_figure "$fig" \
-        "photo,fabric-felt-green,carpaint-red-gloss,gold-polished,gold-polished + Eq. 6" "${rows[@]}"
+        "photo,fabric-felt-green,carpaint-red-gloss,gold-polished" "${rows[@]}"
 done

@@ -1,7 +1,8 @@
 //! A labelled figure of photos and their edits: one row per photo, one column per image.
 //!
 //! `cargo run --release -p matedit-edit --example edit_figure -- OUT.png|OUT.jpg "COL1,COL2,..." ROW...`
-//! where each ROW is the comma-separated image files of one row (see `scripts/edit_cars.sh`).
+//! where each ROW is the comma-separated image files of one row, optionally after a label and
+//! `::` (`"car-1 ratio::a.png,b.png"`; see `scripts/edit_cars.sh`).
 use anyhow::{Context, Result, bail};
 use matedit_contract::io::{SheetLabels, contact_sheet, write_atomically, write_labelled_contact_sheet};
 
@@ -33,7 +34,10 @@ fn main() -> Result<()> {
     }
     let columns: Vec<&str> = args[1].split(',').collect();
     let mut tiles = Vec::new();
+    let mut row_labels = Vec::new();
     for row in &args[2..] {
+        let (label, row) = row.split_once("::").unwrap_or(("", row));
+        row_labels.push(label.to_string());
         let files: Vec<&str> = row.split(',').collect();
         if files.len() != columns.len() {
             bail!("row {row}: {} images for {} columns", files.len(), columns.len());
@@ -44,7 +48,11 @@ fn main() -> Result<()> {
     }
     let labels = SheetLabels {
         columns: &columns,
-        rows: &[],
+        rows: if row_labels.iter().any(|l| !l.is_empty()) {
+            &row_labels
+        } else {
+            &[]
+        },
     };
     let out = std::path::Path::new(&args[0]);
     if out.extension().is_some_and(|e| e == "jpg" || e == "jpeg") {

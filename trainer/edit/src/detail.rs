@@ -15,9 +15,15 @@ use super::photo::{Framing, Photo};
 use anyhow::Result;
 use matedit_physics::tonemap::srgb_encode;
 
-/// The largest side of the detail square: 512² pixels keep a plain edit within its time
-/// budget on two cores; a photo whose object spans more is composited from it bilinearly.
-pub const MAX_DETAIL_SIZE: usize = 512;
+/// The most object pixels the detail square holds: the rendering layer's time grows with them,
+/// and this many keep a plain edit within two seconds on two cores (docs/PERFORMANCE.md,
+/// "Editing photos"). An object that spans more photo pixels is rendered at a coarser detail
+/// square and composited from it bilinearly; the delta and ratio composites keep the photo's
+/// own detail at every pixel.
+pub const MAX_DETAIL_OBJECT_PIXELS: usize = 40_000;
+
+/// The largest side of the detail square, whatever the object.
+pub const MAX_DETAIL_SIZE: usize = 1024;
 
 /// Spatial σ of the upsampling, in network pixels.
 const SIGMA_SPACE: f64 = 0.75;
@@ -26,15 +32,16 @@ const SIGMA_RANGE: f64 = 0.08;
 /// Coarse pixels either side of the one under a fine pixel that the upsampling reads.
 const RADIUS: i64 = 2;
 
-/// The side of the detail square for a framing: about one pixel per photo pixel, never below
-/// the network's side nor above [`MAX_DETAIL_SIZE`].
-pub fn detail_size(framing: &Framing) -> usize {
-    let side = if framing.side.is_finite() {
-        framing.side.ceil() as usize
-    } else {
-        framing.size
-    };
-    side.clamp(framing.size, MAX_DETAIL_SIZE.max(framing.size))
+/// The side of the detail square for a framing of an object of `object_pixels` photo pixels:
+/// one pixel per photo pixel, or fewer where the object would exceed `max_object_pixels`;
+/// never below the network's side nor above [`MAX_DETAIL_SIZE`].
+pub fn detail_size(framing: &Framing, object_pixels: usize, max_object_pixels: usize) -> usize {
+    if !framing.side.is_finite() || framing.side <= 0.0 {
+        return framing.size;
+    }
+    let shrink = (max_object_pixels as f64 / object_pixels.max(1) as f64).sqrt().min(1.0);
+    let side = (framing.side * shrink).ceil();
+    (side.min(1e9) as usize).clamp(framing.size, MAX_DETAIL_SIZE.max(framing.size))
 }
 
 /// The object at the photo's resolution: the photo framed at [`detail_size`] with the coarse
@@ -55,9 +62,11 @@ pub fn detail(
     labels: Option<(&[u8], usize)>,
     coarse: &Prepared,
     normals: &[f32],
+    max_object_pixels: usize,
 ) -> Result<Detail> {
+    let object = coverage.iter().filter(|&&c| c > 0.0).count();
     let framing = Framing {
-        size: detail_size(&coarse.framing),
+        size: detail_size(&coarse.framing, object, max_object_pixels),
         ..coarse.framing
     };
     let prep = super::prepare_framed(p, coverage, labels, framing, Some(coarse.exposure))?;
@@ -282,20 +291,27 @@ mod tests {
 
     #[test]
     fn the_detail_side_follows_the_photo_within_its_bounds() {
-        let f = |side: f64, size: usize| {
-            detail_size(&Framing {
-                x0: -3.0,
-                y0: 2.0,
-                side,
-                size,
-            })
+        let f = |side: f64, size: usize, object: usize| {
+            detail_size(
+                &Framing {
+                    x0: -3.0,
+                    y0: 2.0,
+                    side,
+                    size,
+                },
+                object,
+                40_000,
+            )
         };
-        assert_eq!(f(300.2, 64), 301);
-        assert_eq!(f(10.0, 64), 64, "never below the network's side");
-        assert_eq!(f(5000.0, 64), MAX_DETAIL_SIZE);
-        assert_eq!(f(5000.0, 1024), 1024, "a network larger than the cap keeps its side");
-        assert_eq!(f(f64::NAN, 64), 64);
-        assert_eq!(f(f64::INFINITY, 64), 64);
+        assert_eq!(f(300.2, 64, 30_000), 301, "one pixel per photo pixel");
+        assert_eq!(f(400.0, 64, 160_000), 200, "half the side for four times the budget");
+        assert_eq!(f(10.0, 64, 50), 64, "never below the network's side");
+        assert_eq!(f(5000.0, 64, 1), MAX_DETAIL_SIZE);
+        assert_eq!(f(5000.0, 2048, 1), 2048, "a network larger than the cap keeps its side");
+        assert_eq!(f(300.0, 64, 0), 300);
+        for bad in [f64::NAN, f64::INFINITY, -1.0, 0.0] {
+            assert_eq!(f(bad, 64, 1000), 64, "{bad}");
+        }
     }
 
     #[test]

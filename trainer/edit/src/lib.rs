@@ -462,7 +462,14 @@ pub fn understand(
     let mut x = network_prediction(&model.net, model.state.net.env_height, &prep)?;
     let network_seconds = t.elapsed().as_secs_f64();
     let labels = labels.as_ref().map(|(l, n)| (l.as_slice(), *n));
-    let mut detail = detail::detail(&p, &coverage, labels, &prep, &x.normals)?;
+    let mut detail = detail::detail(
+        &p,
+        &coverage,
+        labels,
+        &prep,
+        &x.normals,
+        detail::MAX_DETAIL_OBJECT_PIXELS,
+    )?;
     let eq6 = match optimize {
         None => None,
         Some(cfg) => {

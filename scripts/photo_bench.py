@@ -1,0 +1,719 @@
+#!/usr/bin/env python3
+"""Photo material-editing benchmark against Mitsuba 3 path-traced ground truth.
+
+`render` path-traces "photos" with Mitsuba 3 (an independent renderer): one real mesh of
+`../shared/eval-assets/meshes` per scene (RECIPES below: 3 cars first, then teapot, bunny, two
+sofas, office chair, monitor, spot; meshes no training set may contain), in an input material
+outside the project's material families (Mitsuba `roughplastic`, `principled`, measured
+`roughconductor` Cu/Al/Cr), under a real HDR environment map (the eval-assets' Poly Haven maps and
+Debian blender-data's studio lights, night maps excluded; rotated at random about +y) that is
+also the visible background. No ground plane. A perspective camera (fov 30-40 deg) frames the
+object so that its larger projected side spans 50-60 % of the frame; `path` (max_depth 4),
+multijitter sampler, box filter, Mitsuba's scalar_rgb variant. The same scene, camera, light and
+random seed are rendered again with each target material, which gives the true edited photo.
+Every random choice is seeded, so renders are deterministic, and files already present are
+kept (an interrupted render resumes). `--shapes DIR` adds one scene per OBJ of DIR (the
+project's procedural shapes). At the default 64 spp a scene (mask + 4 renders, 640x480) took
+40-60 s on 2 cores shared with another job. `score` runs `matedit edit` on each photo with each
+method and compares its `edited.png` with that truth.
+
+Targets (project spec / Mitsuba definition; every BSDF is wrapped in `twosided`):
+    green   lambert:0.1,0.5,0.1     diffuse, reflectance (0.1, 0.5, 0.1)                   exact
+    chrome  ggx:0.15:1,1,1          roughconductor, ggx, alpha 0.15, material "none" (F=1)  exact
+    gold    library:gold-polished   roughconductor, ggx, alpha 0.12, material "Au"          near
+"Exact" means the same BRDF (Mitsuba's GGX uses the separable Smith G1 as the project's does); the
+library's gold is GGX alpha 0.12 with a Schlick F0 derived from measured n, k, where Mitsuba uses
+the spectral conductor Fresnel of Au, hence "near". The truths include what a path tracer sees
+(inter-reflections, self-shadowing), whatever the editing method models.
+
+Images: 640x480 by default. Each scene has one exposure s shared by the photo and its truths:
+s = min(0.2 / median background luminance, 1 / 90th percentile of the object's max(R, G, B)) of
+the input render (Rec. 709 luminance, linear): the background's median maps to 0.2 unless that
+would clip more than 10 % of the photo's object pixels (bright objects, dark studio backgrounds).
+Truths may clip more (chrome mirrors the sky), as a photo at that exposure would.
+PNG = sRGB(clamp(s * radiance, 0, 1)), 8 bit. The `*.exr` files hold the unscaled radiance.
+`mask.png` is the object's coverage of each pixel (Mitsuba `aov` albedo of a white twosided
+diffuse object, box filter, same sample count): exactly 0 off the object, 255 inside it.
+
+Scores, per scene x target x method, on the object's pixels (mask > 127), on the 8-bit sRGB
+values, against truth_TARGET.png:
+  L2         mean over object pixels of the mean over R, G, B of the squared difference (0..255
+             scale), the paper's L2;
+  SSIM       Wang et al. 2004 per channel on the whole image (Gaussian window sigma 1.5, 11x11,
+             K1 0.01, K2 0.03, L 255: skimage structural_similarity with gaussian_weights,
+             use_sample_covariance=False, data_range=255, full=True), its map averaged over the
+             object's pixels and the channels;
+  grad corr  Pearson correlation, over the object's pixels, of the Sobel gradient magnitudes of
+             the luminance (0.299 R + 0.587 G + 0.114 B of the 8-bit values) of edit and truth;
+  beats      the edit has a lower L2 and a higher SSIM than the unchanged photo for that case
+             (a failed edit does not beat it);
+  seconds    report.json's seconds.total, median per method.
+`unchanged` scores the photo itself. Means are over the cases a method completed; failures
+are counted and reported with their stderr tail.
+
+Usage:
+    pip install mitsuba numpy scikit-image pillow; apt-get install -y blender-data  # optional maps
+    python3 scripts/photo_bench.py render --out out/photobench [--scenes 10] [--spp 64]
+    python3 scripts/photo_bench.py score --out out/photobench --matedit target/release/matedit \\
+        --model out/train/quickstart [--methods "render=--composite render" ...] [--targets green,gold]
+    python3 scripts/photo_bench.py all --out out/photobench --matedit BIN --model MODEL
+Outputs: DIR/sceneNN/{photo,mask,truth_green,truth_chrome,truth_gold}.png (+ .exr), DIR/scenes.json,
+DIR/contact.png; DIR/edits/METHOD/sceneNN-TARGET/, DIR/edits/sheet.png, DIR/results.json.
+"""
+import argparse
+import json
+import os
+import re
+import shlex
+import statistics
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageDraw
+from skimage.filters import sobel
+from skimage.metrics import structural_similarity
+
+SEED = 20240611
+MAX_DEPTH = 4
+BG_TARGET = 0.2  # median background luminance after exposure
+CLIP_PERCENTILE = 90  # at most 10 % of the photo's object pixels clip
+BLENDER_MAPS = Path("/usr/share/blender/datafiles/studiolights/world")
+EXCLUDED_MAPS = {"dikhololo_night_1k.hdr": "near black", "night.exr": "near black"}
+TILE = (160, 120)
+
+
+# ---------------------------------------------------------------------------------------------
+# Scenes
+
+
+@dataclass(frozen=True)
+class MeshEntry:
+    path: str  # relative to the assets' meshes/ folder, or absolute
+    axes: tuple  # the file's axes that become x, y (up), z, e.g. ("x", "z", "-y")
+    azimuth: tuple  # camera azimuth ranges (from +z towards +x, degrees), one picked at random
+    elevation: tuple = (8.0, 22.0)  # camera elevation range, degrees
+    face_normals: bool = False  # flat shading for low-poly meshes without usable normals
+
+
+CAR_VIEWS = ((30, 60), (120, 150))  # three-quarter views of a car lengthwise along x
+MESHES = {
+    "minicooper": MeshEntry("nikhil366-PyTorch3D/car.obj", ("y", "z", "x"), CAR_VIEWS),
+    "cybercar": MeshEntry("LENKFF-P2M/cybercar.obj", ("z", "y", "-x"), CAR_VIEWS),
+    "beetle": MeshEntry("common-3d-test-models/beetle.obj", ("z", "y", "-x"), CAR_VIEWS),
+    "teapot": MeshEntry("common-3d-test-models/teapot.obj", ("x", "y", "z"), ((10, 50), (-50, -10)), (15, 30)),
+    "bunny": MeshEntry("common-3d-test-models/stanford-bunny.obj", ("x", "y", "z"), ((-40, 40),)),
+    "sofa": MeshEntry("LENKFF-P2M/sofa.obj", ("-z", "y", "x"), ((15, 45), (-45, -15)), (12, 25)),
+    "oldsofa": MeshEntry("LENKFF-P2M/oldsofa.obj", ("x", "y", "z"), ((15, 45), (-45, -15)), (12, 25)),
+    "officechair": MeshEntry("codeyeJR-Models/chair.obj", ("x", "y", "z"), ((40, 75), (105, 140)), (15, 28)),
+    "monitor": MeshEntry("codeyeJR-Models/monitor.obj", ("z", "y", "-x"), ((140, 165), (195, 220)), (5, 15), True),
+    "spot": MeshEntry("common-3d-test-models/spot.obj", ("x", "y", "z"), ((40, 80), (-80, -40))),
+}
+# The procedural shapes (docs/CONVENTIONS.md): +y up, front towards +z, cars lengthwise along x.
+PROCEDURAL_VIEWS = {"car": CAR_VIEWS, "chair": ((20, 50), (-50, -20)), "sofa": ((15, 45), (-45, -15)),
+                    "monitor": ((15, 40), (-40, -15))}
+
+
+def rgb(v):
+    return {"type": "rgb", "value": list(v)}
+
+
+def roughplastic(colour, alpha):
+    return (f"roughplastic ggx alpha={alpha} diffuse={colour}",
+            {"type": "roughplastic", "distribution": "ggx", "alpha": alpha, "diffuse_reflectance": rgb(colour)})
+
+
+def principled(colour, metallic, roughness, specular):
+    return (f"principled base={colour} metallic={metallic} roughness={roughness} specular={specular}",
+            {"type": "principled", "base_color": rgb(colour), "metallic": metallic,
+             "roughness": roughness, "specular": specular})
+
+
+def conductor(material, alpha):
+    return (f"roughconductor ggx alpha={alpha} material={material}",
+            {"type": "roughconductor", "distribution": "ggx", "alpha": alpha, "material": material})
+
+
+# The scene recipes: mesh, input material, environment map. Cars first.
+RECIPES = [
+    ("minicooper", roughplastic((0.55, 0.04, 0.03), 0.08), "kiara_1_dawn_1k.hdr"),
+    ("cybercar", principled((0.05, 0.16, 0.45), 0.7, 0.3, 0.5), "potsdamer_platz_1k.hdr"),
+    ("beetle", roughplastic((0.75, 0.55, 0.06), 0.15), "courtyard.exr"),
+    ("teapot", conductor("Cu", 0.2), "lebombo_1k.hdr"),
+    ("bunny", principled((0.8, 0.74, 0.64), 0.0, 0.45, 0.5), "forest_slope_1k.hdr"),
+    ("sofa", roughplastic((0.12, 0.3, 0.28), 0.3), "st_fagans_interior_1k.hdr"),
+    ("oldsofa", principled((0.32, 0.1, 0.05), 0.0, 0.55, 0.4), "interior.exr"),
+    ("officechair", conductor("Al", 0.25), "empty_warehouse_01_1k.hdr"),
+    ("monitor", roughplastic((0.04, 0.04, 0.045), 0.05), "city.exr"),
+    ("spot", conductor("Cr", 0.1), "sunset.exr"),
+]
+SHAPE_MATERIALS = [roughplastic((0.1, 0.2, 0.6), 0.1), principled((0.7, 0.7, 0.72), 1.0, 0.25, 0.5),
+                   conductor("Cu", 0.15)]
+
+TARGETS = {
+    "green": {"spec": "lambert:0.1,0.5,0.1", "exact": True,
+              "mitsuba": {"type": "diffuse", "reflectance": rgb((0.1, 0.5, 0.1))}},
+    "chrome": {"spec": "ggx:0.15:1,1,1", "exact": True,
+               "mitsuba": {"type": "roughconductor", "distribution": "ggx", "alpha": 0.15, "material": "none"}},
+    "gold": {"spec": "library:gold-polished", "exact": False,
+             "mitsuba": {"type": "roughconductor", "distribution": "ggx", "alpha": 0.12, "material": "Au"}},
+}
+
+
+def available_maps(assets):
+    """Every usable map by file name: the eval-assets' maps, then blender-data's."""
+    maps = {p.name: p for p in sorted((assets / "envmaps").glob("*.hdr"))}
+    if BLENDER_MAPS.is_dir():
+        maps.update({p.name: p for p in sorted(BLENDER_MAPS.glob("*.exr"))})
+    else:
+        print(f"note: {BLENDER_MAPS} not found (apt-get install -y blender-data): "
+              "its maps are replaced by unused eval-assets maps", file=sys.stderr)
+    for name in EXCLUDED_MAPS:
+        maps.pop(name, None)
+    return maps
+
+
+def scene_plans(n, assets, shapes_dir):
+    """The first n recipes (cycled, each cycle with new random views), then one scene per OBJ of
+    shapes_dir. Every random choice comes from a generator seeded by (SEED, scene index)."""
+    maps = available_maps(assets)
+    spare = iter([m for m in maps if m not in {r[2] for r in RECIPES}] * (n // len(RECIPES) + 1))
+    plans = []
+    for i in range(n):
+        mesh_key, material, map_name = RECIPES[i % len(RECIPES)]
+        if map_name not in maps:
+            map_name = next(spare)
+        entry = MESHES[mesh_key]
+        plans.append(dict(mesh=mesh_key, mesh_path=str(assets / "meshes" / entry.path), entry=entry,
+                          material=material, map=map_name, map_path=str(maps[map_name])))
+    shape_files = sorted(Path(shapes_dir).glob("*.obj")) if shapes_dir else []
+    map_names = sorted(maps)
+    for k, path in enumerate(shape_files):
+        category = path.stem.split("_")[0]
+        entry = MeshEntry(str(path), ("x", "y", "z"), PROCEDURAL_VIEWS.get(category, ((20, 50), (-50, -20))))
+        map_name = map_names[k % len(map_names)]
+        plans.append(dict(mesh=path.stem, mesh_path=str(path), entry=entry,
+                          material=SHAPE_MATERIALS[k % len(SHAPE_MATERIALS)], map=map_name,
+                          map_path=str(maps[map_name])))
+    for i, plan in enumerate(plans):
+        rng = np.random.default_rng([SEED, i])
+        e = plan["entry"]
+        lo, hi = e.azimuth[rng.integers(len(e.azimuth))]
+        plan.update(name=f"scene{i:02d}", seed=int(rng.integers(1 << 30)),
+                    env_rotation=float(rng.uniform(0, 360)), fov=float(rng.uniform(30, 40)),
+                    azimuth=float(rng.uniform(lo, hi)), elevation=float(rng.uniform(*e.elevation)),
+                    frame_fraction=float(rng.uniform(0.5, 0.6)))
+    return plans
+
+
+# ---------------------------------------------------------------------------------------------
+# Meshes and cameras
+
+
+def parse_obj(path):
+    """Positions, triangles (fan-triangulated) and per-corner normal indices (-1: none)."""
+    verts, normals, tris, tri_normals = [], [], [], []
+    with open(path, errors="replace") as f:
+        for line in f:
+            if line.startswith("v "):
+                verts.append([float(x) for x in line.split()[1:4]])
+            elif line.startswith("vn "):  # a malformed normal becomes NaN, i.e. unusable
+                normals.append([float(x) for x in (line.split()[1:4] + ["nan"] * 3)[:3]])
+            elif line.startswith("f "):
+                corners = []
+                for tok in line.split()[1:]:
+                    parts = tok.split("/")
+                    vi = int(parts[0])
+                    ni = int(parts[2]) if len(parts) > 2 and parts[2] else 0
+                    corners.append((vi - 1 if vi > 0 else len(verts) + vi,
+                                    ni - 1 if ni > 0 else (len(normals) + ni if ni < 0 else -1)))
+                for k in range(1, len(corners) - 1):
+                    tri = (corners[0], corners[k], corners[k + 1])
+                    tris.append([c[0] for c in tri])
+                    tri_normals.append([c[1] for c in tri])
+    return (np.array(verts, np.float64), np.array(normals, np.float64).reshape(-1, 3),
+            np.array(tris, np.int64), np.array(tri_normals, np.int64))
+
+
+def axes_matrix(axes):
+    """The rotation whose rows pick the file's axes named in axes (a proper rotation)."""
+    m = np.zeros((3, 3))
+    for row, name in enumerate(axes):
+        m[row, "xyz".index(name[-1])] = -1.0 if name.startswith("-") else 1.0
+    assert np.isclose(np.linalg.det(m), 1.0), f"axes {axes} are not a proper rotation"
+    return m
+
+
+def load_mesh(path, entry):
+    """Render-ready geometry: positions turned by entry.axes to y-up, bounding box centred at the
+    origin with its largest side 2; vertex normals from the file where they are valid, else
+    area-weighted smooth normals (or flat normals when entry.face_normals)."""
+    verts, normals, tris, tri_n = parse_obj(path)
+    rot = axes_matrix(entry.axes)
+    p = verts @ rot.T
+    e1, e2 = p[tris[:, 1]] - p[tris[:, 0]], p[tris[:, 2]] - p[tris[:, 0]]
+    face_n = np.cross(e1, e2)
+    keep = np.linalg.norm(face_n, axis=1) > 1e-12 * max(1.0, np.abs(p).max()) ** 2
+    tris, tri_n, face_n = tris[keep], tri_n[keep], face_n[keep]
+    used = np.unique(tris)
+    lo, hi = p[used].min(0), p[used].max(0)
+    p = (p - (lo + hi) / 2) * (2.0 / (hi - lo).max())
+    unit_face = face_n / np.linalg.norm(face_n, axis=1, keepdims=True)
+    if entry.face_normals:
+        corner_n = np.repeat(unit_face[:, None, :], 3, axis=1)
+    else:
+        smooth = np.zeros_like(p)
+        for k in range(3):
+            np.add.at(smooth, tris[:, k], face_n)
+        smooth_len = np.linalg.norm(smooth, axis=1, keepdims=True)
+        corner_n = smooth[tris] / np.maximum(smooth_len[tris], 1e-30)
+        degenerate = (smooth_len[tris][..., 0] < 1e-30)
+        corner_n[degenerate] = np.repeat(unit_face[:, None, :], 3, axis=1)[degenerate]
+        if len(normals):
+            file_n = normals @ rot.T
+            has = tri_n >= 0
+            fn = file_n[np.where(has, tri_n, 0)]
+            length = np.linalg.norm(fn, axis=-1)
+            good = has & np.isfinite(length) & (length > 0.5)
+            corner_n[good] = fn[good] / length[good][:, None]
+    keys = np.concatenate([tris.reshape(-1, 1).astype(np.float64), corner_n.reshape(-1, 3)], axis=1)
+    uniq, inverse = np.unique(keys, axis=0, return_inverse=True)
+    return {"positions": p[uniq[:, 0].astype(np.int64)], "normals": uniq[:, 1:],
+            "faces": inverse.reshape(-1, 3), "points": p[used]}
+
+
+def frame_camera(points, plan, width, height):
+    """Origin and target of a camera at the plan's azimuth/elevation whose view centres the
+    object with its larger projected side filling plan['frame_fraction'] of the frame."""
+    az, el = np.radians(plan["azimuth"]), np.radians(plan["elevation"])
+    back = np.array([np.sin(az) * np.cos(el), np.sin(el), np.cos(az) * np.cos(el)])
+    fwd = -back
+    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    tan_x = np.tan(np.radians(plan["fov"]) / 2)
+    tan_y = tan_x * height / width
+    target, dist = np.zeros(3), 4.0
+    for _ in range(30):
+        rel = points - (target - fwd * dist)
+        depth = rel @ fwd
+        x, y = (rel @ right) / depth / tan_x, (rel @ up) / depth / tan_y
+        size = max(x.max() - x.min(), y.max() - y.min()) / 2
+        cx, cy = (x.max() + x.min()) / 2, (y.max() + y.min()) / 2
+        target = target + right * cx * tan_x * dist + up * cy * tan_y * dist
+        dist *= size / plan["frame_fraction"]
+    return target - fwd * dist, target
+
+
+# ---------------------------------------------------------------------------------------------
+# Rendering
+
+
+def mitsuba():
+    import mitsuba as mi
+
+    mi.set_variant("scalar_rgb")  # llvm_ad_rgb aborted in LLVM 15's instruction selection here
+    return mi
+
+
+def build_scene(mi, geom, bsdf, plan, camera, width, height, spp, env=True, integrator=None):
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict({"type": "twosided", "bsdf": bsdf})
+    mesh = mi.Mesh(plan["mesh"], len(geom["positions"]), len(geom["faces"]), props, has_vertex_normals=True)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = geom["positions"].astype(np.float32).ravel()
+    params["vertex_normals"] = geom["normals"].astype(np.float32).ravel()
+    params["faces"] = geom["faces"].astype(np.uint32).ravel()
+    params.update()
+    origin, target = camera
+    scene = {
+        "type": "scene",
+        "integrator": integrator or {"type": "path", "max_depth": MAX_DEPTH},
+        "sensor": {"type": "perspective", "fov": plan["fov"], "fov_axis": "x",
+                   "to_world": mi.ScalarTransform4f().look_at(origin=origin.tolist(), target=target.tolist(),
+                                                               up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"}},
+                   "sampler": {"type": "multijitter", "sample_count": spp}},
+        "object": mesh,
+    }
+    if env:
+        scene["env"] = {"type": "envmap", "filename": plan["map_path"],
+                        "to_world": mi.ScalarTransform4f().rotate([0, 1, 0], plan["env_rotation"])}
+    return mi.load_dict(scene)
+
+
+def render_radiance(mi, scene, seed):
+    return np.array(mi.render(scene, seed=seed), dtype=np.float32)[..., :3]
+
+
+def render_coverage(mi, geom, plan, camera, width, height, spp):
+    """Fraction of each pixel's samples that hit the object: the `albedo` AOV of a white diffuse."""
+    scene = build_scene(mi, geom, {"type": "diffuse", "reflectance": rgb((1, 1, 1))}, plan, camera, width, height,
+                        spp, env=False, integrator={"type": "aov", "aovs": "a:albedo"})
+    mi.render(scene, seed=plan["seed"])
+    layers = dict(scene.sensors()[0].film().bitmap().split())
+    return np.clip(np.array(layers["a"], dtype=np.float64)[..., 0], 0.0, 1.0)
+
+
+def luminance709(img):
+    return img[..., 0] * 0.2126 + img[..., 1] * 0.7152 + img[..., 2] * 0.0722
+
+
+def exposure(photo, coverage):
+    photo = photo.astype(np.float64)
+    bg = luminance709(photo)[coverage == 0]
+    obj = photo.max(axis=-1)[coverage == 1]
+    cap = 1 / max(np.percentile(obj, CLIP_PERCENTILE), 1e-8) if obj.size else np.inf
+    return float(min(BG_TARGET / max(np.median(bg), 1e-8), cap))
+
+
+def srgb8(linear):
+    x = np.clip(linear, 0.0, 1.0)
+    x = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return np.round(x * 255).astype(np.uint8)
+
+
+def write_atomic(path, writer):
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    writer(tmp)
+    os.replace(tmp, path)
+
+
+def write_png(path, array):
+    write_atomic(path, lambda p: Image.fromarray(array).save(p, format="PNG"))
+
+
+def write_exr(mi, path, array):
+    write_atomic(path, lambda p: mi.Bitmap(np.ascontiguousarray(array, dtype=np.float32)).write(str(p)))
+
+
+def render_scene(mi, plan, out, width, height, spp):
+    """Renders whatever of a scene's files is missing; returns its scenes.json record."""
+    d = out / plan["name"]
+    d.mkdir(parents=True, exist_ok=True)
+    t_scene = time.time()
+    geom = load_mesh(plan["mesh_path"], plan["entry"])
+    camera = frame_camera(geom["points"], plan, width, height)
+    timings = {}
+    if not (d / "mask.png").exists():
+        t = time.time()
+        write_png(d / "mask.png", np.round(render_coverage(mi, geom, plan, camera, width, height, spp) * 255)
+                  .astype(np.uint8))
+        timings["mask"] = time.time() - t
+    coverage = np.asarray(Image.open(d / "mask.png"), dtype=np.float64) / 255
+    jobs = [("photo", plan["material"][1])] + [(f"truth_{k}", t["mitsuba"]) for k, t in TARGETS.items()]
+    scale = None
+    for name, bsdf in jobs:
+        exr, png = d / f"{name}.exr", d / f"{name}.png"
+        if exr.exists():
+            radiance = np.array(mi.Bitmap(str(exr)), dtype=np.float32)[..., :3]
+        else:
+            t = time.time()
+            radiance = render_radiance(mi, build_scene(mi, geom, bsdf, plan, camera, width, height, spp), plan["seed"])
+            write_exr(mi, exr, radiance)
+            timings[name] = time.time() - t
+        if scale is None:
+            scale = exposure(radiance, coverage)
+        if not png.exists():
+            write_png(png, srgb8(radiance * scale))
+    done = ", ".join(f"{k} {v:.1f} s" for k, v in timings.items()) or "all renders present"
+    print(f"{plan['name']} {plan['mesh']:<12} {plan['map']:<26} {plan['material'][0]}: {done}; "
+          f"total {time.time() - t_scene:.1f} s", flush=True)
+    origin, target = camera
+    return {
+        "name": plan["name"], "mesh": plan["mesh"], "mesh_file": plan["mesh_path"],
+        "mesh_axes": list(plan["entry"].axes),
+        "map": plan["map"], "map_file": plan["map_path"], "env_rotation_deg": plan["env_rotation"],
+        "fov_deg_x": plan["fov"], "camera": {"origin": origin.tolist(), "target": target.tolist(),
+                                              "azimuth_deg": plan["azimuth"], "elevation_deg": plan["elevation"],
+                                              "frame_fraction": plan["frame_fraction"]},
+        "input_material": plan["material"][0], "input_mitsuba": plan["material"][1],
+        "exposure": scale, "seed": plan["seed"],
+        "object_pixels": int((coverage > 0.5).sum()),
+        "targets": [{"name": k, "spec": t["spec"], "mitsuba": t["mitsuba"], "exact": t["exact"]}
+                    for k, t in TARGETS.items()],
+    }
+
+
+def tile(path, size=TILE):
+    return Image.open(path).convert("RGB").resize(size, Image.LANCZOS)
+
+
+def labelled(img, text):
+    draw = ImageDraw.Draw(img)
+    draw.rectangle(draw.textbbox((3, 2), text, spacing=0), fill=(0, 0, 0))
+    draw.text((3, 2), text, fill=(255, 255, 0))
+    return img
+
+
+def grid(rows, header):
+    """A sheet of equally sized tiles under a row of column names."""
+    w, h = TILE
+    sheet = Image.new("RGB", (w * max(len(r) for r in rows), h * len(rows) + 14), (32, 32, 32))
+    draw = ImageDraw.Draw(sheet)
+    for c, name in enumerate(header):
+        draw.text((c * w + 3, 1), name, fill=(255, 255, 255))
+    for r, row in enumerate(rows):
+        for c, img in enumerate(row):
+            sheet.paste(img, (c * w, r * h + 14))
+    return sheet
+
+
+def write_contact(out, records):
+    rows = []
+    for rec in records:
+        d = out / rec["name"]
+        first = labelled(tile(d / "photo.png"), f"{rec['name']} {rec['mesh']} / {rec['map']}")
+        rows.append([first, tile(d / "mask.png")] + [tile(d / f"truth_{k}.png") for k in TARGETS])
+    write_atomic(out / "contact.png",
+                 lambda p: grid(rows, ["photo", "mask"] + [f"truth {k}" for k in TARGETS]).save(p, format="PNG"))
+
+
+def cmd_render(args):
+    mi = mitsuba()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    settings = {"width": args.width, "height": args.height, "spp": args.spp, "max_depth": MAX_DEPTH, "seed": SEED}
+    stamp = out / "render.json"
+    if stamp.exists() and json.loads(stamp.read_text()) != settings:
+        raise SystemExit(f"{out} holds renders made with {stamp.read_text().strip()}, not {settings}: "
+                         "use another --out")
+    write_atomic(stamp, lambda p: p.write_text(json.dumps(settings)))
+    plans = scene_plans(10 if args.scenes is None else args.scenes, Path(args.assets), args.shapes)
+    print(f"rendering {len(plans)} scenes at {args.width}x{args.height}, {args.spp} spp, path max_depth "
+          f"{MAX_DEPTH}, Mitsuba {mi.__version__} {mi.variant()}", flush=True)
+    t0 = time.time()
+    records = [render_scene(mi, p, out, args.width, args.height, args.spp) for p in plans]
+    write_atomic(out / "scenes.json", lambda p: p.write_text(json.dumps({**settings, "scenes": records}, indent=1)))
+    write_contact(out, records)
+    print(f"{len(records)} scenes in {time.time() - t0:.0f} s: {out / 'scenes.json'}, {out / 'contact.png'}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Scoring
+
+DEFAULT_METHODS = ["render=--composite render", "render+eq6=--composite render --optimize",
+                   "ratio=--composite ratio"]
+
+
+def rgb8(path):
+    return np.asarray(Image.open(path).convert("RGB"), dtype=np.float64)
+
+
+def grad_magnitude(img):
+    return sobel(img[..., 0] * 0.299 + img[..., 1] * 0.587 + img[..., 2] * 0.114)
+
+
+def scores(edit, truth, obj, truth_grad):
+    l2 = float(np.mean((edit - truth)[obj] ** 2))
+    _, ssim_map = structural_similarity(edit, truth, channel_axis=2, gaussian_weights=True, sigma=1.5,
+                                        use_sample_covariance=False, data_range=255, full=True)
+    g = grad_magnitude(edit)[obj]
+    t = truth_grad[obj]
+    corr = float(np.corrcoef(g, t)[0, 1]) if g.std() > 0 and t.std() > 0 else None  # undefined when flat
+    return {"l2": l2, "ssim": float(ssim_map[obj].mean()), "grad_corr": corr}
+
+
+def parse_methods(items):
+    methods = {}
+    for item in items:
+        name, sep, margs = item.partition("=")
+        if not sep or not re.fullmatch(r"[A-Za-z0-9_.+-]+", name) or name == "unchanged":
+            raise SystemExit(f"--methods: expected NAME=ARGS, NAME of [A-Za-z0-9_.+-] and not 'unchanged', "
+                             f"got {item!r}")
+        methods[name] = margs.split()
+    return methods
+
+
+def run_edit(args, scene_dir, spec, out_dir, extra):
+    """Runs matedit edit; returns (edited image or None, seconds, error text)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    edited, report = out_dir / "edited.png", out_dir / "report.json"
+    if not (args.reuse and edited.exists() and report.exists()):
+        for f in (edited, report):
+            f.unlink(missing_ok=True)
+        cmd = [args.matedit, "edit", "--model", args.model, "--image", str(scene_dir / "photo.png"),
+               "--mask", str(scene_dir / "mask.png"), "--material", spec, "--out", str(out_dir)] + extra
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
+        except (OSError, subprocess.TimeoutExpired) as e:
+            return None, None, f"{shlex.join(cmd)}: {e}"
+        if proc.returncode != 0 or not edited.exists():
+            tail = (proc.stderr or proc.stdout)[-1500:]
+            return None, None, f"{shlex.join(cmd)}: exit {proc.returncode}\n{tail}"
+    try:
+        seconds = json.loads(report.read_text())["seconds"]["total"]
+    except (OSError, ValueError, KeyError, TypeError):
+        seconds = None
+    return rgb8(edited), seconds, None
+
+
+def mean_or_none(values):
+    return float(np.mean(values)) if values else None
+
+
+def summarise(cases, methods):
+    """Means of the completed cases, beats k / n over all cases, median seconds, per method."""
+    table = {}
+    for m in ["unchanged"] + list(methods):
+        mine = [c for c in cases if c["method"] == m]
+        ok = [c for c in mine if c["error"] is None]
+        secs = [c["seconds"] for c in ok if c["seconds"] is not None]
+        table[m] = {
+            "cases": len(mine), "failed": len(mine) - len(ok),
+            "l2": mean_or_none([c["l2"] for c in ok]),
+            "ssim": mean_or_none([c["ssim"] for c in ok]),
+            "grad_corr": mean_or_none([c["grad_corr"] for c in ok if c["grad_corr"] is not None]),
+            "beats_unchanged": None if m == "unchanged" else sum(bool(c.get("beats")) for c in mine),
+            "median_seconds": statistics.median(secs) if secs else None,
+        }
+    return table
+
+
+def fmt(v, spec):
+    return "—" if v is None else format(v, spec)
+
+
+def markdown(table, first_col=None):
+    head = ([first_col] if first_col else []) + ["method", "L2", "SSIM", "gradient corr.",
+                                                 "beats unchanged on L2 and SSIM (k / n)", "median s", "failed"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for key, row in table:
+        beats = "—" if row["beats_unchanged"] is None else f"{row['beats_unchanged']} / {row['cases']}"
+        cells = list(key) + [fmt(row["l2"], ".1f"), fmt(row["ssim"], ".4f"), fmt(row["grad_corr"], ".3f"), beats,
+                             fmt(row["median_seconds"], ".2f"), str(row["failed"])]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def write_sheet(out, cases, scenes, targets, methods, rows_max=12):
+    """Rows of photo | truth | each method's edit for a few scenes x targets, spread over the scenes."""
+    n_scenes = max(1, rows_max // len(targets))
+    picked = [scenes[i] for i in sorted({round(k * (len(scenes) - 1) / max(1, n_scenes - 1))
+                                         for k in range(min(n_scenes, len(scenes)))})]
+    blank = Image.new("RGB", TILE, (90, 90, 90))
+    failed = {(c["scene"], c["target"], c["method"]) for c in cases if c["error"]}
+    rows = []
+    for rec in picked:
+        d = out / rec["name"]
+        for t in targets:
+            row = [labelled(tile(d / "photo.png"), f"{rec['name']} {rec['mesh']}"),
+                   labelled(tile(d / f"truth_{t}.png"), t)]
+            for m in methods:
+                edited = out / "edits" / m / f"{rec['name']}-{t}" / "edited.png"
+                ok = (rec["name"], t, m) not in failed and edited.exists()
+                row.append(tile(edited) if ok else labelled(blank.copy(), "failed"))
+            rows.append(row)
+    write_atomic(out / "edits" / "sheet.png",
+                 lambda p: grid(rows, ["photo", "truth"] + list(methods)).save(p, format="PNG"))
+
+
+def cmd_score(args):
+    out = Path(args.out)
+    scenes = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]  # None: all
+    targets = [t for t in args.targets.split(",") if t]
+    unknown = set(targets) - set(TARGETS)
+    if unknown:
+        raise SystemExit(f"--targets: unknown {sorted(unknown)} (known: {', '.join(TARGETS)})")
+    methods = parse_methods(args.methods)
+    cases = []
+    for rec in scenes:
+        d = out / rec["name"]
+        photo = rgb8(d / "photo.png")
+        obj = rgb8(d / "mask.png")[..., 0] > 127
+        for t in targets:
+            truth = rgb8(d / f"truth_{t}.png")
+            truth_grad = grad_magnitude(truth)
+            base = scores(photo, truth, obj, truth_grad)
+            cases.append({"scene": rec["name"], "mesh": rec["mesh"], "target": t, "method": "unchanged",
+                          "error": None, "seconds": None, **base})
+            for m, extra in methods.items():
+                edited, secs, err = run_edit(args, d, TARGETS[t]["spec"], out / "edits" / m / f"{rec['name']}-{t}",
+                                             extra)
+                if err is None and edited.shape != photo.shape:
+                    err = (f"edited.png is {edited.shape[1]}x{edited.shape[0]}, "
+                           f"the photo {photo.shape[1]}x{photo.shape[0]}")
+                case = {"scene": rec["name"], "mesh": rec["mesh"], "target": t, "method": m, "error": err,
+                        "seconds": secs, "beats": False}
+                label = f"{rec['name']} {t:<6} {m:<12}"
+                if err is None:
+                    s = scores(edited, truth, obj, truth_grad)
+                    case.update(s, beats=s["l2"] < base["l2"] and s["ssim"] > base["ssim"])
+                    print(f"{label} L2 {s['l2']:8.1f}  SSIM {s['ssim']:.4f}  grad {fmt(s['grad_corr'], '.3f')}  "
+                          f"{fmt(secs, '.2f')} s", flush=True)
+                else:
+                    print(f"{label} FAILED: {err.strip().splitlines()[-1] if err.strip() else err}", file=sys.stderr,
+                          flush=True)
+                cases.append(case)
+    overall = summarise(cases, methods)
+    per_target = {t: summarise([c for c in cases if c["target"] == t], methods) for t in targets}
+    command = shlex.join([Path(sys.executable).name] + sys.argv)
+    print(f"\n{len(scenes)} scenes x {len(targets)} targets, scored on the object's pixels against Mitsuba truths\n")
+    print(markdown([((m,), row) for m, row in overall.items()]))
+    print()
+    print(markdown([((f"{t} ({'exact' if TARGETS[t]['exact'] else 'near'})", m), row)
+                    for t, table in per_target.items() for m, row in table.items()], first_col="target"))
+    print(f"\nCommand: `{command}`")
+    failures = [c for c in cases if c["error"]]
+    if failures:
+        print(f"\n{len(failures)} edits failed; first: {failures[0]['error'][-800:]}", file=sys.stderr)
+    results = {"command": command, "scenes": len(scenes), "targets": {t: TARGETS[t] for t in targets},
+               "methods": {m: shlex.join(a) for m, a in methods.items()}, "means": overall,
+               "per_target": per_target, "cases": cases}
+    json_path = Path(args.json) if args.json else out / "results.json"
+    write_atomic(json_path, lambda p: p.write_text(json.dumps(results, indent=1)))
+    write_sheet(out, cases, scenes, targets, list(methods))
+    print(f"per-case results: {json_path}; sheet: {out / 'edits' / 'sheet.png'}")
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def square(text):
+    n = int(text)
+    if n < 1 or round(n**0.5) ** 2 != n:
+        raise argparse.ArgumentTypeError(f"{n} is not a square (16, 36, 64, ...)")
+    return n
+
+
+def main():
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--out", required=True, help="benchmark folder (scenes, edits, results)")
+    common.add_argument("--scenes", type=int, help="render: how many scenes to make (default 10, plus --shapes); "
+                        "score: the first N scenes of scenes.json (default all)")
+    render = argparse.ArgumentParser(add_help=False)
+    render.add_argument("--assets", default=str(Path(__file__).resolve().parents[2] / "shared" / "eval-assets"),
+                        help="the eval-assets folder (meshes/, envmaps/)")
+    render.add_argument("--spp", type=square, default=64, help="samples per pixel, a square (multijitter sampler)")
+    render.add_argument("--width", type=int, default=640)
+    render.add_argument("--height", type=int, default=480)
+    render.add_argument("--shapes", help="also one scene per OBJ of this folder (`datagen assets shapes --out DIR`)")
+    score = argparse.ArgumentParser(add_help=False)
+    score.add_argument("--matedit", required=True, help="the matedit binary")
+    score.add_argument("--model", required=True, help="the model passed to matedit edit --model")
+    score.add_argument("--methods", nargs="+", default=DEFAULT_METHODS, metavar="NAME=ARGS",
+                       help="methods as NAME=extra arguments of matedit edit (split on spaces); default: "
+                       + "; ".join(DEFAULT_METHODS))
+    score.add_argument("--targets", default=",".join(TARGETS), help="comma-separated targets of " + ", ".join(TARGETS))
+    score.add_argument("--json", help="per-case results (default DIR/results.json)")
+    score.add_argument("--timeout", type=float, default=3600, help="seconds allowed per edit")
+    score.add_argument("--reuse", action="store_true", help="keep edits already present instead of rerunning them")
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("render", parents=[common, render], help="path-trace the photos, masks and truths")
+    sub.add_parser("score", parents=[common, score], help="run matedit edit on every photo and score it")
+    sub.add_parser("all", parents=[common, render, score], help="render, then score")
+    args = parser.parse_args()
+    if args.command in ("render", "all"):
+        cmd_render(args)
+    if args.command in ("score", "all"):
+        cmd_score(args)
+
+
+if __name__ == "__main__":
+    main()
