@@ -3,7 +3,7 @@
 //! detail square's pixels ([`crate::detail`]) and scaled back from the training exposure;
 //! outside it the photo, untouched.
 
-use super::photo::Photo;
+use super::photo::{Photo, luminance};
 use super::{Composite, Prepared};
 
 /// Largest factor [`Composite::Ratio`] applies (where I' is nearly black the ratio is noise).
@@ -63,6 +63,18 @@ pub fn composite(
         };
         let new = match how {
             Composite::Render => r.map(|v| v * back),
+            Composite::Shading => {
+                let Some(i) = sample(i_prime, &prep.mask, n, u, v) else {
+                    continue;
+                };
+                let (lp, li) = (luminance(p.rgb[k]), luminance(i) * back as f64);
+                let gain = if li > 1e-6 * lp.max(1e-30) && li > 0.0 {
+                    (lp / li).min(MAX_RATIO as f64) as f32
+                } else {
+                    1.0
+                };
+                r.map(|v| v * back * gain)
+            }
             Composite::Delta => {
                 let Some(i) = sample(i_prime, &prep.mask, n, u, v) else {
                     continue;
@@ -89,4 +101,142 @@ pub fn composite(
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::photo::{Encoding, Framing};
+
+    const N: usize = 8;
+
+    /// An N×N photo whose object is the inner 4×4 (soft coverage ½ on its left column), framed
+    /// one network pixel per photo pixel at exposure 2.
+    fn scene() -> (Photo, Vec<f32>, Prepared) {
+        let rgb: Vec<[f32; 3]> = (0..N * N)
+            .map(|k| [0.1 + 0.01 * k as f32, 0.3, 0.05 + 0.002 * k as f32])
+            .collect();
+        let inside = |k: usize| (2..6).contains(&(k % N)) && (2..6).contains(&(k / N));
+        let coverage: Vec<f32> = (0..N * N)
+            .map(|k| match (inside(k), k % N) {
+                (false, _) => 0.0,
+                (true, 2) => 0.5,
+                _ => 1.0,
+            })
+            .collect();
+        let mask: Vec<f32> = (0..N * N).map(|k| f32::from(u8::from(inside(k)))).collect();
+        let prep = Prepared {
+            size: N,
+            regions: 1,
+            framing: Framing {
+                x0: 0.0,
+                y0: 0.0,
+                side: N as f64,
+                size: N,
+            },
+            exposure: 2.0,
+            input: vec![0.0; 3 * N * N],
+            region_map: mask.iter().map(|&m| m as u8).collect(),
+            mask,
+        };
+        let photo = Photo {
+            width: N,
+            height: N,
+            rgb,
+            alpha: None,
+            encoding: Encoding::Srgb8,
+        };
+        (photo, coverage, prep)
+    }
+
+    /// A `[3, N, N]` image at the training exposure from a per-pixel colour in photo units.
+    fn planar(f: impl Fn(usize) -> [f32; 3]) -> Vec<f32> {
+        let mut out = vec![0.0; 3 * N * N];
+        for k in 0..N * N {
+            for (c, v) in f(k).into_iter().enumerate() {
+                out[c * N * N + k] = v * 2.0;
+            }
+        }
+        out
+    }
+
+    const ALL: [Composite; 4] = [
+        Composite::Render,
+        Composite::Shading,
+        Composite::Delta,
+        Composite::Ratio,
+    ];
+
+    #[test]
+    fn a_render_that_explains_the_photo_gives_the_photo_back_and_the_background_is_untouched() {
+        let (p, cov, prep) = scene();
+        let same = planar(|k| p.rgb[k]);
+        for how in ALL {
+            let out = composite(&p, &cov, &prep, &same, &same, how);
+            for k in 0..N * N {
+                if cov[k] == 0.0 {
+                    assert_eq!(out[k], p.rgb[k], "{how:?}: background pixel {k} changed");
+                } else {
+                    for c in 0..3 {
+                        assert!(
+                            (out[k][c] - p.rgb[k][c]).abs() < 1e-5,
+                            "{how:?} pixel {k}: {:?}",
+                            out[k]
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn shading_takes_the_colour_of_the_edit_and_the_light_and_shade_of_the_photo() {
+        let (p, cov, prep) = scene();
+        // I* explains half of the photo's luminance and none of its colour: grey.
+        let i_star = planar(|k| [0.5 * luminance(p.rgb[k]) as f32; 3]);
+        let target = planar(|_| [0.02, 0.2, 0.03]);
+        let out = composite(&p, &cov, &prep, &target, &i_star, Composite::Shading);
+        for k in (0..N * N).filter(|&k| cov[k] == 1.0) {
+            // Gain 2 on the target's colour, whatever the photo's hue.
+            for (c, t) in [0.02, 0.2, 0.03].into_iter().enumerate() {
+                assert!((out[k][c] - 2.0 * t).abs() < 1e-5, "pixel {k}: {:?}", out[k]);
+            }
+        }
+        // Soft coverage blends with the photo.
+        let k = 3 * N + 2;
+        assert!((out[k][1] - (0.5 * 0.4 + 0.5 * p.rgb[k][1])).abs() < 1e-5);
+    }
+
+    #[test]
+    fn dark_or_broken_renders_never_reach_the_output() {
+        let (p, cov, prep) = scene();
+        let black = planar(|_| [0.0; 3]);
+        let bright = planar(|_| [1.0; 3]);
+        let nan = planar(|_| [f32::NAN; 3]);
+        let inf = planar(|_| [f32::INFINITY, 0.0, 1.0]);
+        let tiny = planar(|_| [1e-30; 3]);
+        for how in ALL {
+            for (render, i_star) in [
+                (&bright, &black),
+                (&bright, &tiny),
+                (&black, &bright),
+                (&nan, &bright),
+                (&bright, &nan),
+                (&inf, &bright),
+                (&bright, &inf),
+            ] {
+                let out = composite(&p, &cov, &prep, render, i_star, how);
+                for (k, o) in out.iter().enumerate() {
+                    assert!(o.iter().all(|v| v.is_finite() && *v >= 0.0), "{how:?} pixel {k}: {o:?}");
+                    if cov[k] == 0.0 {
+                        assert_eq!(*o, p.rgb[k]);
+                    }
+                }
+            }
+        }
+        // A near-black I* under a bright photo: the gain is capped, not 10³⁰.
+        let out = composite(&p, &cov, &prep, &bright, &tiny, Composite::Shading);
+        let k = 4 * N + 4;
+        assert!(out[k][0] <= MAX_RATIO + 1e-4, "{:?}", out[k]);
+    }
 }

@@ -20,7 +20,7 @@ use matedit_physics::tonemap::srgb_encode;
 /// "Editing photos"). An object that spans more photo pixels is rendered at a coarser detail
 /// square and composited from it bilinearly; the delta and ratio composites keep the photo's
 /// own detail at every pixel.
-pub const MAX_DETAIL_OBJECT_PIXELS: usize = 40_000;
+pub const MAX_DETAIL_OBJECT_PIXELS: usize = 32_768;
 
 /// The largest side of the detail square, whatever the object.
 pub const MAX_DETAIL_SIZE: usize = 1024;

@@ -311,14 +311,15 @@ async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
             "optimize" => f.optimize = matches!(text().as_str(), "on" | "true" | "1"),
             "composite" => {
                 f.composite = match text().as_str() {
-                    "" | "delta" => Composite::Delta,
+                    "" | "shading" => Composite::Shading,
+                    "delta" => Composite::Delta,
                     "render" => Composite::Render,
                     "ratio" => Composite::Ratio,
                     other => {
                         return Err(error(
                             StatusCode::BAD_REQUEST,
                             format!(
-                                "composite “{}”: expected delta, render or ratio",
+                                "composite “{}”: expected shading, delta, render or ratio",
                                 upload::display_name(other)
                             ),
                         ));
