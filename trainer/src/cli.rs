@@ -141,13 +141,30 @@ enum Command {
         /// Skip the (slow) tensor reference.
         #[arg(long)]
         no_reference: bool,
-        /// Training configurations to time: NAME:SIZE:BATCH with NAME cpu-small or paper.
+        /// Training configurations to time on synthetic spheres: NAME:SIZE:BATCH with NAME
+        /// cpu-small or paper ("" for none). The network is warmed up by pretraining steps until
+        /// its normals shade 90 % of the object, as a trained one's do.
         #[arg(long, value_delimiter = ',', default_value = "cpu-small:64:8,cpu-small:128:8")]
         train: Vec<String>,
         /// The device of both measurements, as in a training manifest: cpu (the fused CPU layer),
         /// wgpu (`--features wgpu`: the layer's GPU kernels, the whole training step on the GPU).
         #[arg(long, default_value = "cpu")]
         device: String,
+        /// Also time a training manifest's stage on its own dataset, with its losses and
+        /// settings, as `trainer run` steps it.
+        #[arg(long)]
+        manifest: Option<PathBuf>,
+        /// The stage of --manifest (default: its last joint stage).
+        #[arg(long, requires = "manifest")]
+        stage: Option<String>,
+        /// The network for --manifest: a checkpoint folder (e.g. the stage before the timed
+        /// one); default: initialised from the run seed and warmed up until its normals face
+        /// the camera.
+        #[arg(long, requires = "manifest")]
+        checkpoint: Option<PathBuf>,
+        /// Timed steps of --manifest's stage (the median is printed).
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        steps: u64,
     },
 }
 
@@ -292,6 +309,10 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
             no_reference,
             train,
             device,
+            manifest,
+            stage,
+            checkpoint,
+            steps,
         } => {
             let opts = bench::Options {
                 batch,
@@ -299,6 +320,10 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
                 runs,
                 reference: !no_reference,
                 train,
+                manifest,
+                stage,
+                checkpoint,
+                steps: steps as usize,
             };
             print!("{}", bench::report(&device, &opts, alloc)?);
         }

@@ -236,7 +236,8 @@ pub fn device_for(name: &str) -> Result<Device> {
     }
 }
 
-fn adam(stage: &super::manifest::StageSection) -> ModuleOptimizer {
+/// The Adam optimiser of a stage (its β1, β2).
+pub fn adam(stage: &super::manifest::StageSection) -> ModuleOptimizer {
     AdamConfig::new()
         .with_beta_1(stage.beta1 as f32)
         .with_beta_2(stage.beta2 as f32)
