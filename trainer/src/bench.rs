@@ -171,8 +171,8 @@ pub struct Workload {
     pub object_pixels: f64,
     /// Fraction of those whose predicted normal faces the camera (the pixels the layer shades).
     pub shaded: f64,
-    /// Pretraining steps taken to reach it (0: loaded from a checkpoint).
-    pub warmup_steps: usize,
+    /// Pretraining steps taken to reach it (`None`: loaded from a checkpoint).
+    pub warmup_steps: Option<usize>,
 }
 
 /// Object pixels per image and the fraction of them `net`'s normals shade on `hb`.
@@ -287,7 +287,7 @@ pub fn training(
         Workload {
             object_pixels,
             shaded: shaded_fraction,
-            warmup_steps,
+            warmup_steps: Some(warmup_steps),
         },
     ))
 }
@@ -349,9 +349,12 @@ pub fn manifest_training(
                     plan.net
                 );
             }
-            (net, 0)
+            (net, None)
         }
-        None => warm_up(plan.net.init(&device), &ctx, &mut next)?,
+        None => {
+            let (net, steps) = warm_up(plan.net.init(&device), &ctx, &mut next)?;
+            (net, Some(steps))
+        }
     };
     let (object_pixels, shaded_fraction) = shaded(&net, &next()?, &device);
     let mut optim = crate::train::run::adam(st);
@@ -360,18 +363,7 @@ pub fn manifest_training(
         render_with: st.render_with,
     };
     let (seconds, peak) = time_steps(net, &mut optim, st.lr_at(0), kind, &ctx, steps, &mut next)?;
-    let w = &plan.weights;
-    let terms: Vec<&str> = [
-        ("normal", w.normal),
-        ("material", w.material),
-        ("perceptual", w.perceptual),
-        ("illumination", w.illumination),
-        ("ssim", w.ssim),
-    ]
-    .into_iter()
-    .filter(|(_, v)| *v != 0.0)
-    .map(|(n, _)| n)
-    .collect();
+    let terms = loss_terms(&plan.weights);
     let what = format!(
         "{} stage {:?} ({:?}, batch {}, {}²; loss terms on: {}; {})",
         plan.path.display(),
@@ -379,7 +371,7 @@ pub fn manifest_training(
         st.kind,
         st.batch_size,
         plan.net.input_size,
-        terms.join(", "),
+        terms,
         perceptual.description()
     );
     Ok((
@@ -398,6 +390,22 @@ pub fn manifest_training(
     ))
 }
 
+/// The loss terms a step computes (those of non-zero weight), comma-separated.
+fn loss_terms(w: &LossWeights) -> String {
+    [
+        ("normal", w.normal),
+        ("material", w.material),
+        ("perceptual", w.perceptual),
+        ("illumination", w.illumination),
+        ("ssim", w.ssim),
+    ]
+    .into_iter()
+    .filter(|(_, v)| *v != 0.0)
+    .map(|(n, _)| n)
+    .collect::<Vec<_>>()
+    .join(", ")
+}
+
 /// One line of the report for a timed training configuration.
 fn workload_line(batch: usize, m: &Measure, w: &Workload) -> String {
     let memory = if m.peak_bytes > 0 {
@@ -405,12 +413,10 @@ fn workload_line(batch: usize, m: &Measure, w: &Workload) -> String {
     } else {
         String::new()
     };
-    let how = if w.warmup_steps == 0 {
-        "from the checkpoint".to_string()
-    } else if w.warmup_steps >= MAX_WARMUP {
-        format!("still below {:.0} % after {MAX_WARMUP} warm-up steps", SHADED * 100.0)
-    } else {
-        format!("after {} warm-up steps", w.warmup_steps)
+    let how = match w.warmup_steps {
+        None => "from the checkpoint".to_string(),
+        Some(n) if n >= MAX_WARMUP => format!("still below {:.0} % after {MAX_WARMUP} warm-up steps", SHADED * 100.0),
+        Some(n) => format!("after {n} warm-up steps"),
     };
     format!(
         "training step {:32} {:7.2} images/s ({:.3} s/step{memory}); {:.0} object pixels/image, {:.1} % shaded ({how})\n",
@@ -487,6 +493,7 @@ pub fn report(device: &str, opts: &Options, alloc: Option<&PeakAlloc>) -> Result
             );
         }
     }
+    let mut spheres_said = false;
     for spec in opts.train.iter().filter(|s| !s.is_empty()) {
         let parts: Vec<&str> = spec.split(':').collect();
         let [name, s, b] = parts.as_slice() else {
@@ -500,6 +507,14 @@ pub fn report(device: &str, opts: &Options, alloc: Option<&PeakAlloc>) -> Result
         };
         let (s, b): (usize, usize) = (s.parse()?, b.parse()?);
         let (m, w) = training(&dev, name, widths, s, b, 3)?;
+        if !spheres_said {
+            let _ = writeln!(
+                out,
+                "synthetic spheres (joint steps, loss terms on: {}; fallback perceptual loss):",
+                loss_terms(&LossWeights::default())
+            );
+            spheres_said = true;
+        }
         out.push_str(&workload_line(b, &m, &w));
     }
     if let Some(path) = &opts.manifest {
