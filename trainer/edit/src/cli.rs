@@ -64,17 +64,18 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// Refine n', m', L' with the paper's post-optimisation (Eq. 6) first.
         #[arg(long)]
         optimize: bool,
-        /// Eq. 6's weight a of the normal prior.
-        #[arg(long, default_value_t = Eq6Config::default().a)]
+        /// Eq. 6's weight a of the normal prior (0–1e6).
+        #[arg(long, default_value_t = Eq6Config::default().a, value_parser = eq6_weight, allow_negative_numbers = true)]
         eq6_a: f64,
-        /// Eq. 6's weight b of the light prior (the paper's 10 is for its units: see docs/PERFORMANCE.md).
-        #[arg(long, default_value_t = Eq6Config::default().b)]
+        /// Eq. 6's weight b of the light prior (0–1e6; the paper's 10 is for its units: see
+        /// docs/PERFORMANCE.md).
+        #[arg(long, default_value_t = Eq6Config::default().b, value_parser = eq6_weight, allow_negative_numbers = true)]
         eq6_b: f64,
-        /// Rounds of (light, material, normals).
-        #[arg(long, default_value_t = Eq6Config::default().rounds)]
+        /// Rounds of (light, material, normals) (1–100).
+        #[arg(long, default_value_t = Eq6Config::default().rounds, value_parser = count::<1, 100>, allow_negative_numbers = true)]
         eq6_rounds: usize,
-        /// L-BFGS iterations per property and round.
-        #[arg(long, default_value_t = Eq6Config::default().iterations)]
+        /// L-BFGS iterations per property and round (1–1000).
+        #[arg(long, default_value_t = Eq6Config::default().iterations, value_parser = count::<1, 1000>, allow_negative_numbers = true)]
         eq6_iterations: usize,
         /// Objects of more pixels run Eq. 6's alternation on every k-th pixel (0: never).
         #[arg(long, default_value_t = Eq6Config::default().coarse_pixels)]
@@ -149,11 +150,11 @@ file system. Binds to 127.0.0.1 unless --bind says otherwise.")]
         /// Address to listen on (e.g. 0.0.0.0 for every interface).
         #[arg(long, default_value = "127.0.0.1")]
         bind: std::net::IpAddr,
-        /// Edits that may wait beyond the running one.
-        #[arg(long, default_value_t = 8)]
+        /// Edits that may wait beyond the running one (0–1024).
+        #[arg(long, default_value_t = 8, value_parser = count::<0, 1024>)]
         queue: usize,
-        /// Largest upload in MB (photo, mask and transfer photo together).
-        #[arg(long, default_value_t = 32)]
+        /// Largest upload in MB (photo, mask and transfer photo together; 1–4096).
+        #[arg(long, default_value_t = 32, value_parser = count::<1, 4096>)]
         max_upload_mb: usize,
         /// Largest photo in megapixels.
         #[arg(long, default_value_t = 25.0)]
@@ -179,6 +180,25 @@ struct Finish {
     /// Output folder.
     #[arg(long)]
     out: PathBuf,
+}
+
+/// An Eq. 6 weight: a finite number in [0, 1e6] (a negative or NaN weight makes E unbounded
+/// or meaningless).
+fn eq6_weight(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
+    if !(0.0..=1e6).contains(&v) {
+        return Err(format!("{s:?} is outside 0–1e6"));
+    }
+    Ok(v)
+}
+
+/// A whole number in [LO, HI].
+fn count<const LO: usize, const HI: usize>(s: &str) -> Result<usize, String> {
+    let v: usize = s.trim().parse().map_err(|_| format!("{s:?} is not a whole number"))?;
+    if !(LO..=HI).contains(&v) {
+        return Err(format!("{v} is outside {LO}–{HI}"));
+    }
+    Ok(v)
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -326,5 +346,65 @@ pub fn main() -> ExitCode {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(args: &[&str]) -> Result<Cli, clap::Error> {
+        let base = [
+            "matedit",
+            "edit",
+            "--model",
+            "m",
+            "--image",
+            "p.png",
+            "--material",
+            "lambert:0.5,0.5,0.5",
+            "--out",
+            "o",
+        ];
+        Cli::try_parse_from(base.iter().chain(args))
+    }
+
+    #[test]
+    fn eq6_settings_outside_their_ranges_are_refused_naming_the_option() {
+        for (option, value) in [
+            ("--eq6-a", "NaN"),
+            ("--eq6-a", "inf"),
+            ("--eq6-a", "-5"),
+            ("--eq6-b", "-1"),
+            ("--eq6-b", "1e300"),
+            ("--eq6-b", "x"),
+            ("--eq6-rounds", "0"),
+            ("--eq6-rounds", "101"),
+            ("--eq6-iterations", "0"),
+            ("--eq6-iterations", "-1"),
+        ] {
+            let e = parse(&[option, value])
+                .err()
+                .unwrap_or_else(|| panic!("{option} {value} accepted"));
+            let text = e.to_string();
+            assert!(text.contains(option), "{option} {value}: {text}");
+        }
+        for (option, value) in [
+            ("--eq6-a", "0"),
+            ("--eq6-b", "1e6"),
+            ("--eq6-rounds", "100"),
+            ("--eq6-iterations", "1"),
+        ] {
+            assert!(parse(&[option, value]).is_ok(), "{option} {value} refused");
+        }
+    }
+
+    #[test]
+    fn serve_limits_outside_their_ranges_are_refused() {
+        let serve = |args: &[&str]| Cli::try_parse_from(["matedit", "serve", "--model", "m"].iter().chain(args));
+        assert!(serve(&["--max-upload-mb", "0"]).is_err());
+        assert!(serve(&["--max-upload-mb", "4097"]).is_err());
+        assert!(serve(&["--queue", "1025"]).is_err());
+        assert!(serve(&["--queue", "0", "--max-upload-mb", "1"]).is_ok());
     }
 }
