@@ -173,12 +173,31 @@ fn decode(path: &Path) -> Result<image::DynamicImage> {
         .into_dimensions()
         .with_context(|| format!("{what}: not a readable image"))?;
     check_size(path, w as u64, h as u64)?;
+    if reader()?.format() == Some(image::ImageFormat::Jpeg) {
+        check_jpeg_complete(path)?;
+    }
     let mut r = reader()?;
     let mut limits = image::Limits::default();
     limits.max_alloc = Some(2 << 30);
     r.limits(limits);
     r.decode()
         .with_context(|| format!("{what}: cannot decode the image (truncated or corrupt?)"))
+}
+
+/// Refuses a JPEG whose last scan has no end-of-image marker after it: a file cut short, which
+/// the decoder would otherwise complete with one flat colour. Inside entropy-coded data a 0xFF
+/// byte is always followed by 0x00 or a restart marker, so 0xFF 0xD9 there is the real end (an
+/// embedded thumbnail's end comes before the main image's scans).
+fn check_jpeg_complete(path: &Path) -> Result<()> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let last = |marker: u8| bytes.windows(2).rposition(|w| w == [0xFF, marker]);
+    match (last(0xDA), last(0xD9)) {
+        (Some(scan), Some(end)) if end > scan => Ok(()),
+        _ => bail!(
+            "{}: the JPEG ends early (no end-of-image marker after its last scan): the file is truncated",
+            path.display()
+        ),
+    }
 }
 
 /// Reads a mask image of `width`×`height`: per pixel, the soft coverage in [0, 1] (alpha where

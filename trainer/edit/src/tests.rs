@@ -252,6 +252,43 @@ fn bad_inputs_name_the_file_and_write_nothing() {
     let cut = d.join("cut.png");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
     check(request(&cut, &m, "library:rubber-red"), model(), "cut.png");
+    // A JPEG cut anywhere after its header (the decoder would fill the rest with one colour),
+    // as a photo and as a mask; the whole file is accepted.
+    let jpg = d.join("whole.jpg");
+    image::open(&p).unwrap().to_rgb8().save(&jpg).unwrap();
+    let jbytes = std::fs::read(&jpg).unwrap();
+    let mask_jpg = d.join("mask.jpg");
+    image::open(&m).unwrap().to_luma8().save(&mask_jpg).unwrap();
+    let mbytes = std::fs::read(&mask_jpg).unwrap();
+    for frac in [0.3, 0.6, 0.9, 0.99] {
+        let cut_jpg = d.join(format!("cut-{frac}.jpg"));
+        std::fs::write(&cut_jpg, &jbytes[..(jbytes.len() as f64 * frac) as usize]).unwrap();
+        check(
+            request(&cut_jpg, &m, "library:rubber-red"),
+            model(),
+            &format!("cut-{frac}.jpg"),
+        );
+        let cut_mask = d.join(format!("cut-mask-{frac}.jpg"));
+        std::fs::write(&cut_mask, &mbytes[..(mbytes.len() as f64 * frac) as usize]).unwrap();
+        check(
+            request(&p, &cut_mask, "library:rubber-red"),
+            model(),
+            &format!("cut-mask-{frac}.jpg"),
+        );
+    }
+    // Only the end-of-image marker missing: the decoder alone would accept it.
+    let missing_end = d.join("no-eoi.jpg");
+    std::fs::write(&missing_end, &jbytes[..jbytes.len() - 2]).unwrap();
+    check(request(&missing_end, &m, "library:rubber-red"), model(), "truncated");
+    assert!(
+        edit(
+            model(),
+            &request(&jpg, &mask_jpg, "library:rubber-red"),
+            &d.join("jpg-out")
+        )
+        .is_ok(),
+        "a whole JPEG photo and mask are edited"
+    );
     let junk = d.join("junk.jpg");
     std::fs::write(&junk, b"not a jpeg at all").unwrap();
     check(request(&junk, &m, "library:rubber-red"), model(), "junk.jpg");
