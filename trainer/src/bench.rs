@@ -25,6 +25,7 @@ use crate::train::synthetic::sphere_batch;
 use anyhow::Result;
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::tensor::Device;
+use matedit_contract::manifest::Named;
 use std::time::Instant;
 
 /// One measured operation.
@@ -199,17 +200,36 @@ pub fn shaded(net: &Net, hb: &HostBatch, device: &Device) -> (f64, f64) {
 }
 
 /// Pretraining steps on `next()`'s batches until `net` shades [`SHADED`] of the object's pixels
-/// (at most [`MAX_WARMUP`]); returns the network and the steps taken.
-fn warm_up(mut net: Net, ctx: &StepContext, mut next: impl FnMut() -> Result<HostBatch>) -> Result<(Net, usize)> {
+/// (at most [`MAX_WARMUP`]), with an L2 loss on the normals alone (whatever the manifest
+/// weighs); returns the network, the steps taken, and the object pixels per image and fraction
+/// shaded on the last batch checked.
+fn warm_up(
+    mut net: Net,
+    ctx: &StepContext,
+    mut next: impl FnMut() -> Result<HostBatch>,
+) -> Result<(Net, usize, (f64, f64))> {
+    let normals_only = LossWeights {
+        normal: LossWeights::default().normal,
+        material: 0.0,
+        perceptual: 0.0,
+        illumination: 0.0,
+        ssim: 0.0,
+    };
+    let warm_ctx = StepContext {
+        weights: &normals_only,
+        ..*ctx
+    };
     let mut optim: ModuleOptimizer = AdamConfig::new().init();
-    for step in 0..MAX_WARMUP {
+    let mut step = 0;
+    loop {
         let hb = next()?;
-        if shaded(&net, &hb, ctx.device).1 >= SHADED {
-            return Ok((net, step));
+        let seen = shaded(&net, &hb, ctx.device);
+        if seen.1 >= SHADED || step >= MAX_WARMUP {
+            return Ok((net, step, seen));
         }
-        net = train_step(net, &mut optim, 1e-3, &hb, StepKind::PRETRAIN, ctx)?.0;
+        net = train_step(net, &mut optim, 1e-3, &hb, StepKind::PRETRAIN, &warm_ctx)?.0;
+        step += 1;
     }
-    Ok((net, MAX_WARMUP))
 }
 
 /// Times `steps` steps of `kind` (after one untimed), each on the next batch of `next()`, as
@@ -274,8 +294,7 @@ pub fn training(
         seed += 1;
         Ok(sphere_batch(batch, size, 64, seed, &layer))
     };
-    let (net, warmup_steps) = warm_up(net, &ctx, &mut spheres)?;
-    let (object_pixels, shaded_fraction) = shaded(&net, &spheres()?, &device);
+    let (net, warmup_steps, (object_pixels, shaded_fraction)) = warm_up(net, &ctx, &mut spheres)?;
     let mut optim = AdamConfig::new().init();
     let (seconds, peak) = time_steps(net, &mut optim, 1e-4, StepKind::JOINT, &ctx, steps, &mut spheres)?;
     Ok((
@@ -300,7 +319,7 @@ pub fn manifest_training(
     plan: &TrainPlan,
     stage: Option<&str>,
     checkpoint: Option<&std::path::Path>,
-    device_name: &str,
+    device_name: Option<&str>,
     steps: usize,
 ) -> Result<(String, usize, Measure, Workload)> {
     let stages = &plan.manifest.stages;
@@ -322,7 +341,8 @@ pub fn manifest_training(
             .ok_or_else(|| anyhow::anyhow!("{}: no joint stage to time; name one with --stage", plan.path.display()))?,
     };
     let st = stages[si].get_ref();
-    let device = crate::train::run::device_for(device_name)?;
+    // The manifest's device, as `trainer run` would use, unless the command line names one.
+    let device = crate::train::run::device_for(device_name.unwrap_or(plan.device.name()))?;
     device.seed(plan.manifest.run.seed);
     let layer = RenderingLayer::new(plan.net.env_height);
     let perceptual = match &plan.vgg16 {
@@ -337,7 +357,7 @@ pub fn manifest_training(
     };
     let mut data = crate::train::run::open_dataset_stream(plan, si, 0)?;
     let mut next = || data.next_batch();
-    let (net, warmup_steps) = match checkpoint {
+    let (net, warmup_steps, (object_pixels, shaded_fraction)) = match checkpoint {
         Some(dir) => {
             let (net, state) = crate::train::checkpoint::load_net(dir, &device)
                 .map_err(|e| anyhow::anyhow!("checkpoint {}: {e:#}", dir.display()))?;
@@ -349,14 +369,14 @@ pub fn manifest_training(
                     plan.net
                 );
             }
-            (net, None)
+            let seen = shaded(&net, &next()?, &device);
+            (net, None, seen)
         }
         None => {
-            let (net, steps) = warm_up(plan.net.init(&device), &ctx, &mut next)?;
-            (net, Some(steps))
+            let (net, steps, seen) = warm_up(plan.net.init(&device), &ctx, &mut next)?;
+            (net, Some(steps), seen)
         }
     };
-    let (object_pixels, shaded_fraction) = shaded(&net, &next()?, &device);
     let mut optim = crate::train::run::adam(st);
     let kind = StepKind {
         kind: st.kind,
@@ -415,7 +435,9 @@ fn workload_line(batch: usize, m: &Measure, w: &Workload) -> String {
     };
     let how = match w.warmup_steps {
         None => "from the checkpoint".to_string(),
-        Some(n) if n >= MAX_WARMUP => format!("still below {:.0} % after {MAX_WARMUP} warm-up steps", SHADED * 100.0),
+        Some(n) if n >= MAX_WARMUP && w.shaded < SHADED => {
+            format!("still below {:.0} % after {MAX_WARMUP} warm-up steps", SHADED * 100.0)
+        }
         Some(n) => format!("after {n} warm-up steps"),
     };
     format!(
@@ -450,12 +472,14 @@ pub struct Options {
     pub steps: usize,
 }
 
-/// `trainer bench`'s report on device `device` (a training manifest's device name): the
+/// `trainer bench`'s report on device `device` (a training manifest's device name; `None`: the
+/// CPU, and for `--manifest` the manifest's own device): the
 /// rendering layer (the fused CPU layer against the tensor reference on the CPU device, the GPU
 /// kernels on a GPU device), then training images/s per configuration. `alloc` measures peak
 /// host memory where the binary installed it.
-pub fn report(device: &str, opts: &Options, alloc: Option<&PeakAlloc>) -> Result<String> {
+pub fn report(device_arg: Option<&str>, opts: &Options, alloc: Option<&PeakAlloc>) -> Result<String> {
     use std::fmt::Write;
+    let device = device_arg.unwrap_or("cpu");
     let dev = crate::train::run::device_for(device)?;
     let mut out = String::new();
     let _ = writeln!(
@@ -523,7 +547,7 @@ pub fn report(device: &str, opts: &Options, alloc: Option<&PeakAlloc>) -> Result
             &plan,
             opts.stage.as_deref(),
             opts.checkpoint.as_deref(),
-            device,
+            device_arg,
             opts.steps,
         )?;
         let _ = writeln!(out, "{what}:");

@@ -148,8 +148,9 @@ enum Command {
         train: Vec<String>,
         /// The device of both measurements, as in a training manifest: cpu (the fused CPU layer),
         /// wgpu (`--features wgpu`: the layer's GPU kernels, the whole training step on the GPU).
-        #[arg(long, default_value = "cpu")]
-        device: String,
+        /// Default: cpu, and for --manifest the manifest's device.
+        #[arg(long)]
+        device: Option<String>,
         /// Also time a training manifest's stage on its own dataset, with its losses and
         /// settings, as `trainer run` steps it.
         #[arg(long)]
@@ -325,7 +326,7 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
                 checkpoint,
                 steps: steps as usize,
             };
-            print!("{}", bench::report(&device, &opts, alloc)?);
+            print!("{}", bench::report(device.as_deref(), &opts, alloc)?);
         }
     }
     Ok(())

@@ -68,7 +68,9 @@ pub fn composite(
                     continue;
                 };
                 let (lp, li) = (luminance(p.rgb[k]), luminance(i) * back as f64);
-                let gain = if li > 1e-6 * lp.max(1e-30) && li > 0.0 {
+                // I* black (a back-facing normal renders nothing): O' is black there too, and
+                // the photo's light cannot be carried; otherwise the ratio, capped.
+                let gain = if li > 0.0 {
                     (lp / li).min(MAX_RATIO as f64) as f32
                 } else {
                     1.0

@@ -17,9 +17,9 @@ use matedit_physics::tonemap::srgb_encode;
 
 /// The most object pixels the detail square holds: the rendering layer's time grows with them,
 /// and this many keep a plain edit within two seconds on two cores (docs/PERFORMANCE.md,
-/// "Editing photos"). An object that spans more photo pixels is rendered at a coarser detail
-/// square and composited from it bilinearly; the delta and ratio composites keep the photo's
-/// own detail at every pixel.
+/// "Editing photos at their own resolution"). An object that spans more photo pixels is
+/// rendered at a coarser detail square and composited from it bilinearly; the shading, delta
+/// and ratio composites keep the photo's own detail at every pixel.
 pub const MAX_DETAIL_OBJECT_PIXELS: usize = 32_768;
 
 /// The largest side of the detail square, whatever the object.
@@ -96,6 +96,14 @@ pub fn upsample_normals(coarse: &Prepared, normals: &[f32], fine: &Prepared) -> 
             n.iter().all(|v| v.is_finite()) && n.iter().any(|&v| v != 0.0)
         }
     };
+    // Without a single usable coarse normal every pixel faces the camera (and the nearest-pixel
+    // search, which would scan the whole square for every fine pixel, is never run).
+    if !(0..hw).any(usable) {
+        for k in (0..fw).filter(|&k| fine.mask[k] > 0.0) {
+            out[2 * fw + k] = 1.0;
+        }
+        return out;
+    }
     let coarse_guide: Vec<[f64; 3]> = (0..hw).map(|k| guide(&coarse.input, k, hw)).collect();
     let scale = s as f64 / f as f64;
     let inv_space = 1.0 / (2.0 * SIGMA_SPACE * SIGMA_SPACE);
@@ -164,7 +172,7 @@ pub fn upsample_normals(coarse: &Prepared, normals: &[f32], fine: &Prepared) -> 
 }
 
 /// The usable coarse pixel nearest to `(u, v)` (coarse pixel units), searched in growing
-/// square rings.
+/// square rings (the caller checked that one exists).
 fn nearest(s: usize, (u, v): (f64, f64), usable: &impl Fn(usize) -> bool) -> Option<usize> {
     let (cx, cy) = (u.floor() as i64, v.floor() as i64);
     let mut best: Option<(f64, usize)> = None;

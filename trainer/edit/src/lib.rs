@@ -279,8 +279,12 @@ pub fn render_all(
 /// What Eq. 6 did, for `report.json` and `energy.png`.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Eq6Report {
-    /// Weights and lengths.
+    /// Weights and lengths as given.
     pub config: post_optimisation::Eq6Config,
+    /// The light prior's weight the energies below were computed with: b × the ratio of the
+    /// detail square's pixels to the network's (the balance b was tuned for at the network's
+    /// resolution).
+    pub light_weight: f64,
     /// E at the network's prediction.
     pub start: post_optimisation::Energy,
     /// E at the end.
@@ -508,6 +512,7 @@ pub fn understand(
             detail.normals = r.point.normals;
             Some(Eq6Report {
                 config: cfg.clone(),
+                light_weight: cfg.b * area,
                 start: r.start,
                 end: r.end,
                 steps: r.steps,
