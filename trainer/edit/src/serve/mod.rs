@@ -150,16 +150,35 @@ impl Server {
     }
 }
 
-/// Loads the model, binds, and serves in the background of the current tokio runtime.
+/// Binds, loads the model, and serves in the background of the current tokio runtime. A start
+/// that fails (port in use, bad model) leaves no temporary work folder behind.
 pub async fn start(cfg: ServeConfig) -> Result<Server> {
+    start_in(cfg, &std::env::temp_dir()).await
+}
+
+/// [`start`] with temporary work folders made in `temp`.
+async fn start_in(cfg: ServeConfig, temp: &std::path::Path) -> Result<Server> {
     let (work, remove_work) = match &cfg.work {
         Some(w) => (w.clone(), false),
         None => (
-            std::env::temp_dir().join(format!("matedit-serve-{}-{}", std::process::id(), nanos())),
+            temp.join(format!("matedit-serve-{}-{}", std::process::id(), nanos())),
             true,
         ),
     };
     std::fs::create_dir_all(&work).with_context(|| format!("cannot create the work folder {}", work.display()))?;
+    let started = serve_from(cfg, work.clone(), remove_work).await;
+    if started.is_err() && remove_work {
+        let _ = std::fs::remove_dir_all(&work);
+    }
+    started
+}
+
+/// [`start`] once the work folder exists.
+async fn serve_from(cfg: ServeConfig, work: PathBuf, remove_work: bool) -> Result<Server> {
+    // Bound first: a port in use is refused before the model is loaded and a worker started.
+    let listener = tokio::net::TcpListener::bind((cfg.bind, cfg.port))
+        .await
+        .with_context(|| format!("cannot listen on {}:{}", cfg.bind, cfg.port))?;
     let queue = Arc::new(Queue::new(cfg.queue, cfg.keep));
     // The network stays on the worker thread that loaded it.
     let (tx, rx) = std::sync::mpsc::channel::<Result<Value>>();
@@ -203,9 +222,6 @@ pub async fn start(cfg: ServeConfig) -> Result<Server> {
         secret: *blake3::hash(format!("{}:{}:{:?}", std::process::id(), nanos(), work).as_bytes()).as_bytes(),
     });
     let router = router(app, cfg.max_upload_bytes);
-    let listener = tokio::net::TcpListener::bind((cfg.bind, cfg.port))
-        .await
-        .with_context(|| format!("cannot listen on {}:{}", cfg.bind, cfg.port))?;
     let addr = listener.local_addr()?;
     let (stx, srx) = tokio::sync::oneshot::channel::<()>();
     let task = tokio::spawn(async move {

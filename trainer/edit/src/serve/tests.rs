@@ -600,3 +600,26 @@ fn crc32(bytes: &[u8]) -> u32 {
     }
     !c
 }
+
+#[test]
+fn a_failed_start_leaves_no_work_folder_and_a_port_in_use_is_refused_first() {
+    let rt = runtime();
+    let temp = dir("failed-start");
+    let empty = |what: &str| {
+        let left: Vec<_> = std::fs::read_dir(&temp).unwrap().flatten().map(|e| e.path()).collect();
+        assert!(left.is_empty(), "{what}: left {left:?}");
+    };
+    // A model folder that is no checkpoint.
+    let mut bad = config(1);
+    bad.model = temp.join("no-such-model");
+    let e = rt.block_on(start_in(bad, &temp)).err().expect("a bad model starts");
+    assert!(format!("{e:#}").contains("no-such-model"), "{e:#}");
+    empty("bad model");
+    // A port already in use: refused before the model loads, nothing left.
+    let held = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let mut busy = config(1);
+    busy.port = held.local_addr().unwrap().port();
+    let e = rt.block_on(start_in(busy, &temp)).err().expect("a busy port starts");
+    assert!(format!("{e:#}").contains("cannot listen"), "{e:#}");
+    empty("port in use");
+}
