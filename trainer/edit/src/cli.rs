@@ -150,8 +150,9 @@ file system. Binds to 127.0.0.1 unless --bind says otherwise.")]
         /// Address to listen on (e.g. 0.0.0.0 for every interface).
         #[arg(long, default_value = "127.0.0.1")]
         bind: std::net::IpAddr,
-        /// Edits that may wait beyond the running one (0–1024).
-        #[arg(long, default_value_t = 8, value_parser = count::<0, 1024>)]
+        /// Edits that may wait beyond the running one (1–1024: an edit waits in the queue
+        /// until the worker takes it).
+        #[arg(long, default_value_t = 8, value_parser = count::<1, 1024>)]
         queue: usize,
         /// Largest upload in MB (photo, mask and transfer photo together; 1–4096).
         #[arg(long, default_value_t = 32, value_parser = count::<1, 4096>)]
@@ -405,6 +406,7 @@ mod tests {
         assert!(serve(&["--max-upload-mb", "0"]).is_err());
         assert!(serve(&["--max-upload-mb", "4097"]).is_err());
         assert!(serve(&["--queue", "1025"]).is_err());
-        assert!(serve(&["--queue", "0", "--max-upload-mb", "1"]).is_ok());
+        assert!(serve(&["--queue", "0"]).is_err());
+        assert!(serve(&["--queue", "1", "--max-upload-mb", "1"]).is_ok());
     }
 }

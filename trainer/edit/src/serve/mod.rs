@@ -207,7 +207,7 @@ async fn serve_from(cfg: ServeConfig, work: PathBuf, remove_work: bool) -> Resul
         .context("the edit worker stopped")??;
     info["max_upload_mb"] = json!(cfg.max_upload_bytes as f64 / (1 << 20) as f64);
     info["max_megapixels"] = json!(cfg.max_pixels as f64 / 1e6);
-    info["queue"] = json!(cfg.queue);
+    info["queue"] = json!(queue.capacity());
     info["eq6"] = json!(cfg.eq6);
     let app = Arc::new(App {
         queue: queue.clone(),
