@@ -556,23 +556,17 @@ fn bench_prints_both_layers_and_refuses_impossible_configurations() {
     // A training manifest's stage on its own dataset, as `trainer run` steps it: it says what
     // it timed, and the warmed-up network shades most of the object (an untrained one does not).
     let m = write_manifest("bench.toml", &training_manifest(dataset()));
-    let o = trainer()
-        .args([
-            "bench",
-            "--batch",
-            "1",
-            "--size",
-            "16",
-            "--runs",
-            "1",
-            "--no-reference",
-            "--train",
-            "",
-        ])
-        .args(["--manifest".as_ref(), m.as_os_str()])
-        .args(["--steps", "2"])
-        .output()
-        .unwrap();
+    // The smallest layer measurement, no spheres, and `extra`.
+    let bench_manifest = |extra: &[&str]| {
+        trainer()
+            .args(["bench", "--batch", "1", "--size", "16", "--runs", "1", "--no-reference"])
+            .args(["--train", ""])
+            .args(["--manifest".as_ref(), m.as_os_str()])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = bench_manifest(&["--steps", "2"]);
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     for line in [
@@ -590,23 +584,7 @@ fn bench_prints_both_layers_and_refuses_impossible_configurations() {
         .and_then(|v| v.trim().parse().ok())
         .unwrap_or_else(|| panic!("no shaded fraction in {text}"));
     assert!(shaded >= 90.0, "{text}");
-    let o = trainer()
-        .args([
-            "bench",
-            "--batch",
-            "1",
-            "--size",
-            "16",
-            "--runs",
-            "1",
-            "--no-reference",
-            "--train",
-            "",
-        ])
-        .args(["--stage", "nope"])
-        .args(["--manifest".as_ref(), m.as_os_str()])
-        .output()
-        .unwrap();
+    let o = bench_manifest(&["--stage", "nope"]);
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(
         !o.status.success() && e.contains("no stage named \"nope\"") && e.contains("pretrain, joint"),

@@ -4,8 +4,9 @@
 //!
 //! A training figure must time the work training does. The fused layer skips back-facing
 //! normals, and a freshly initialised network predicts mostly back-facing ones, so a joint step
-//! of an untrained network renders a fraction of the pixels a training run renders (measured
-//! 2026-11-26: 12.1 images/s against `trainer run`'s 3.0). Every training figure therefore comes
+//! of an untrained network renders a fraction of the pixels a training run renders (64² spheres,
+//! 2026-11-26: 17.4 images/s untrained, 1.9 warmed up; docs/PERFORMANCE.md). Every training
+//! figure therefore comes
 //! from a network whose normals face the camera as a trained one's do: warmed up by pretraining
 //! steps (L2 on the normals, as the first stage of every manifest) until [`SHADED`] of the
 //! object's pixels are shaded, or loaded from a checkpoint. The report says what was timed:
@@ -159,8 +160,8 @@ pub fn rendering_layer_on_device(
 }
 
 /// The fraction of object pixels a warmed-up network's normals must shade (face the camera)
-/// before its steps are timed; a trained quickstart model shades 97–99 % (measured on its
-/// training split).
+/// before its steps are timed; the quickstart's `light` checkpoint shades 99.9 % of its
+/// training batches' object pixels.
 pub const SHADED: f64 = 0.9;
 /// Pretraining steps the warm-up may take before it gives up (and the report says so).
 const MAX_WARMUP: usize = 400;
@@ -345,10 +346,7 @@ pub fn manifest_training(
     let device = crate::train::run::device_for(device_name.unwrap_or(plan.device.name()))?;
     device.seed(plan.manifest.run.seed);
     let layer = RenderingLayer::new(plan.net.env_height);
-    let perceptual = match &plan.vgg16 {
-        Some(w) => Perceptual::vgg16(w, plan.manifest.loss.vgg16_layers.get_ref(), &device)?,
-        None => Perceptual::Fallback,
-    };
+    let perceptual = Perceptual::of_plan(plan, &device)?;
     let ctx = StepContext {
         layer: &layer,
         weights: &plan.weights,
@@ -517,8 +515,15 @@ pub fn report(device_arg: Option<&str>, opts: &Options, alloc: Option<&PeakAlloc
             );
         }
     }
-    let mut spheres_said = false;
-    for spec in opts.train.iter().filter(|s| !s.is_empty()) {
+    let specs: Vec<&String> = opts.train.iter().filter(|s| !s.is_empty()).collect();
+    if !specs.is_empty() {
+        let _ = writeln!(
+            out,
+            "synthetic spheres (joint steps, loss terms on: {}; fallback perceptual loss):",
+            loss_terms(&LossWeights::default())
+        );
+    }
+    for spec in specs {
         let parts: Vec<&str> = spec.split(':').collect();
         let [name, s, b] = parts.as_slice() else {
             anyhow::bail!("--train {spec}: expected NAME:SIZE:BATCH");
@@ -531,14 +536,6 @@ pub fn report(device_arg: Option<&str>, opts: &Options, alloc: Option<&PeakAlloc
         };
         let (s, b): (usize, usize) = (s.parse()?, b.parse()?);
         let (m, w) = training(&dev, name, widths, s, b, 3)?;
-        if !spheres_said {
-            let _ = writeln!(
-                out,
-                "synthetic spheres (joint steps, loss terms on: {}; fallback perceptual loss):",
-                loss_terms(&LossWeights::default())
-            );
-            spheres_said = true;
-        }
         out.push_str(&workload_line(b, &m, &w));
     }
     if let Some(path) = &opts.manifest {

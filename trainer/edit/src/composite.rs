@@ -6,7 +6,8 @@
 use super::photo::{Photo, luminance};
 use super::{Composite, Prepared};
 
-/// Largest factor [`Composite::Ratio`] applies (where I' is nearly black the ratio is noise).
+/// Largest factor [`Composite::Ratio`] and [`Composite::Shading`] apply (where I* is nearly
+/// black the ratio is noise).
 const MAX_RATIO: f32 = 16.0;
 
 /// Bilinear sample of a `[3, S, S]` image at continuous pixel coordinates (centres at k + 0.5),
@@ -61,12 +62,17 @@ pub fn composite(
         let Some(r) = sample(render, &prep.mask, n, u, v) else {
             continue;
         };
+        // I*, for the composites that compare the photo with it.
+        let i = match how {
+            Composite::Render => [0.0; 3],
+            _ => match sample(i_prime, &prep.mask, n, u, v) {
+                Some(i) => i,
+                None => continue,
+            },
+        };
         let new = match how {
             Composite::Render => r.map(|v| v * back),
             Composite::Shading => {
-                let Some(i) = sample(i_prime, &prep.mask, n, u, v) else {
-                    continue;
-                };
                 let (lp, li) = (luminance(p.rgb[k]), luminance(i) * back as f64);
                 // I* black (a back-facing normal renders nothing): O' is black there too, and
                 // the photo's light cannot be carried; otherwise the ratio, capped.
@@ -77,25 +83,15 @@ pub fn composite(
                 };
                 r.map(|v| v * back * gain)
             }
-            Composite::Delta => {
-                let Some(i) = sample(i_prime, &prep.mask, n, u, v) else {
-                    continue;
+            Composite::Delta => std::array::from_fn(|ch| p.rgb[k][ch] + (r[ch] - i[ch]) * back),
+            Composite::Ratio => std::array::from_fn(|ch| {
+                let ratio = if i[ch] > 1e-6 {
+                    (r[ch] / i[ch]).min(MAX_RATIO)
+                } else {
+                    1.0
                 };
-                std::array::from_fn(|ch| p.rgb[k][ch] + (r[ch] - i[ch]) * back)
-            }
-            Composite::Ratio => {
-                let Some(i) = sample(i_prime, &prep.mask, n, u, v) else {
-                    continue;
-                };
-                std::array::from_fn(|ch| {
-                    let ratio = if i[ch] > 1e-6 {
-                        (r[ch] / i[ch]).min(MAX_RATIO)
-                    } else {
-                        1.0
-                    };
-                    p.rgb[k][ch] * ratio
-                })
-            }
+                p.rgb[k][ch] * ratio
+            }),
         };
         for ch in 0..3 {
             let v = c * new[ch] + (1.0 - c) * o[ch];

@@ -260,21 +260,18 @@ fn bad_inputs_name_the_file_and_write_nothing() {
     let mask_jpg = d.join("mask.jpg");
     image::open(&m).unwrap().to_luma8().save(&mask_jpg).unwrap();
     let mbytes = std::fs::read(&mask_jpg).unwrap();
+    // The first `frac` of `bytes` as file `name`.
+    let cut = |bytes: &[u8], name: &str, frac: f64| {
+        let f = d.join(name);
+        std::fs::write(&f, &bytes[..(bytes.len() as f64 * frac) as usize]).unwrap();
+        f
+    };
     for frac in [0.3, 0.6, 0.9, 0.99] {
-        let cut_jpg = d.join(format!("cut-{frac}.jpg"));
-        std::fs::write(&cut_jpg, &jbytes[..(jbytes.len() as f64 * frac) as usize]).unwrap();
-        check(
-            request(&cut_jpg, &m, "library:rubber-red"),
-            model(),
-            &format!("cut-{frac}.jpg"),
-        );
-        let cut_mask = d.join(format!("cut-mask-{frac}.jpg"));
-        std::fs::write(&cut_mask, &mbytes[..(mbytes.len() as f64 * frac) as usize]).unwrap();
-        check(
-            request(&p, &cut_mask, "library:rubber-red"),
-            model(),
-            &format!("cut-mask-{frac}.jpg"),
-        );
+        let (photo, mask) = (format!("cut-{frac}.jpg"), format!("cut-mask-{frac}.jpg"));
+        let cut_photo = cut(&jbytes, &photo, frac);
+        check(request(&cut_photo, &m, "library:rubber-red"), model(), &photo);
+        let cut_mask = cut(&mbytes, &mask, frac);
+        check(request(&p, &cut_mask, "library:rubber-red"), model(), &mask);
     }
     // Only the end-of-image marker missing: the decoder alone would accept it.
     let missing_end = d.join("no-eoi.jpg");

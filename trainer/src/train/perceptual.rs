@@ -50,6 +50,15 @@ impl Perceptual {
         })
     }
 
+    /// The perceptual loss a training plan asks for: VGG16 where `[loss].vgg16` names weights,
+    /// the fallback otherwise.
+    pub fn of_plan(plan: &super::manifest::TrainPlan, device: &Device) -> Result<Self> {
+        match &plan.vgg16 {
+            Some(w) => Self::vgg16(w, plan.manifest.loss.vgg16_layers.get_ref(), device),
+            None => Ok(Self::Fallback),
+        }
+    }
+
     /// One line for the run's log.
     pub fn description(&self) -> String {
         match self {

@@ -335,10 +335,7 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
     };
     matedit_contract::io::write_atomically(&out.join("manifest.toml"), |p| Ok(std::fs::write(p, &plan.text)?))?;
     let layer = RenderingLayer::new(plan.net.env_height);
-    let perceptual = match &plan.vgg16 {
-        Some(w) => Perceptual::vgg16(w, plan.manifest.loss.vgg16_layers.get_ref(), &device)?,
-        None => Perceptual::Fallback,
-    };
+    let perceptual = Perceptual::of_plan(plan, &device)?;
     // Which perceptual loss trains the network, and where, is never silent, not even with --quiet.
     eprintln!("{}", perceptual.description());
     let layer_on = if crate::render::on_device(&device, plan.net.env_height).is_some() {
