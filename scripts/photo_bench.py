@@ -345,6 +345,38 @@ def build_scene(mi, geom, bsdf, plan, camera, width, height, spp, env=True, inte
     return mi.load_dict(scene)
 
 
+def camera_frame_light(mi, record, height=64, supersample=8):
+    """The scene's illumination as `matedit edit --light` reads it: the map (rotated as rendered)
+    seen from the camera, +z towards the camera, x right, y up (docs/CONVENTIONS.md), `height`
+    rows, each texel the mean of supersample² bilinear lookups of the full map over its area."""
+    full = np.array(mi.Bitmap(record["map_file"]), dtype=np.float64)[..., :3]
+    fh, fw = full.shape[:2]
+    cam = record["camera"]
+    fwd = np.array(cam["target"]) - np.array(cam["origin"])
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    w = 2 * height
+    j = (np.arange(height * supersample) + 0.5) / (height * supersample)
+    i = (np.arange(w * supersample) + 0.5) / (w * supersample)
+    phi, theta = np.meshgrid(2 * np.pi * i, np.pi * j)
+    d = np.stack([np.sin(theta) * np.sin(phi), np.cos(theta), -np.sin(theta) * np.cos(phi)], -1)
+    world = d[..., :1] * right + d[..., 1:2] * up + d[..., 2:] * -fwd
+    a = np.radians(record["env_rotation_deg"])  # the map's to_world is R_y(a): look up R_y(-a) d
+    x = np.cos(a) * world[..., 0] - np.sin(a) * world[..., 2]
+    z = np.sin(a) * world[..., 0] + np.cos(a) * world[..., 2]
+    u = (np.arctan2(x, -z) / (2 * np.pi)) % 1.0 * fw - 0.5
+    v = np.arccos(np.clip(world[..., 1], -1, 1)) / np.pi * fh - 0.5
+    u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
+    fu, fv = (u - u0)[..., None], (v - v0)[..., None]
+    def at(uu, vv):
+        return full[np.clip(vv, 0, fh - 1), uu % fw]
+    look = ((1 - fu) * (1 - fv) * at(u0, v0) + fu * (1 - fv) * at(u0 + 1, v0)
+            + (1 - fu) * fv * at(u0, v0 + 1) + fu * fv * at(u0 + 1, v0 + 1))
+    return look.reshape(height, supersample, w, supersample, 3).mean(axis=(1, 3)).astype(np.float32)
+
+
 def render_radiance(mi, scene, seed):
     return np.array(mi.render(scene, seed=seed), dtype=np.float32)[..., :3]
 
@@ -488,6 +520,10 @@ def cmd_render(args):
           f"{MAX_DEPTH}, Mitsuba {mi.__version__} {mi.variant()}", flush=True)
     t0 = time.time()
     records = [render_scene(mi, p, out, args.width, args.height, args.spp) for p in plans]
+    for rec in records:  # the true light, for `--light {scene}/light.exr` (an oracle method)
+        light = out / rec["name"] / "light.exr"
+        if not light.exists():
+            write_exr(mi, light, camera_frame_light(mi, rec))
     write_atomic(out / "scenes.json", lambda p: p.write_text(json.dumps({**settings, "scenes": records}, indent=1)))
     write_contact(out, records)
     print(f"{len(records)} scenes in {time.time() - t0:.0f} s: {out / 'scenes.json'}, {out / 'contact.png'}")
@@ -537,7 +573,8 @@ def run_edit(args, scene_dir, spec, out_dir, extra):
         for f in (edited, report):
             f.unlink(missing_ok=True)
         cmd = [args.matedit, "edit", "--model", args.model, "--image", str(scene_dir / "photo.png"),
-               "--mask", str(scene_dir / "mask.png"), "--material", spec, "--out", str(out_dir)] + extra
+               "--mask", str(scene_dir / "mask.png"), "--material", spec, "--out", str(out_dir)]
+        cmd += [a.replace("{scene}", str(scene_dir)) for a in extra]
         try:
             proc = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
         except (OSError, subprocess.TimeoutExpired) as e:

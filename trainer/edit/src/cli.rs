@@ -3,7 +3,7 @@
 
 use crate::serve::{ServeConfig, serve};
 use crate::target::parse_material_arg;
-use crate::{Composite, EditRequest, edit, swap, transfer};
+use crate::{Composite, EditRequest, LevelFrom, edit, swap, transfer};
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use matedit_trainer::post_optimisation::Eq6Config;
@@ -58,6 +58,20 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// builtin:NAME; its +z faces the camera).
         #[arg(long)]
         relight: Option<String>,
+        /// The photo's own illumination when it is known (.hdr, .exr or builtin:NAME; its +z
+        /// faces the camera): used instead of the predicted L', at the level that best explains
+        /// the photo.
+        #[arg(long)]
+        light: Option<String>,
+        /// What sets the light's level: `background` (the photo's surroundings, where enough of
+        /// them is seen unclipped), `network` (the paper's: I' matches the photo) or `auto`
+        /// (background with --light, network otherwise: the best measured).
+        #[arg(long, value_enum, default_value_t = LevelFrom::default())]
+        light_level: LevelFrom,
+        /// The photo's horizontal field of view in degrees (1–170), for the directions its
+        /// background is seen along. Default 40.
+        #[arg(long, value_parser = fov_deg, allow_negative_numbers = true)]
+        fov: Option<f64>,
         /// How the render goes back into the photo.
         #[arg(long, value_enum, default_value_t = Composite::default())]
         composite: Composite,
@@ -185,6 +199,14 @@ struct Finish {
 
 /// An Eq. 6 weight: a finite number in [0, 1e6] (a negative or NaN weight makes E unbounded
 /// or meaningless).
+fn fov_deg(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
+    if !(1.0..=170.0).contains(&v) {
+        return Err(format!("{s:?} is outside 1–170 degrees"));
+    }
+    Ok(v)
+}
+
 fn eq6_weight(s: &str) -> Result<f64, String> {
     let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
     if !(0.0..=1e6).contains(&v) {
@@ -234,6 +256,9 @@ fn run(cli: Cli) -> Result<()> {
             regions,
             materials,
             relight,
+            light,
+            light_level,
+            fov,
             composite,
             optimize,
             eq6_a,
@@ -249,6 +274,9 @@ fn run(cli: Cli) -> Result<()> {
                 regions,
                 materials,
                 relight,
+                light,
+                light_level,
+                fov_deg: fov,
                 composite,
                 optimize: optimize.then(|| Eq6Config {
                     a: eq6_a,
@@ -383,6 +411,11 @@ mod tests {
             ("--eq6-rounds", "101"),
             ("--eq6-iterations", "0"),
             ("--eq6-iterations", "-1"),
+            ("--fov", "0"),
+            ("--fov", "NaN"),
+            ("--fov", "171"),
+            ("--fov", "-40"),
+            ("--light-level", "sky"),
         ] {
             let e = parse(&[option, value])
                 .err()
@@ -395,6 +428,9 @@ mod tests {
             ("--eq6-b", "1e6"),
             ("--eq6-rounds", "100"),
             ("--eq6-iterations", "1"),
+            ("--fov", "1"),
+            ("--fov", "170"),
+            ("--light-level", "network"),
         ] {
             assert!(parse(&[option, value]).is_ok(), "{option} {value} refused");
         }

@@ -15,6 +15,7 @@
 
 #![warn(missing_docs)]
 
+pub mod background;
 pub mod cli;
 pub mod composite;
 pub mod detail;
@@ -47,10 +48,14 @@ use std::time::Instant;
 pub enum Composite {
     /// The paper's: the object's pixels are O', rendered at the photo's resolution.
     Render,
+    /// O' times the photo's fine detail: the photo's luminance over I*'s, divided by the same
+    /// ratio blurred; the large scale comes from the render, edges, texture and small shadows
+    /// from the photo (not in the paper; the best measured on the photo benchmark).
+    #[default]
+    Detail,
     /// O' times the photo's luminance over I*'s: O''s colour with the photo's light and shade
     /// (its edges, texture and what the layer does not model), achromatic, so the input's hue
-    /// does not survive (not in the paper; the best measured on the photo benchmark).
-    #[default]
+    /// does not survive (not in the paper).
     Shading,
     /// The photo plus the edit's change, I + O' − I*: what the rendering layer cannot explain
     /// stays as the photo has it, its colour too (not in the paper).
@@ -58,6 +63,32 @@ pub enum Composite {
     /// The photo times O'/I': the edit's change of shading and colour, with the photo's own
     /// detail kept at full resolution (not in the paper).
     Ratio,
+}
+
+/// What sets the level of the light the edit is rendered under.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LevelFrom {
+    /// The background with a given light (`--light`), the network's otherwise: the levels
+    /// measured best on the photo benchmark (docs/PERFORMANCE.md, "Editing photos").
+    #[default]
+    Auto,
+    /// The photo's background, where it shows enough unclipped surroundings ([`background`]);
+    /// the network's level otherwise.
+    Background,
+    /// The network's: the level at which I' = R(n', m', L') matches the photo (the paper's).
+    Network,
+}
+
+/// How the photo's illumination is found: the network's L' (or a given map) and its level.
+#[derive(Clone, Debug, Default)]
+pub struct LightOptions {
+    /// A known illumination (`[3, He, 2He]`, camera space) used instead of L'.
+    pub given: Option<Vec<f32>>,
+    /// What sets its level.
+    pub level: LevelFrom,
+    /// The photo's horizontal field of view in degrees (default [`background::DEFAULT_FOV_DEG`]).
+    pub fov_deg: Option<f64>,
 }
 
 /// What to edit, as the command line gives it.
@@ -73,6 +104,12 @@ pub struct EditRequest {
     pub materials: Vec<(Option<u8>, String)>,
     /// Another illumination for the predicted material (an environment spec, Fig. 4).
     pub relight: Option<String>,
+    /// The photo's illumination, when known (an environment spec): used instead of L'.
+    pub light: Option<String>,
+    /// What sets the light's level.
+    pub light_level: LevelFrom,
+    /// The photo's horizontal field of view in degrees (default [`background::DEFAULT_FOV_DEG`]).
+    pub fov_deg: Option<f64>,
     /// How to composite.
     pub composite: Composite,
     /// Refine n', m', L' with Eq. 6 before rendering.
@@ -350,6 +387,10 @@ pub struct EditReport {
     pub regions: Vec<target::RegionTarget>,
     /// The other illumination, if any.
     pub relight: Option<String>,
+    /// The photo's illumination given instead of L', if any.
+    pub light: Option<String>,
+    /// How the light's level was set.
+    pub light_level: background::LightLevel,
     /// How O' went back into the photo.
     pub composite: Composite,
     /// Eq. 6, when asked for.
@@ -378,6 +419,8 @@ pub struct Understood {
     pub detail: detail::Detail,
     /// Eq. 6, when asked for.
     pub eq6: Option<Eq6Report>,
+    /// How L*'s level was set (L* above is at that level).
+    pub light_level: background::LightLevel,
     /// Seconds the network took.
     pub network_seconds: f64,
 }
@@ -450,6 +493,7 @@ pub fn understand(
     read: ReadPhoto,
     path: &Path,
     optimize: Option<&post_optimisation::Eq6Config>,
+    light: &LightOptions,
     watcher: Option<&Arc<Progress>>,
 ) -> Result<Understood> {
     let w = watcher.map(|w| w.as_ref());
@@ -468,6 +512,9 @@ pub fn understand(
     enter(w, "network")?;
     let t = Instant::now();
     let mut x = network_prediction(&model.net, model.state.net.env_height, &prep)?;
+    if let Some(l) = &light.given {
+        x.env = light_at_photo_level(&model.layer, &prep, &x, l)?;
+    }
     let network_seconds = t.elapsed().as_secs_f64();
     let labels = labels.as_ref().map(|(l, n)| (l.as_slice(), *n));
     let mut detail = detail::detail(
@@ -522,6 +569,34 @@ pub fn understand(
             })
         }
     };
+    let fov_deg = light.fov_deg.unwrap_or(background::DEFAULT_FOV_DEG);
+    let level = match light.level {
+        LevelFrom::Auto if light.given.is_some() => LevelFrom::Background,
+        LevelFrom::Auto => LevelFrom::Network,
+        other => other,
+    };
+    let light_level = match level {
+        LevelFrom::Background | LevelFrom::Auto => {
+            let level = background::light_level(
+                &p,
+                &coverage,
+                &x.env,
+                model.state.net.env_height,
+                prep.exposure,
+                fov_deg,
+            );
+            let k = level.scale as f32;
+            x.env.iter_mut().for_each(|v| *v *= k);
+            level
+        }
+        LevelFrom::Network => background::LightLevel {
+            source: "network".into(),
+            scale: 1.0,
+            pixels: 0,
+            fov_deg,
+            note: None,
+        },
+    };
     Ok(Understood {
         photo: p,
         path: path.to_path_buf(),
@@ -531,8 +606,43 @@ pub fn understand(
         point: x,
         detail,
         eq6,
+        light_level,
         network_seconds,
     })
+}
+
+/// A given illumination `l` (`[3, He, 2He]`) at the level that explains the photo best: the
+/// scale k minimising Σ (k·R(n', m', l) − I)² over the object (a map's exposure is arbitrary).
+pub fn light_at_photo_level(
+    layer: &RenderingLayer,
+    prep: &Prepared,
+    x: &post_optimisation::Point,
+    l: &[f32],
+) -> Result<Vec<f32>> {
+    let s = prep.size;
+    let rendered = layer.forward(&Batch {
+        batch: 1,
+        size: (s, s),
+        regions: prep.regions,
+        normals: &x.normals,
+        region_map: &prep.region_map,
+        materials: &x.materials,
+        env: l,
+    })?;
+    let (mut ri, mut rr) = (0.0_f64, 0.0_f64);
+    for (k, (&r, &i)) in rendered.iter().zip(&prep.input).enumerate() {
+        if prep.mask[k % (s * s)] > 0.0 {
+            ri += r as f64 * i as f64;
+            rr += r as f64 * r as f64;
+        }
+    }
+    let k = ri / rr;
+    if !(k.is_finite() && k > 0.0) {
+        bail!(
+            "the given light leaves the object black under the predicted material and normals: it cannot explain the photo"
+        );
+    }
+    Ok(l.iter().map(|&v| (v as f64 * k) as f32).collect())
 }
 
 /// Renders an understood photo with `targets` (and `relight`), composites, and writes every
@@ -543,6 +653,7 @@ fn finish(
     u: Understood,
     targets: &[(Dsbrdf, target::RegionTarget)],
     relight: Option<(&str, Vec<f32>)>,
+    light_spec: Option<&str>,
     how: Composite,
     out: &Path,
     t0: Instant,
@@ -567,6 +678,7 @@ fn finish(
         point,
         detail,
         eq6,
+        light_level,
         network_seconds,
     } = u;
     let relight_env = relight.as_ref().map(|(_, l)| l.as_slice());
@@ -619,6 +731,8 @@ fn finish(
         training_mean_luminance: TRAINING_MEAN_LUMINANCE,
         regions: targets.iter().map(|(_, r)| r.clone()).collect(),
         relight: relight.map(|(spec, _)| spec.to_string()),
+        light: light_spec.map(str::to_string),
+        light_level,
         composite: how,
         eq6,
         seconds: output::Timings {
@@ -698,13 +812,23 @@ fn edit_checked(
         .as_ref()
         .map(|spec| Ok::<_, anyhow::Error>((spec.as_str(), target::relight_env(spec, model.state.net.env_height)?)))
         .transpose()?;
+    let light = LightOptions {
+        given: req
+            .light
+            .as_ref()
+            .map(|spec| target::relight_env(spec, model.state.net.env_height))
+            .transpose()?,
+        level: req.light_level,
+        fov_deg: req.fov_deg,
+    };
     let t_load = t0.elapsed().as_secs_f64();
-    let u = understand(model, read, &req.photo, req.optimize.as_ref(), watcher)?;
+    let u = understand(model, read, &req.photo, req.optimize.as_ref(), &light, watcher)?;
     finish(
         model,
         u,
         &targets,
         relight,
+        req.light.as_deref(),
         req.composite,
         out,
         t0,
@@ -761,13 +885,14 @@ fn transfer_checked(
     let read_from = read_photo(from.0, from.1, None)?;
     let read_to = read_photo(to.0, to.1, None)?;
     let t_load = t0.elapsed().as_secs_f64();
-    let source = understand(model, read_from, from.0, optimize, watcher)?;
+    let source = understand(model, read_from, from.0, optimize, &LightOptions::default(), watcher)?;
     let target = source_material(&source)?;
-    let u = understand(model, read_to, to.0, optimize, watcher)?;
+    let u = understand(model, read_to, to.0, optimize, &LightOptions::default(), watcher)?;
     finish(
         model,
         u,
         &[target],
+        None,
         None,
         how,
         out,
@@ -813,10 +938,10 @@ pub fn swap(
     let model = Model::load(model)?;
     let (read_a, read_b) = (read_photo(a.0, a.1, None)?, read_photo(b.0, b.1, None)?);
     let t_load = t0.elapsed().as_secs_f64();
-    let ua = understand(&model, read_a, a.0, optimize, None)?;
-    let ub = understand(&model, read_b, b.0, optimize, None)?;
+    let ua = understand(&model, read_a, a.0, optimize, &LightOptions::default(), None)?;
+    let ub = understand(&model, read_b, b.0, optimize, &LightOptions::default(), None)?;
     let (ta, tb) = (source_material(&ua)?, source_material(&ub)?);
-    let ra = finish(&model, ua, &[tb], None, how, &out_a, t0, t_load, None)?;
-    let rb = finish(&model, ub, &[ta], None, how, &out_b, t0, t_load, None)?;
+    let ra = finish(&model, ua, &[tb], None, None, how, &out_a, t0, t_load, None)?;
+    let rb = finish(&model, ub, &[ta], None, None, how, &out_b, t0, t_load, None)?;
     Ok([ra, rb])
 }

@@ -418,3 +418,67 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     assert!(format!("{e:#}").contains("missing.png"));
     assert!(!never.exists());
 }
+
+#[test]
+fn a_given_light_replaces_l_prime_at_the_level_the_background_shows() {
+    let d = dir("light");
+    let (p, m, _) = write_photo(&d);
+    let studio = target::relight_env("builtin:studio", 4).unwrap();
+    let env_of = |out: &Path| {
+        let (_, _, ch) = matedit_contract::io::read_exr_channels(&out.join("env.exr")).unwrap();
+        let n = ch["R"].len();
+        (0..3 * n)
+            .map(|k| ch[["R", "G", "B"][k / n]][k % n])
+            .collect::<Vec<f32>>()
+    };
+    let report = |out: &Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+    };
+    // The default level with a given light is the background's; the map written is the given
+    // one up to that single factor.
+    let with = |level: LevelFrom, light: Option<&str>| EditRequest {
+        light: light.map(str::to_string),
+        light_level: level,
+        ..request(&p, &m, "library:gold-polished")
+    };
+    for (name, level, source) in [
+        ("auto", LevelFrom::Auto, "background"),
+        ("network", LevelFrom::Network, "network"),
+    ] {
+        let out = d.join(name);
+        let r = edit(model(), &with(level, Some("builtin:studio")), &out).unwrap();
+        assert_eq!(r.light_level.source, source, "{name}: {:?}", r.light_level);
+        assert_eq!(report(&out)["light"], "builtin:studio");
+        assert_eq!(report(&out)["light_level"]["source"], source);
+        let env = env_of(&out);
+        let k = env[0] / studio[0];
+        assert!(k.is_finite() && k > 0.0);
+        for (a, b) in env.iter().zip(&studio) {
+            assert!(
+                (a - k * b).abs() <= 1e-4 * (k * b).abs().max(1e-6),
+                "{name}: {a} vs {k} × {b}"
+            );
+        }
+    }
+    // Without a light the default keeps the network's level; asked for, the background sets it.
+    let out = d.join("net");
+    let r = edit(model(), &with(LevelFrom::Auto, None), &out).unwrap();
+    assert_eq!((r.light_level.source.as_str(), r.light_level.scale), ("network", 1.0));
+    assert!(report(&out)["light"].is_null());
+    let r = edit(model(), &with(LevelFrom::Background, None), &d.join("bg")).unwrap();
+    assert_eq!(r.light_level.source, "background", "{:?}", r.light_level);
+    assert!(r.light_level.pixels >= 500 && r.light_level.scale.is_finite() && r.light_level.scale > 0.0);
+    // A light that cannot explain the photo, a light that is not a map: refused, nothing written.
+    let black = d.join("black.hdr");
+    let mut f = std::fs::File::create(&black).unwrap();
+    let pixels = vec![image::Rgb([0.0_f32; 3]); 8 * 4];
+    image::codecs::hdr::HdrEncoder::new(&mut f)
+        .encode(&pixels, 8, 4)
+        .unwrap();
+    let out = d.join("refused");
+    let e = edit(model(), &with(LevelFrom::Auto, Some(black.to_str().unwrap())), &out).unwrap_err();
+    assert!(format!("{e:#}").contains("leaves the object black"), "{e:#}");
+    let e = edit(model(), &with(LevelFrom::Auto, Some("builtin:nope")), &out).unwrap_err();
+    assert!(format!("{e:#}").contains("nope"), "{e:#}");
+    assert!(!out.exists());
+}

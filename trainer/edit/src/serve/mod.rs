@@ -327,7 +327,8 @@ async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
             "optimize" => f.optimize = matches!(text().as_str(), "on" | "true" | "1"),
             "composite" => {
                 f.composite = match text().as_str() {
-                    "" | "shading" => Composite::Shading,
+                    "" | "detail" => Composite::Detail,
+                    "shading" => Composite::Shading,
                     "delta" => Composite::Delta,
                     "render" => Composite::Render,
                     "ratio" => Composite::Ratio,
@@ -335,7 +336,7 @@ async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
                         return Err(error(
                             StatusCode::BAD_REQUEST,
                             format!(
-                                "composite “{}”: expected shading, delta, render or ratio",
+                                "composite “{}”: expected detail, shading, delta, render or ratio",
                                 upload::display_name(other)
                             ),
                         ));
@@ -477,6 +478,9 @@ fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result<(Work, Vec
                 regions: None,
                 materials: vec![(None, spec)],
                 relight: None,
+                light: None,
+                light_level: Default::default(),
+                fov_deg: None,
                 composite: f.composite,
                 optimize,
             })

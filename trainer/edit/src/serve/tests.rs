@@ -235,7 +235,7 @@ fn an_edit_matches_the_command_line_and_serves_only_its_own_files() {
         );
     }
     let (s, b) = http(addr, "GET", &format!("{url}/files/report.json"), None, b"");
-    assert_eq!((s, json_of(&b)["composite"].as_str()), (200, Some("shading")));
+    assert_eq!((s, json_of(&b)["composite"].as_str()), (200, Some("detail")));
     // Nothing else is reachable.
     for bad in [
         format!("{url}/files/..%2F..%2Fin%2Fphoto.png"),
@@ -488,7 +488,7 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
                 ("composite", None, b"blend"),
             ],
             400,
-            "expected shading, delta, render or ratio",
+            "expected detail, shading, delta, render or ratio",
         ),
         (
             vec![("photo", Some("p.png"), &photo), ("path", None, b"/etc/passwd")],
