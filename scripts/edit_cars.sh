@@ -2,7 +2,7 @@
 # The README's figure of real photos edited: each car photo of the evaluation assets (with the
 # alpha matte rembg wrote as its mask) edited to a diffuse, a glossy paint and a metal with each
 # composite: the paper's `render` (O' at the photo's resolution), `ratio`, and the default
-# `shading`.
+# `detail`.
 #   scripts/edit_cars.sh MODEL [ASSETS] [OUT]
 # MODEL: a `trainer run` output folder (e.g. out/train/quickstart) or a checkpoint folder;
 # ASSETS: the folder holding photos/rembg_cars/ (default ../shared/eval-assets, or $MATEDIT_EVAL_ASSETS);
@@ -21,7 +21,7 @@ rows=()
 for n in 1 2 3; do
     photo="$assets/photos/rembg_cars/car-$n.jpg"
     mask="$assets/photos/rembg_cars/car-$n.out.png"
-    for how in render ratio shading; do
+    for how in render ratio detail; do
         args=(--composite "$how")
         row="car-$n, $how::$photo"
         for m in $materials; do

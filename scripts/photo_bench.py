@@ -649,6 +649,80 @@ def write_sheet(out, cases, scenes, targets, methods, rows_max=12):
                  lambda p: grid(rows, ["photo", "truth"] + list(methods)).save(p, format="PNG"))
 
 
+# ---------------------------------------------------------------------------------------------
+# What a perspective view is worth (issue 39, item 5)
+
+
+def ggx_f1(n, wo, light, dirs, dw, alpha):
+    """Eq. 2 for a GGX conductor with F = 1 and separable Smith G1 (the `chrome` target, exactly
+    as the project renders `ggx:ALPHA:1,1,1`), per pixel normal n and view direction wo, under a
+    [T, 3] light sampled at texel centres dirs with solid angles dw. numpy, in chunks."""
+    out = np.zeros((n.shape[0], 3))
+    a2 = alpha * alpha
+
+    def g1(c):
+        c = np.clip(c, 1e-6, 1.0)
+        return 2.0 / (1.0 + np.sqrt(1.0 + a2 * (1.0 - c * c) / (c * c)))
+
+    for s in range(0, n.shape[0], 2000):
+        nn, oo = n[s:s + 2000], wo[s:s + 2000]
+        ci, co = nn @ dirs.T, np.sum(nn * oo, 1)[:, None]
+        h = oo[:, None, :] + dirs[None]
+        h /= np.linalg.norm(h, axis=2, keepdims=True)
+        ch = np.einsum("pk,ptk->pt", nn, h)
+        d = a2 / (np.pi * (ch * ch * (a2 - 1.0) + 1.0) ** 2)
+        f = d * g1(ci) * g1(co) / (4.0 * np.clip(ci, 1e-6, None) * np.clip(co, 1e-6, None))
+        out[s:s + 2000] = np.where((ci > 0) & (co > 0), f * ci * dw[None], 0.0) @ light
+    return out
+
+
+def cmd_perspective(args):
+    """Renders each scene's chrome truth with the layer's Eq. 2 from Mitsuba's own normals and the
+    true light (`light.exr`), once with the layer's single view direction +z and once with each
+    pixel's own direction towards the camera, and prints both errors against Mitsuba's path
+    traced truth: what a perspective layer could gain, with everything else exact."""
+    mi = mitsuba()
+    out = Path(args.out)
+    records = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]
+    plans = {p["name"]: p for p in scene_plans(len(records), Path(args.assets), None)}
+    h, w = 64, 128
+    theta, phi = np.meshgrid(np.pi * (np.arange(h) + 0.5) / h, 2 * np.pi * (np.arange(w) + 0.5) / w, indexing="ij")
+    dirs = np.stack([np.sin(theta) * np.sin(phi), np.cos(theta), -np.sin(theta) * np.cos(phi)], -1).reshape(-1, 3)
+    band = np.pi * np.arange(h + 1) / h
+    dw = np.repeat((2 * np.pi / w) * (np.cos(band[:-1]) - np.cos(band[1:])), w)
+    rows = []
+    for rec in records:
+        plan = plans[rec["name"]]
+        geom = load_mesh(rec["mesh_file"], plan["entry"])
+        origin, target = np.array(rec["camera"]["origin"]), np.array(rec["camera"]["target"])
+        scene = build_scene(mi, geom, {"type": "diffuse"}, plan, (origin, target), 640, 480, 16, env=False,
+                            integrator={"type": "aov", "aovs": "n:sh_normal,p:position"})
+        mi.render(scene, seed=1)
+        layers = dict(scene.sensors()[0].film().bitmap().split())
+        fwd = (target - origin) / np.linalg.norm(target - origin)
+        right = np.cross(fwd, [0.0, 1.0, 0.0])
+        right /= np.linalg.norm(right)
+        to_camera = np.stack([right, np.cross(right, fwd), -fwd])
+        obj = np.asarray(Image.open(out / rec["name"] / "mask.png")) > 127
+        n = np.array(layers["n"])[..., :3][obj] @ to_camera.T
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        wo = origin - np.array(layers["p"])[..., :3][obj]
+        wo = (wo / np.linalg.norm(wo, axis=1, keepdims=True)) @ to_camera.T
+        n = np.where((np.sum(n * wo, 1) < 0)[:, None], -n, n)  # two-sided, as rendered
+        light = np.array(mi.Bitmap(str(out / rec["name"] / "light.exr")))[..., :3].reshape(-1, 3)
+        truth = np.array(mi.Bitmap(str(out / rec["name"] / "truth_chrome.exr")))[..., :3][obj]
+        errors = []
+        for view in (np.tile([0.0, 0.0, 1.0], (len(n), 1)), wo):
+            r = ggx_f1(n, view, light, dirs, dw, 0.15)
+            errors.append(float(np.mean(np.abs(r - truth)) / np.mean(truth)))
+        rows.append((rec["name"], rec["mesh"], rec["fov_deg_x"], *errors))
+        print(f"{rec['name']} {rec['mesh']:<12} fov {rec['fov_deg_x']:.1f}: relative error orthographic "
+              f"{errors[0]:.3f}, perspective {errors[1]:.3f}", flush=True)
+    orth, persp = np.median([r[3] for r in rows]), np.median([r[4] for r in rows])
+    print(f"\nmedian over {len(rows)} scenes: orthographic {orth:.3f}, perspective {persp:.3f} "
+          f"(mean |layer − truth| / mean truth on the object, chrome, true normals and light)")
+
+
 def cmd_score(args):
     out = Path(args.out)
     scenes = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]  # None: all
@@ -745,11 +819,15 @@ def main():
     sub.add_parser("render", parents=[common, render], help="path-trace the photos, masks and truths")
     sub.add_parser("score", parents=[common, score], help="run matedit edit on every photo and score it")
     sub.add_parser("all", parents=[common, render, score], help="render, then score")
+    sub.add_parser("perspective", parents=[common, render],
+                   help="the layer with true normals and light, orthographic against per-pixel views")
     args = parser.parse_args()
     if args.command in ("render", "all"):
         cmd_render(args)
     if args.command in ("score", "all"):
         cmd_score(args)
+    if args.command == "perspective":
+        cmd_perspective(args)
 
 
 if __name__ == "__main__":

@@ -171,15 +171,23 @@ file system. Binds to 127.0.0.1 unless --bind says otherwise.")]
         /// Largest upload in MB (photo, mask and transfer photo together; 1–4096).
         #[arg(long, default_value_t = 32, value_parser = count::<1, 4096>)]
         max_upload_mb: usize,
-        /// Largest photo in megapixels.
-        #[arg(long, default_value_t = 25.0)]
+        /// Largest photo in megapixels (0.01–1000).
+        #[arg(long, default_value_t = 25.0, value_parser = megapixels, allow_negative_numbers = true)]
         max_megapixels: f64,
-        /// Finished edits whose files are kept for download.
-        #[arg(long, default_value_t = 32)]
+        /// Finished edits whose files are kept for download (1–10000).
+        #[arg(long, default_value_t = 32, value_parser = count::<1, 10000>, allow_negative_numbers = true)]
         keep: usize,
         /// Folder for uploads and outputs (default: a temporary one, removed on exit).
         #[arg(long)]
         work: Option<PathBuf>,
+        /// A host name the server answers to besides IP addresses and localhost (repeatable):
+        /// requests naming any other host are refused, which stops DNS rebinding.
+        #[arg(long = "allow-host", value_parser = host_name)]
+        allow_hosts: Vec<String>,
+        /// Seconds a client may take to send an upload whole (1–3600); a stalled upload gives
+        /// its place back when they are up.
+        #[arg(long, default_value_t = 60, value_parser = count::<1, 3600>, allow_negative_numbers = true)]
+        upload_seconds: usize,
     },
 }
 
@@ -199,6 +207,21 @@ struct Finish {
 
 /// An Eq. 6 weight: a finite number in [0, 1e6] (a negative or NaN weight makes E unbounded
 /// or meaningless).
+fn megapixels(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
+    if !(0.01..=1000.0).contains(&v) {
+        return Err(format!("{s:?} is outside 0.01–1000"));
+    }
+    Ok(v)
+}
+
+fn host_name(s: &str) -> Result<String, String> {
+    match crate::serve::guard::host_of(s) {
+        Some(h) if h == s.trim().to_ascii_lowercase() => Ok(h),
+        _ => Err(format!("{s:?} is not a host name (give it without a port or scheme)")),
+    }
+}
+
 fn fov_deg(s: &str) -> Result<f64, String> {
     let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
     if !(1.0..=170.0).contains(&v) {
@@ -235,10 +258,9 @@ fn run(cli: Cli) -> Result<()> {
             max_megapixels,
             keep,
             work,
+            allow_hosts,
+            upload_seconds,
         } => {
-            if !(max_megapixels > 0.0 && max_megapixels.is_finite()) {
-                anyhow::bail!("--max-megapixels {max_megapixels}: expected a positive number");
-            }
             let mut cfg = ServeConfig::new(model);
             cfg.port = port;
             cfg.bind = bind;
@@ -247,6 +269,8 @@ fn run(cli: Cli) -> Result<()> {
             cfg.max_pixels = (max_megapixels * 1e6) as u64;
             cfg.keep = keep;
             cfg.work = work;
+            cfg.allow_hosts = allow_hosts;
+            cfg.deadlines.upload = std::time::Duration::from_secs(upload_seconds as u64);
             serve(cfg)
         }
         Command::Edit {
@@ -444,5 +468,22 @@ mod tests {
         assert!(serve(&["--queue", "1025"]).is_err());
         assert!(serve(&["--queue", "0"]).is_err());
         assert!(serve(&["--queue", "1", "--max-upload-mb", "1"]).is_ok());
+        for (option, value) in [
+            ("--keep", "0"),
+            ("--keep", "10001"),
+            ("--max-megapixels", "0"),
+            ("--max-megapixels", "NaN"),
+            ("--max-megapixels", "-1"),
+            ("--upload-seconds", "0"),
+            ("--allow-host", "evil.example:80"),
+            ("--allow-host", "http://x"),
+            ("--allow-host", ""),
+        ] {
+            let e = serve(&[option, value])
+                .err()
+                .unwrap_or_else(|| panic!("{option} {value:?} accepted"));
+            assert!(e.to_string().contains(option), "{option} {value}: {e}");
+        }
+        assert!(serve(&["--keep", "1", "--max-megapixels", "0.5", "--allow-host", "Studio.lan"]).is_ok());
     }
 }

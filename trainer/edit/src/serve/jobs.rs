@@ -117,6 +117,22 @@ impl Job {
         serde_json::from_str(&text).unwrap_or(Value::Null)
     }
 
+    /// Rewrites the job's `report.json` as the user may download it: uploads named as the user
+    /// named them, the server's folders (the job's, the model's) not at all.
+    fn publish_report(&self, r: &EditReport) -> anyhow::Result<()> {
+        let mut v = self.user_report(r);
+        if let Some(c) = v.get_mut("checkpoint") {
+            let name = Path::new(&r.checkpoint).file_name().map_or_else(
+                || "the server's model".to_string(),
+                |n| n.to_string_lossy().into_owned(),
+            );
+            *c = json!(name);
+        }
+        let text = serde_json::to_string_pretty(&v)?.replace(&self.dir.display().to_string(), "the job");
+        let path = self.out().join("report.json");
+        matedit_contract::io::write_atomically(&path, |tmp| Ok(std::fs::write(tmp, &text)?))
+    }
+
     /// A finished job's file by the name its report lists (nothing else is reachable).
     pub fn file(&self, name: &str) -> Option<PathBuf> {
         match &*lock(&self.state) {
@@ -236,6 +252,16 @@ impl Queue {
         Some(job.state())
     }
 
+    /// Cancels the job that is running, if any (it stops at its next check).
+    pub fn cancel_running(&self) {
+        let q = lock(&self.inner);
+        for job in q.jobs.values() {
+            if matches!(job.state(), State::Running(_)) {
+                job.progress.cancel();
+            }
+        }
+    }
+
     /// Stops the worker after its current job.
     pub fn stop(&self) {
         lock(&self.inner).stop = true;
@@ -316,7 +342,10 @@ pub fn work(queue: &Queue, model: &Model) {
     while let Some(job) = queue.next() {
         let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(model, &job)));
         let state = match run {
-            Ok(Ok(report)) => State::Done(Box::new(report)),
+            Ok(Ok(report)) => match job.publish_report(&report) {
+                Ok(()) => State::Done(Box::new(report)),
+                Err(e) => State::Failed(format!("the report could not be written: {e:#}")),
+            },
             Ok(Err(e)) if e.downcast_ref::<Cancelled>().is_some() || job.progress.is_cancelled() => State::Cancelled,
             Ok(Err(e)) => State::Failed(job.user_message(&format!("{e:#}"))),
             Err(panic) => {

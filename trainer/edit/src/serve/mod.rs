@@ -15,6 +15,7 @@
 //! | `POST /api/jobs/{id}/cancel` | cancel it, waiting or running |
 //! | `GET /api/jobs/{id}/files/{name}` | a file its report lists (`?download` to save it) |
 
+pub mod guard;
 pub mod jobs;
 pub mod library;
 #[cfg(test)]
@@ -63,6 +64,33 @@ pub struct ServeConfig {
     pub work: Option<PathBuf>,
     /// Eq. 6's settings when a request asks for it.
     pub eq6: Eq6Config,
+    /// Host names the server answers to beyond IP addresses and `localhost` (lower case, no
+    /// port).
+    pub allow_hosts: Vec<String>,
+    /// How long a client may take to send a request's headers, and to send an upload whole.
+    pub deadlines: Deadlines,
+}
+
+/// How long clients may take; no client holds the server longer than these.
+#[derive(Clone, Copy, Debug)]
+pub struct Deadlines {
+    /// To send a request's headers (also how long an idle connection stays open).
+    pub headers: std::time::Duration,
+    /// To send an upload's body whole, from its headers on.
+    pub upload: std::time::Duration,
+    /// On SIGTERM or Ctrl-C: how long connections and the running edit get to finish before
+    /// they are dropped (the edit cancelled).
+    pub grace: std::time::Duration,
+}
+
+impl Default for Deadlines {
+    fn default() -> Self {
+        Self {
+            headers: std::time::Duration::from_secs(10),
+            upload: std::time::Duration::from_secs(60),
+            grace: std::time::Duration::from_secs(10),
+        }
+    }
 }
 
 impl ServeConfig {
@@ -78,6 +106,8 @@ impl ServeConfig {
             keep: 32,
             work: None,
             eq6: Eq6Config::default(),
+            allow_hosts: Vec::new(),
+            deadlines: Deadlines::default(),
         }
     }
 }
@@ -95,6 +125,8 @@ struct App {
     checking: Arc<tokio::sync::Semaphore>,
     /// Uploads being received at once (each is held whole).
     reading: tokio::sync::Semaphore,
+    /// How long an upload may take.
+    upload_deadline: std::time::Duration,
 }
 
 /// A running server.
@@ -107,18 +139,28 @@ pub struct Server {
     worker: Option<std::thread::JoinHandle<()>>,
     work: PathBuf,
     remove_work: bool,
+    grace: std::time::Duration,
 }
 
 impl Server {
-    /// Stops listening, lets the running edit finish, and removes a temporary work folder.
+    /// Stops listening, gives open connections and the running edit the grace period to
+    /// finish (then drops them and cancels the edit), and removes a temporary work folder.
     pub async fn stop(mut self) {
+        let deadline = tokio::time::Instant::now() + self.grace;
         if let Some(s) = self.shutdown.take() {
             let _ = s.send(());
         }
-        let _ = (&mut self.task).await;
+        if tokio::time::timeout_at(deadline, &mut self.task).await.is_err() {
+            self.task.abort();
+        }
         self.queue.stop();
         if let Some(w) = self.worker.take() {
-            let _ = tokio::task::spawn_blocking(move || w.join()).await;
+            let mut join = tokio::task::spawn_blocking(move || w.join());
+            if tokio::time::timeout_at(deadline, &mut join).await.is_err() {
+                // The running edit stops at its next check; then the worker ends.
+                self.queue.cancel_running();
+                let _ = join.await;
+            }
         }
         if self.remove_work {
             let _ = std::fs::remove_dir_all(&self.work);
@@ -145,7 +187,10 @@ impl Server {
         }
         #[cfg(not(unix))]
         let _ = tokio::signal::ctrl_c().await;
-        eprintln!("stopping: the running edit finishes first");
+        eprintln!(
+            "stopping: open requests and the running edit get {} s to finish",
+            self.grace.as_secs_f64()
+        );
         self.stop().await;
     }
 }
@@ -219,18 +264,16 @@ async fn serve_from(cfg: ServeConfig, work: PathBuf, remove_work: bool) -> Resul
         counter: AtomicU64::new(0),
         checking: Arc::new(tokio::sync::Semaphore::new(2)),
         reading: tokio::sync::Semaphore::new(4),
+        upload_deadline: cfg.deadlines.upload,
         secret: *blake3::hash(format!("{}:{}:{:?}", std::process::id(), nanos(), work).as_bytes()).as_bytes(),
     });
-    let router = router(app, cfg.max_upload_bytes);
+    let hosts = guard::Hosts {
+        names: cfg.allow_hosts.iter().map(|h| h.to_ascii_lowercase()).collect(),
+    };
+    let router = router(app, cfg.max_upload_bytes, hosts);
     let addr = listener.local_addr()?;
     let (stx, srx) = tokio::sync::oneshot::channel::<()>();
-    let task = tokio::spawn(async move {
-        let _ = axum::serve(listener, router)
-            .with_graceful_shutdown(async {
-                let _ = srx.await;
-            })
-            .await;
-    });
+    let task = tokio::spawn(accept(listener, router, srx, cfg.deadlines.headers));
     Ok(Server {
         addr,
         queue,
@@ -239,7 +282,39 @@ async fn serve_from(cfg: ServeConfig, work: PathBuf, remove_work: bool) -> Resul
         worker: Some(worker),
         work,
         remove_work,
+        grace: cfg.deadlines.grace,
     })
+}
+
+/// Serves connections until `stop`: each connection's headers must arrive within `headers`
+/// (hyper closes it otherwise, also when it sits idle between requests); on `stop`, connections
+/// finish their request and close (what does not finish is dropped by [`Server::stop`]).
+async fn accept(
+    listener: tokio::net::TcpListener,
+    router: Router,
+    mut stop: tokio::sync::oneshot::Receiver<()>,
+    headers: std::time::Duration,
+) {
+    let graceful = hyper_util::server::graceful::GracefulShutdown::new();
+    loop {
+        tokio::select! {
+            conn = listener.accept() => {
+                let Ok((stream, _)) = conn else { continue };
+                let service = hyper_util::service::TowerToHyperService::new(router.clone());
+                let conn = hyper::server::conn::http1::Builder::new()
+                    .timer(hyper_util::rt::TokioTimer::new())
+                    .header_read_timeout(headers)
+                    .serve_connection(hyper_util::rt::TokioIo::new(stream), service);
+                let conn = graceful.watch(conn);
+                tokio::spawn(async move {
+                    let _ = conn.await;
+                });
+            }
+            _ = &mut stop => break,
+        }
+    }
+    drop(listener);
+    graceful.shutdown().await;
 }
 
 fn nanos() -> u128 {
@@ -248,7 +323,7 @@ fn nanos() -> u128 {
         .map_or(0, |d| d.as_nanos())
 }
 
-fn router(app: Arc<App>, max_upload: usize) -> Router {
+fn router(app: Arc<App>, max_upload: usize, hosts: guard::Hosts) -> Router {
     Router::new()
         .route("/", get(|| async { Html(PAGE) }))
         .route("/api/info", get(info))
@@ -260,6 +335,7 @@ fn router(app: Arc<App>, max_upload: usize) -> Router {
         .route("/api/jobs/{id}/files/{name}", get(file))
         .fallback(|| async { error(StatusCode::NOT_FOUND, "no such page") })
         .layer(DefaultBodyLimit::max(max_upload))
+        .layer(axum::middleware::from_fn_with_state(Arc::new(hosts), guard::guard))
         .with_state(app)
 }
 
@@ -371,13 +447,28 @@ async fn submit(State(app): State<Arc<App>>, headers: HeaderMap, mp: Multipart) 
     if let Err(full) = app.queue.has_room() {
         return error(StatusCode::SERVICE_UNAVAILABLE, full.to_string());
     }
-    // A few uploads are read at a time: each is held in memory whole.
-    let Ok(_reading) = app.reading.acquire().await else {
-        return error(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping");
+    // A few uploads are read at a time: each is held in memory whole. Waiting for a turn and
+    // sending the upload both count against the upload's deadline, so a client that stalls
+    // gives its turn back.
+    let deadline = tokio::time::Instant::now() + app.upload_deadline;
+    let too_slow = || {
+        error(
+            StatusCode::REQUEST_TIMEOUT,
+            format!(
+                "the upload did not arrive whole within {} s; try again (or on a faster connection)",
+                app.upload_deadline.as_secs()
+            ),
+        )
     };
-    let fields = match read_fields(mp).await {
-        Ok(f) => f,
-        Err(r) => return r,
+    let _reading = match tokio::time::timeout_at(deadline, app.reading.acquire()).await {
+        Ok(Ok(permit)) => permit,
+        Ok(Err(_)) => return error(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping"),
+        Err(_) => return too_slow(),
+    };
+    let fields = match tokio::time::timeout_at(deadline, read_fields(mp)).await {
+        Ok(Ok(f)) => f,
+        Ok(Err(r)) => return r,
+        Err(_) => return too_slow(),
     };
     let Ok(permit) = app.checking.clone().acquire_owned().await else {
         return error(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping");

@@ -70,7 +70,7 @@ fn http(addr: SocketAddr, method: &str, path: &str, content_type: Option<&str>, 
     let mut s = TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
     let mut head = format!(
-        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Length: {}\r\n{PAGE_HEADER}: 1\r\n",
+        "{method} {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\nContent-Length: {}\r\n{PAGE_HEADER}: 1\r\n",
         body.len()
     );
     if let Some(t) = content_type {
@@ -236,6 +236,14 @@ fn an_edit_matches_the_command_line_and_serves_only_its_own_files() {
     }
     let (s, b) = http(addr, "GET", &format!("{url}/files/report.json"), None, b"");
     assert_eq!((s, json_of(&b)["composite"].as_str()), (200, Some("detail")));
+    // The report a user downloads names the uploads and the model's folder, no server path.
+    let text = String::from_utf8_lossy(&b);
+    let model_dir = model().display().to_string();
+    assert!(
+        !text.contains(&model_dir) && !text.contains("matedit-serve-") && !text.contains("/in/"),
+        "{text}"
+    );
+    assert_eq!(json_of(&b)["photo"], "photo “car.png”");
     // Nothing else is reachable.
     for bad in [
         format!("{url}/files/..%2F..%2Fin%2Fphoto.png"),
@@ -530,7 +538,7 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
     ]);
     write!(
         raw,
-        "POST /api/edit HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Type: multipart/form-data; boundary={BOUNDARY}\r\nContent-Length: {}\r\n\r\n",
+        "POST /api/edit HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\nContent-Type: multipart/form-data; boundary={BOUNDARY}\r\nContent-Length: {}\r\n\r\n",
         body.len()
     )
     .unwrap();
@@ -622,4 +630,131 @@ fn a_failed_start_leaves_no_work_folder_and_a_port_in_use_is_refused_first() {
     let e = rt.block_on(start_in(busy, &temp)).err().expect("a busy port starts");
     assert!(format!("{e:#}").contains("cannot listen"), "{e:#}");
     empty("port in use");
+}
+
+/// Reads whatever the server sends until it closes the connection (or `limit` passes); the
+/// status of its response, if it sent one, and how long it took.
+fn read_until_closed(mut s: TcpStream, limit: Duration) -> (Option<u16>, Duration) {
+    let t = Instant::now();
+    s.set_read_timeout(Some(limit)).unwrap();
+    let mut out = Vec::new();
+    let _ = s.read_to_end(&mut out);
+    let status = String::from_utf8_lossy(&out)
+        .split(' ')
+        .nth(1)
+        .and_then(|c| c.parse().ok());
+    (status, t.elapsed())
+}
+
+#[test]
+fn stalled_and_slow_clients_hold_nothing_for_longer_than_the_deadlines() {
+    let rt = runtime();
+    let mut cfg = config(4);
+    cfg.deadlines = Deadlines {
+        headers: Duration::from_secs(1),
+        upload: Duration::from_secs(2),
+        grace: Duration::from_secs(2),
+    };
+    let server = rt.block_on(start(cfg)).unwrap();
+    let addr = server.addr;
+    let t0 = Instant::now();
+    // Six uploads that promise a megabyte, send a few bytes and go idle (more than the four
+    // that are read at once); a client sending its headers a byte at a time; an idle one.
+    let stalled: Vec<TcpStream> = (0..6)
+        .map(|_| {
+            let mut s = TcpStream::connect(addr).unwrap();
+            let head = format!(
+                "POST /api/edit HTTP/1.1\r\nHost: 127.0.0.1\r\n{PAGE_HEADER}: 1\r\nContent-Type: multipart/form-data; boundary={BOUNDARY}\r\nContent-Length: 1000000\r\n\r\n--{BOUNDARY}\r\n"
+            );
+            s.write_all(head.as_bytes()).unwrap();
+            s
+        })
+        .collect();
+    let dribble = std::thread::spawn(move || {
+        let mut s = TcpStream::connect(addr).unwrap();
+        let t = Instant::now();
+        for b in b"GET /api/info HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n" {
+            if s.write_all(&[*b]).is_err() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(300));
+        }
+        (read_until_closed(s, Duration::from_secs(20)), t.elapsed())
+    });
+    let idle = TcpStream::connect(addr).unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    // Meanwhile a real client is served: its edit is accepted within the upload deadline
+    // (it waits for a reading turn at most that long) and runs.
+    let (photo, mask) = photo_and_mask();
+    let t = Instant::now();
+    let (s, v) = post_edit(
+        addr,
+        &[
+            ("photo", Some("car.png"), &photo),
+            ("mask", Some("car-mask.png"), &mask),
+            ("material", None, b"library:gold-polished"),
+        ],
+    );
+    assert_eq!(s, 202, "{v}");
+    assert!(t.elapsed() < Duration::from_secs(4), "accepted after {:?}", t.elapsed());
+    let done = wait_for(addr, v["url"].as_str().unwrap(), &["done", "failed"]);
+    assert_eq!(done["state"], "done", "{done}");
+    // Every stalled upload is answered 408 and closed once its deadline is up; the idle
+    // connection and the dribbling one are closed after the header deadline.
+    for s in stalled {
+        let (status, _) = read_until_closed(s, Duration::from_secs(20));
+        assert_eq!(status, Some(408));
+    }
+    assert!(
+        t0.elapsed() < Duration::from_secs(8),
+        "stalled uploads held for {:?}",
+        t0.elapsed()
+    );
+    let (_, idle_for) = read_until_closed(idle, Duration::from_secs(20));
+    assert!(idle_for < Duration::from_secs(6), "an idle connection stayed open");
+    let ((status, _), took) = dribble.join().unwrap();
+    assert_ne!(status, Some(200), "headers a byte at a time were answered");
+    assert!(
+        took < Duration::from_secs(6),
+        "a dribbling client held its connection {took:?}"
+    );
+    // Stopping with a stalled client connected ends within the grace period.
+    let mut held = TcpStream::connect(addr).unwrap();
+    held.write_all(b"POST /api/edit HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 100\r\n\r\nab")
+        .unwrap();
+    let t = Instant::now();
+    rt.block_on(server.stop());
+    assert!(t.elapsed() < Duration::from_secs(4), "stop took {:?}", t.elapsed());
+}
+
+#[test]
+fn requests_naming_another_host_or_changes_from_another_origin_are_refused() {
+    let rt = runtime();
+    let server = rt.block_on(start(config(2))).unwrap();
+    let addr = server.addr;
+    let raw = |head: &str| {
+        let mut s = TcpStream::connect(addr).unwrap();
+        s.write_all(head.as_bytes()).unwrap();
+        read_until_closed(s, Duration::from_secs(20)).0
+    };
+    // DNS rebinding: the attacker's name, resolving to 127.0.0.1.
+    assert_eq!(
+        raw("GET /api/info HTTP/1.1\r\nHost: evil.example:18080\r\nConnection: close\r\n\r\n"),
+        Some(421)
+    );
+    assert_eq!(
+        raw(&format!(
+            "POST /api/jobs/x/cancel HTTP/1.1\r\nHost: 127.0.0.1:{}\r\nOrigin: http://evil.example\r\n{PAGE_HEADER}: 1\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
+            addr.port()
+        )),
+        Some(403)
+    );
+    assert_eq!(
+        raw(&format!(
+            "GET /api/info HTTP/1.1\r\nHost: localhost:{}\r\nConnection: close\r\n\r\n",
+            addr.port()
+        )),
+        Some(200)
+    );
+    rt.block_on(server.stop());
 }
