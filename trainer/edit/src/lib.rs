@@ -749,14 +749,18 @@ fn finish(
     enter(watcher, "write")?;
     let t3 = Instant::now();
     let mats: Vec<Dsbrdf> = targets.iter().map(|(m, _)| m.clone()).collect();
-    report.files = output::write_all(out, &p, &prep, &pred, &composites, &mats)?;
+    // Every file goes to a staging folder first: a full disk or a failed write leaves `out` as
+    // it was, never an edited.png without its report.
+    let stage = output::Staging::new(out)?;
+    report.files = output::write_all(stage.path(), &p, &prep, &pred, &composites, &mats)?;
     if let Some(e) = &report.eq6 {
-        output::energy_plot(&out.join("energy.png"), e)?;
+        output::energy_plot(&stage.path().join("energy.png"), e)?;
         report.files.push("energy.png".into());
     }
     report.seconds.write = t3.elapsed().as_secs_f64();
     report.seconds.total = t0.elapsed().as_secs_f64();
-    output::write_report(out, &report)?;
+    output::write_report(stage.path(), &report)?;
+    stage.publish()?;
     Ok(report)
 }
 

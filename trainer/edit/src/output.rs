@@ -21,7 +21,7 @@ use matedit_contract::io::{
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::tonemap::{srgb_encode, tonemap_u8};
 use matedit_trainer::render::{Batch, RenderingLayer};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Seconds per phase of an edit.
 #[derive(Clone, Debug, Default, serde::Serialize)]
@@ -189,6 +189,82 @@ pub(crate) fn spheres(
             Ok((img, mask.clone()))
         })
         .collect()
+}
+
+/// A hidden folder beside the output folder that an edit's files are written into, then moved
+/// into the output folder together ([`Staging::publish`]); dropped unpublished (an error on the
+/// way), it is removed with what it holds.
+pub struct Staging {
+    dir: PathBuf,
+    out: PathBuf,
+    published: bool,
+}
+
+impl Staging {
+    /// Makes the staging folder for `out` (in `out`'s parent, so that moving is a rename).
+    pub fn new(out: &Path) -> Result<Self> {
+        let name = out
+            .file_name()
+            .with_context(|| format!("{}: the output folder needs a name", out.display()))?;
+        let parent = match out.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        std::fs::create_dir_all(&parent).with_context(|| format!("cannot create {}", parent.display()))?;
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos());
+        let dir = parent.join(format!(
+            ".{}.partial-{}-{nanos}",
+            name.to_string_lossy(),
+            std::process::id()
+        ));
+        std::fs::create_dir(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        Ok(Self {
+            dir,
+            out: out.to_path_buf(),
+            published: false,
+        })
+    }
+
+    /// Where to write.
+    pub fn path(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Moves every file into the output folder: the folder itself when `out` does not exist or
+    /// is empty (one rename), else file by file with `report.json` last, so that a report
+    /// always describes files that are there.
+    pub fn publish(mut self) -> Result<()> {
+        let empty = std::fs::read_dir(&self.out).map_or(true, |mut d| d.next().is_none());
+        if empty {
+            let _ = std::fs::remove_dir(&self.out);
+            if std::fs::rename(&self.dir, &self.out).is_ok() {
+                self.published = true;
+                return Ok(());
+            }
+        }
+        std::fs::create_dir_all(&self.out).with_context(|| format!("cannot create {}", self.out.display()))?;
+        let mut names: Vec<_> = std::fs::read_dir(&self.dir)
+            .with_context(|| format!("cannot read {}", self.dir.display()))?
+            .filter_map(|e| e.ok().map(|e| e.file_name()))
+            .collect();
+        names.sort_by_key(|n| n == "report.json");
+        for n in names {
+            let (from, to) = (self.dir.join(&n), self.out.join(&n));
+            std::fs::rename(&from, &to)
+                .with_context(|| format!("cannot move {} to {}", from.display(), to.display()))?;
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Staging {
+    fn drop(&mut self) {
+        if !self.published {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
+    }
 }
 
 /// Writes every output of an edit but the report; returns the file names.
@@ -451,4 +527,61 @@ pub fn energy_plot(path: &Path, eq6: &super::Eq6Report) -> Result<()> {
         root.present().map_err(e)?;
     }
     std::fs::rename(&tmp, path).with_context(|| format!("cannot move {} to {}", tmp.display(), path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fresh(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("matedit-staging-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    fn hidden_left(parent: &Path) -> Vec<String> {
+        std::fs::read_dir(parent)
+            .unwrap()
+            .filter_map(|e| e.ok().map(|e| e.file_name().to_string_lossy().into_owned()))
+            .filter(|n| n.starts_with('.'))
+            .collect()
+    }
+
+    #[test]
+    fn outputs_appear_all_together_or_not_at_all() {
+        let parent = fresh("all");
+        // A failure on the way (the stage dropped unpublished): nothing in `out`, no stage left.
+        let out = parent.join("out");
+        {
+            let stage = Staging::new(&out).unwrap();
+            std::fs::write(stage.path().join("edited.png"), b"x").unwrap();
+        }
+        assert!(!out.exists());
+        assert!(hidden_left(&parent).is_empty());
+        // Published into a folder that does not exist: every file, one rename.
+        let stage = Staging::new(&out).unwrap();
+        for f in ["edited.png", "report.json"] {
+            std::fs::write(stage.path().join(f), f).unwrap();
+        }
+        stage.publish().unwrap();
+        assert_eq!(std::fs::read_to_string(out.join("report.json")).unwrap(), "report.json");
+        assert!(hidden_left(&parent).is_empty());
+        // Into a folder holding a user's file and an older edit: replaced, the user's file kept.
+        std::fs::write(out.join("notes.txt"), b"mine").unwrap();
+        let stage = Staging::new(&out).unwrap();
+        for f in ["edited.png", "report.json"] {
+            std::fs::write(stage.path().join(f), format!("new {f}")).unwrap();
+        }
+        stage.publish().unwrap();
+        assert_eq!(
+            std::fs::read_to_string(out.join("edited.png")).unwrap(),
+            "new edited.png"
+        );
+        assert_eq!(std::fs::read_to_string(out.join("notes.txt")).unwrap(), "mine");
+        assert!(hidden_left(&parent).is_empty());
+        // A relative output folder without a parent component works too.
+        assert!(Staging::new(Path::new("")).is_err());
+        std::fs::remove_dir_all(&parent).unwrap();
+    }
 }

@@ -79,21 +79,24 @@ pub fn save(root: &Path, name: &str, net: &Net, optim: &ModuleOptimizer, mut sta
         std::fs::remove_dir_all(&tmp)?;
     }
     std::fs::create_dir_all(&tmp)?;
-    let model = tmp.join("model.bpk");
-    net.clone()
-        .into_record()
-        .save(&model)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", model.display()))?;
-    let opt = tmp.join("optimizer.bpk");
-    optim
-        .save(&opt)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", opt.display()))?;
-    state.model_checksum = checksum(&model)?;
-    state.optimizer_checksum = checksum(&opt)?;
-    std::fs::write(tmp.join("state.json"), serde_json::to_string_pretty(&state)?)?;
-    for f in ["model.bpk", "optimizer.bpk", "state.json"] {
-        std::fs::File::open(tmp.join(f))?.sync_all()?;
-    }
+    removed_on_error(&tmp, || {
+        let model = tmp.join("model.bpk");
+        net.clone()
+            .into_record()
+            .save(&model)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", model.display()))?;
+        let opt = tmp.join("optimizer.bpk");
+        optim
+            .save(&opt)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", opt.display()))?;
+        state.model_checksum = checksum(&model)?;
+        state.optimizer_checksum = checksum(&opt)?;
+        std::fs::write(tmp.join("state.json"), serde_json::to_string_pretty(&state)?)?;
+        for f in ["model.bpk", "optimizer.bpk", "state.json"] {
+            std::fs::File::open(tmp.join(f))?.sync_all()?;
+        }
+        Ok(())
+    })?;
     if fin.exists() {
         // Same name again (a resumed run re-writing a checkpoint): move the old one aside first,
         // so that the rename below cannot fail on a non-empty folder.
@@ -110,6 +113,16 @@ pub fn save(root: &Path, name: &str, net: &Net, optim: &ModuleOptimizer, mut sta
         Ok(())
     })?;
     Ok(fin)
+}
+
+/// Runs `write` into the folder `tmp`; when it fails (a full disk), removes `tmp` before
+/// returning the error, so that a failed checkpoint leaves nothing behind.
+fn removed_on_error<T>(tmp: &Path, write: impl FnOnce() -> Result<T>) -> Result<T> {
+    let r = write();
+    if r.is_err() {
+        let _ = std::fs::remove_dir_all(tmp);
+    }
+    r
 }
 
 /// Removes the half-written (`.tmp-*`) and half-replaced (`.old-*`) checkpoint folders a killed
@@ -201,6 +214,22 @@ mod tests {
     use super::*;
     use crate::model::Widths;
     use burn::optim::AdamConfig;
+
+    #[test]
+    fn a_checkpoint_that_fails_to_write_leaves_no_temporary_folder() {
+        let tmp = std::env::temp_dir().join(format!("matedit-checkpoint-fail-{}", std::process::id()));
+        std::fs::create_dir_all(&tmp).unwrap();
+        std::fs::write(tmp.join("model.bpk"), b"half").unwrap();
+        // A failed write (what a full disk gives) removes the folder and keeps the error.
+        let e = removed_on_error(&tmp, || -> Result<()> { anyhow::bail!("No space left on device") }).unwrap_err();
+        assert!(e.to_string().contains("No space"));
+        assert!(!tmp.exists());
+        // A write that succeeds keeps it.
+        std::fs::create_dir_all(&tmp).unwrap();
+        assert_eq!(removed_on_error(&tmp, || Ok(7)).unwrap(), 7);
+        assert!(tmp.is_dir());
+        std::fs::remove_dir_all(&tmp).unwrap();
+    }
 
     #[test]
     fn checkpoints_from_before_baseline_1_still_load_and_both_kinds_round_trip() {
