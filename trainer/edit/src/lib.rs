@@ -508,7 +508,8 @@ pub fn understand(
         &coverage,
         labels.as_ref().map(|(l, n)| (l.as_slice(), *n)),
         model.state.net.input_size,
-    )?;
+    )
+    .with_context(|| path.display().to_string())?;
     enter(w, "network")?;
     let t = Instant::now();
     let mut x = network_prediction(&model.net, model.state.net.env_height, &prep)?;
@@ -524,7 +525,8 @@ pub fn understand(
         &prep,
         &x.normals,
         detail::MAX_DETAIL_OBJECT_PIXELS,
-    )?;
+    )
+    .with_context(|| path.display().to_string())?;
     let eq6 = match optimize {
         None => None,
         Some(cfg) => {

@@ -75,6 +75,7 @@ fn extension(path: &Path) -> String {
 /// the file and the pixel.
 pub fn load_photo(path: &Path) -> Result<Photo> {
     let what = path.display();
+    check_file(path)?;
     match extension(path).as_str() {
         "exr" => {
             let (w, h, ch) = matedit_contract::io::read_exr_channels(path)?;
@@ -160,9 +161,23 @@ fn check_linear(path: &Path, rgb: &[[f32; 3]]) -> Result<()> {
     Ok(())
 }
 
+/// Refuses, by name, what cannot be an image file at all: nothing there, a folder, 0 bytes.
+fn check_file(path: &Path) -> Result<()> {
+    let what = path.display();
+    let meta = std::fs::metadata(path).with_context(|| format!("cannot open {what}"))?;
+    if meta.is_dir() {
+        bail!("{what} is a folder, not an image");
+    }
+    if meta.len() == 0 {
+        bail!("{what} is empty (0 bytes)");
+    }
+    Ok(())
+}
+
 /// Decodes an image with its size checked from the header first.
 fn decode(path: &Path) -> Result<image::DynamicImage> {
     let what = path.display();
+    check_file(path)?;
     let reader = || -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
         image::ImageReader::open(path)
             .with_context(|| format!("cannot open {what}"))?

@@ -277,6 +277,87 @@ fn bad_inputs_name_the_file_and_write_nothing() {
     let missing_end = d.join("no-eoi.jpg");
     std::fs::write(&missing_end, &jbytes[..jbytes.len() - 2]).unwrap();
     check(request(&missing_end, &m, "library:rubber-red"), model(), "truncated");
+    // A photo whose object is black: refused naming the photo (in a transfer, which of two).
+    let dark = d.join("dark-object.png");
+    let mask_img = image::open(&m).unwrap().to_luma8();
+    image::RgbImage::from_fn(60, 40, |x, y| {
+        if mask_img.get_pixel(x, y)[0] > 0 {
+            image::Rgb([0, 0, 0])
+        } else {
+            image::Rgb([90, 90, 90])
+        }
+    })
+    .save(&dark)
+    .unwrap();
+    check(
+        request(&dark, &m, "library:rubber-red"),
+        model(),
+        "dark-object.png: the object is black",
+    );
+    let e = transfer(
+        model(),
+        (&p, Some(&m)),
+        (&dark, Some(&m)),
+        None,
+        Composite::Detail,
+        &d.join("never"),
+    )
+    .unwrap_err();
+    assert!(
+        format!("{e:#}").contains("dark-object.png: the object is black"),
+        "{e:#}"
+    );
+    // An empty file and a folder, named as such.
+    let empty = d.join("empty.png");
+    std::fs::write(&empty, b"").unwrap();
+    check(
+        request(&empty, &m, "library:rubber-red"),
+        model(),
+        "empty.png is empty (0 bytes)",
+    );
+    let folder = d.join("folder.png");
+    std::fs::create_dir_all(&folder).unwrap();
+    check(
+        request(&folder, &m, "library:rubber-red"),
+        model(),
+        "folder.png is a folder",
+    );
+    check(
+        request(&p, &folder, "library:rubber-red"),
+        model(),
+        "folder.png is a folder",
+    );
+    // Linear photos cut short: EXR and HDR, as the whole files are accepted.
+    let rgb = image::open(&p).unwrap().to_rgb32f();
+    let exr = d.join("whole.exr");
+    let plane = |c: usize| rgb.pixels().map(|px| px[c]).collect::<Vec<f32>>();
+    matedit_contract::io::write_exr_channels(&exr, 60, 40, vec![("R", plane(0)), ("G", plane(1)), ("B", plane(2))])
+        .unwrap();
+    let hdr = d.join("whole.hdr");
+    let pixels: Vec<image::Rgb<f32>> = rgb.pixels().copied().collect();
+    image::codecs::hdr::HdrEncoder::new(std::fs::File::create(&hdr).unwrap())
+        .encode(&pixels, 60, 40)
+        .unwrap();
+    for whole in [&exr, &hdr] {
+        let bytes = std::fs::read(whole).unwrap();
+        let ext = whole.extension().unwrap().to_str().unwrap();
+        for frac in [0.5, 0.95] {
+            let name = format!("cut-{frac}.{ext}");
+            check(
+                request(&cut(&bytes, &name, frac), &m, "library:rubber-red"),
+                model(),
+                &name,
+            );
+        }
+        assert!(
+            edit(
+                model(),
+                &request(whole, &m, "library:rubber-red"),
+                &d.join(format!("{ext}-out"))
+            )
+            .is_ok()
+        );
+    }
     assert!(
         edit(
             model(),

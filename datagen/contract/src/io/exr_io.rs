@@ -166,8 +166,12 @@ pub const EXR_MAX_EXPANSION: u64 = 4096;
 /// Refuses a file (`bytes`, read from `path`) whose headers declare more pixel data than
 /// [`EXR_MAX_EXPANSION`] allows.
 fn check_exr_size(path: &Path, bytes: &[u8]) -> Result<()> {
-    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
-        .with_context(|| format!("cannot read {}", path.display()))?;
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false).with_context(|| {
+        format!(
+            "{}: cannot decode the EXR header (truncated or corrupt?)",
+            path.display()
+        )
+    })?;
     let declared: u128 = meta
         .headers
         .iter()
@@ -199,7 +203,7 @@ pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, 
         .first_valid_layer()
         .all_attributes()
         .from_buffered(std::io::Cursor::new(bytes))
-        .with_context(|| format!("cannot read {}", path.display()))?;
+        .with_context(|| format!("{}: cannot decode the EXR (truncated or corrupt?)", path.display()))?;
     let size = image.layer_data.size;
     let mut out = BTreeMap::new();
     for ch in &image.layer_data.channel_data.list {

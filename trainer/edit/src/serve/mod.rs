@@ -388,7 +388,14 @@ async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
         let text = || String::from_utf8_lossy(&bytes).trim().to_string();
         match name.as_str() {
             "photo" | "mask" | "source" | "source_mask" => {
-                // An empty file input sends an empty part: as if not given.
+                // An empty file input sends an empty part without a name: as if not given. A
+                // file chosen that is empty is an error of its own.
+                if bytes.is_empty() && !file_name.is_empty() {
+                    return Err(error(
+                        StatusCode::UNPROCESSABLE_ENTITY,
+                        format!("“{}” is empty (0 bytes)", upload::display_name(&file_name)),
+                    ));
+                }
                 if !bytes.is_empty() {
                     let role = match name.as_str() {
                         "photo" => "photo",

@@ -439,6 +439,15 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
         ),
         (
             vec![
+                ("photo", Some("nothing.png"), b""),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
+            ],
+            422,
+            "“nothing.png” is empty (0 bytes)",
+        ),
+        (
+            vec![
                 ("photo", Some("half.png"), &truncated),
                 ("mask", Some("m.png"), &mask),
                 ("material", None, gold),
