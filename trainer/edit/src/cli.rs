@@ -177,6 +177,15 @@ file system. Binds to 127.0.0.1 unless --bind says otherwise.")]
         /// Finished edits whose files are kept for download (1–10000).
         #[arg(long, default_value_t = 32, value_parser = count::<1, 10000>, allow_negative_numbers = true)]
         keep: usize,
+        /// The most disk the kept edits may use together, in MB (1–1000000); the oldest go
+        /// first.
+        #[arg(long, default_value_t = 2048, value_parser = count::<1, 1_000_000>, allow_negative_numbers = true)]
+        keep_mb: usize,
+        /// The most memory the edits in the server may need together, in MB (256–1000000),
+        /// estimated from each photo's size before it is decoded; a photo that needs more is
+        /// refused, others wait for memory (within --upload-seconds).
+        #[arg(long, default_value_t = 4096, value_parser = count::<256, 1_000_000>, allow_negative_numbers = true)]
+        max_memory_mb: usize,
         /// Folder for uploads and outputs (default: a temporary one, removed on exit).
         #[arg(long)]
         work: Option<PathBuf>,
@@ -257,6 +266,8 @@ fn run(cli: Cli) -> Result<()> {
             max_upload_mb,
             max_megapixels,
             keep,
+            keep_mb,
+            max_memory_mb,
             work,
             allow_hosts,
             upload_seconds,
@@ -268,6 +279,8 @@ fn run(cli: Cli) -> Result<()> {
             cfg.max_upload_bytes = max_upload_mb.saturating_mul(1 << 20);
             cfg.max_pixels = (max_megapixels * 1e6) as u64;
             cfg.keep = keep;
+            cfg.keep_bytes = keep_mb as u64 * (1 << 20);
+            cfg.max_memory_mb = max_memory_mb as u64;
             cfg.work = work;
             cfg.allow_hosts = allow_hosts;
             cfg.deadlines.upload = std::time::Duration::from_secs(upload_seconds as u64);

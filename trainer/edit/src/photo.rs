@@ -78,19 +78,55 @@ pub fn load_photo(path: &Path) -> Result<Photo> {
     check_file(path)?;
     match extension(path).as_str() {
         "exr" => {
-            let (w, h, ch) = matedit_contract::io::read_exr_channels(path)?;
-            check_size(path, w as u64, h as u64)?;
-            let get = |n: &str| {
-                ch.get(n)
-                    .with_context(|| format!("{what}: no {n} channel (an EXR photo needs R, G, B)"))
-            };
-            let (r, g, b) = (get("R")?, get("G")?, get("B")?);
+            // Only R, G, B and A are decoded, whatever else the file holds, after the header's
+            // size was checked against the pixel limit and the file's length.
+            let bytes = std::fs::read(path).with_context(|| format!("cannot read {what}"))?;
+            matedit_contract::io::check_exr_size(path, &bytes)?;
+            let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&bytes), false)
+                .with_context(|| format!("{what}: cannot decode the EXR header (truncated or corrupt?)"))?;
+            let size = meta.headers.first().map(|h| h.layer_size).unwrap_or_default();
+            check_size(path, size.width() as u64, size.height() as u64)?;
+            for n in ["R", "G", "B"] {
+                if !meta
+                    .headers
+                    .iter()
+                    .any(|h| h.channels.list.iter().any(|c| c.name.to_string() == n))
+                {
+                    bail!("{what}: no {n} channel (an EXR photo needs R, G, B)");
+                }
+            }
+            use exr::prelude::{ReadChannels as _, ReadLayers as _};
+            type Pixels = (usize, bool, Vec<[f32; 4]>);
+            let image = exr::prelude::read()
+                .no_deep_data()
+                .largest_resolution_level()
+                .rgba_channels(
+                    |s, ch: &exr::image::RgbaChannels| -> Pixels {
+                        (s.width(), ch.3.is_some(), vec![[0.0; 4]; s.area()])
+                    },
+                    |px: &mut Pixels, at, (r, g, b, a): (f32, f32, f32, f32)| {
+                        px.2[at.y() * px.0 + at.x()] = [r, g, b, a]
+                    },
+                )
+                .first_valid_layer()
+                .all_attributes()
+                .from_buffered(std::io::Cursor::new(bytes))
+                .with_context(|| format!("{what}: cannot decode the EXR (truncated or corrupt?)"))?;
+            let size = image.layer_data.size;
+            let (w, h) = (size.width(), size.height());
+            let (_, has_alpha, px) = image.layer_data.channel_data.pixels;
+            let (r, g, b): (Vec<f32>, Vec<f32>, Vec<f32>) = (
+                px.iter().map(|p| p[0]).collect(),
+                px.iter().map(|p| p[1]).collect(),
+                px.iter().map(|p| p[2]).collect(),
+            );
+            let a: Option<Vec<f32>> = has_alpha.then(|| px.iter().map(|p| p[3]).collect());
             let rgb: Vec<[f32; 3]> = (0..w * h).map(|k| [r[k], g[k], b[k]]).collect();
             check_linear(path, &rgb)?;
-            if let Some(k) = ch.get("A").and_then(|a| a.iter().position(|v| v.is_nan())) {
+            if let Some(k) = a.as_ref().and_then(|a| a.iter().position(|v| v.is_nan())) {
                 bail!("{what}: alpha is NaN at pixel ({}, {})", k % w, k / w);
             }
-            let alpha = ch.get("A").map(|a| a.iter().map(|v| v.clamp(0.0, 1.0)).collect());
+            let alpha = a.map(|a| a.iter().map(|v| v.clamp(0.0, 1.0)).collect());
             Ok(Photo {
                 width: w,
                 height: h,

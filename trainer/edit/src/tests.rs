@@ -563,3 +563,37 @@ fn a_given_light_replaces_l_prime_at_the_level_the_background_shows() {
     assert!(format!("{e:#}").contains("nope"), "{e:#}");
     assert!(!out.exists());
 }
+
+fn as_refs(ch: &[(String, Vec<f32>)]) -> Vec<(&str, Vec<f32>)> {
+    ch.iter().map(|(n, v)| (n.as_str(), v.clone())).collect()
+}
+
+#[test]
+fn an_exr_photo_is_read_from_its_r_g_b_and_a_whatever_else_it_holds() {
+    let d = dir("exr-channels");
+    let (w, h) = (6usize, 4usize);
+    let plane = |c: usize| {
+        (0..w * h)
+            .map(|k| 0.1 * c as f32 + 0.01 * k as f32)
+            .collect::<Vec<f32>>()
+    };
+    let mut ch: Vec<(String, Vec<f32>)> = vec![("R".into(), plane(1)), ("G".into(), plane(2)), ("B".into(), plane(3))];
+    let rgb_only = d.join("rgb.exr");
+    matedit_contract::io::write_exr_channels(&rgb_only, w, h, as_refs(&ch)).unwrap();
+    for k in 0..10 {
+        ch.push((format!("extra{k}"), vec![1e6; w * h]));
+    }
+    ch.push(("A".into(), vec![0.5; w * h]));
+    let many = d.join("many.exr");
+    matedit_contract::io::write_exr_channels(&many, w, h, as_refs(&ch)).unwrap();
+    let (a, b) = (load_photo(&rgb_only).unwrap(), load_photo(&many).unwrap());
+    assert_eq!(a.rgb, b.rgb);
+    assert!(a.alpha.is_none());
+    assert_eq!(b.alpha, Some(vec![0.5; w * h]));
+    assert!((a.rgb[5][1] - (0.2 + 0.05)).abs() < 1e-6);
+    // Without G: refused by name.
+    let no_g = d.join("no-g.exr");
+    matedit_contract::io::write_exr_channels(&no_g, w, h, vec![("R", plane(1)), ("B", plane(3))]).unwrap();
+    let e = format!("{:#}", load_photo(&no_g).unwrap_err());
+    assert!(e.contains("no G channel"), "{e}");
+}

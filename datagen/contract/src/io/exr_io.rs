@@ -165,7 +165,7 @@ pub const EXR_MAX_EXPANSION: u64 = 4096;
 
 /// Refuses a file (`bytes`, read from `path`) whose headers declare more pixel data than
 /// [`EXR_MAX_EXPANSION`] allows.
-fn check_exr_size(path: &Path, bytes: &[u8]) -> Result<()> {
+pub fn check_exr_size(path: &Path, bytes: &[u8]) -> Result<()> {
     let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false).with_context(|| {
         format!(
             "{}: cannot decode the EXR header (truncated or corrupt?)",

@@ -62,6 +62,10 @@ pub struct Job {
     pub submitted: Instant,
     state: Mutex<State>,
     finished_after: Mutex<Option<f64>>,
+    /// Bytes its folder holds once finished.
+    disk: Mutex<u64>,
+    /// The server's memory it reserved, given back when it ends.
+    reservation: Mutex<Option<tokio::sync::OwnedSemaphorePermit>>,
 }
 
 impl Job {
@@ -76,6 +80,8 @@ impl Job {
             submitted: Instant::now(),
             state: Mutex::new(State::Queued),
             finished_after: Mutex::new(None),
+            disk: Mutex::new(0),
+            reservation: Mutex::new(None),
         }
     }
 
@@ -115,6 +121,12 @@ impl Job {
             .collect();
         let text = name_uploads(&serde_json::to_string(r).unwrap_or_default(), &names);
         serde_json::from_str(&text).unwrap_or(Value::Null)
+    }
+
+    /// The job, holding `reservation` until it ends.
+    pub fn holding(self, reservation: tokio::sync::OwnedSemaphorePermit) -> Self {
+        *lock(&self.reservation) = Some(reservation);
+        self
     }
 
     /// Rewrites the job's `report.json` as the user may download it: uploads named as the user
@@ -173,12 +185,28 @@ pub struct Queue {
     ready: Condvar,
     capacity: usize,
     keep: usize,
+    keep_bytes: u64,
+}
+
+/// Bytes of the files under `dir` (what a kept job holds on disk).
+fn disk_use(dir: &Path) -> u64 {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    entries
+        .filter_map(Result::ok)
+        .map(|e| match e.file_type() {
+            Ok(t) if t.is_dir() => disk_use(&e.path()),
+            Ok(_) => e.metadata().map_or(0, |m| m.len()),
+            Err(_) => 0,
+        })
+        .sum()
 }
 
 impl Queue {
     /// At most `capacity` jobs waiting (beyond the one running); the last `keep` finished jobs
-    /// (and their files) kept.
-    pub fn new(capacity: usize, keep: usize) -> Self {
+    /// (and their files) kept, as long as they hold at most `keep_bytes` on disk together.
+    pub fn new(capacity: usize, keep: usize, keep_bytes: u64) -> Self {
         Self {
             inner: Mutex::new(Inner {
                 waiting: VecDeque::new(),
@@ -189,6 +217,7 @@ impl Queue {
             ready: Condvar::new(),
             capacity: capacity.max(1),
             keep: keep.max(1),
+            keep_bytes,
         }
     }
 
@@ -247,6 +276,7 @@ impl Queue {
         if let Some(p) = q.waiting.iter().position(|j| j.id == id) {
             q.waiting.remove(p);
             job.set(State::Cancelled);
+            lock(&job.reservation).take();
             self.retire(&mut q, &job);
         }
         Some(job.state())
@@ -284,14 +314,24 @@ impl Queue {
 
     fn finish(&self, job: &Arc<Job>, state: State) {
         job.set(state);
+        lock(&job.reservation).take();
         let mut q = lock(&self.inner);
         self.retire(&mut q, job);
     }
 
-    /// Keeps the last `keep` finished jobs; older ones and their folders go.
+    /// Keeps the last `keep` finished jobs, and fewer when they hold more than `keep_bytes` on
+    /// disk (the newest is always kept, whatever its size); older ones and their folders go.
     fn retire(&self, q: &mut Inner, job: &Arc<Job>) {
+        *lock(&job.disk) = disk_use(&job.dir);
         q.finished.push_back(job.id.clone());
-        while q.finished.len() > self.keep {
+        let held = |q: &Inner| -> u64 {
+            q.finished
+                .iter()
+                .filter_map(|id| q.jobs.get(id))
+                .map(|j| *lock(&j.disk))
+                .sum()
+        };
+        while q.finished.len() > self.keep || (q.finished.len() > 1 && held(q) > self.keep_bytes) {
             if let Some(old) = q.finished.pop_front()
                 && let Some(j) = q.jobs.remove(&old)
             {

@@ -59,6 +59,11 @@ pub struct ServeConfig {
     pub max_pixels: u64,
     /// Finished jobs whose files are kept.
     pub keep: usize,
+    /// The most disk the kept jobs may use together (the newest is kept whatever its size).
+    pub keep_bytes: u64,
+    /// The most memory the edits in the server (checked, queued and running) may need
+    /// together, in MiB, estimated from their photos' sizes before anything is decoded.
+    pub max_memory_mb: u64,
     /// Where jobs' uploads and outputs go (default: a fresh folder in the system's temp folder,
     /// removed when the server stops).
     pub work: Option<PathBuf>,
@@ -104,6 +109,8 @@ impl ServeConfig {
             max_upload_bytes: 32 << 20,
             max_pixels: 25_000_000,
             keep: 32,
+            keep_bytes: 2 << 30,
+            max_memory_mb: 4096,
             work: None,
             eq6: Eq6Config::default(),
             allow_hosts: Vec::new(),
@@ -127,6 +134,11 @@ struct App {
     reading: tokio::sync::Semaphore,
     /// How long an upload may take.
     upload_deadline: std::time::Duration,
+    /// MiB the edits in the server may still reserve ([`upload::memory_mb`] each, held from
+    /// the upload's check until the edit ends).
+    memory: Arc<tokio::sync::Semaphore>,
+    /// All of it.
+    max_memory_mb: u64,
 }
 
 /// A running server.
@@ -224,7 +236,7 @@ async fn serve_from(cfg: ServeConfig, work: PathBuf, remove_work: bool) -> Resul
     let listener = tokio::net::TcpListener::bind((cfg.bind, cfg.port))
         .await
         .with_context(|| format!("cannot listen on {}:{}", cfg.bind, cfg.port))?;
-    let queue = Arc::new(Queue::new(cfg.queue, cfg.keep));
+    let queue = Arc::new(Queue::new(cfg.queue, cfg.keep, cfg.keep_bytes));
     // The network stays on the worker thread that loaded it.
     let (tx, rx) = std::sync::mpsc::channel::<Result<Value>>();
     let (q, path) = (queue.clone(), cfg.model.clone());
@@ -265,6 +277,10 @@ async fn serve_from(cfg: ServeConfig, work: PathBuf, remove_work: bool) -> Resul
         checking: Arc::new(tokio::sync::Semaphore::new(2)),
         reading: tokio::sync::Semaphore::new(4),
         upload_deadline: cfg.deadlines.upload,
+        memory: Arc::new(tokio::sync::Semaphore::new(
+            cfg.max_memory_mb.min(tokio::sync::Semaphore::MAX_PERMITS as u64) as usize,
+        )),
+        max_memory_mb: cfg.max_memory_mb,
         secret: *blake3::hash(format!("{}:{}:{:?}", std::process::id(), nanos(), work).as_bytes()).as_bytes(),
     });
     let hosts = guard::Hosts {
@@ -477,6 +493,34 @@ async fn submit(State(app): State<Arc<App>>, headers: HeaderMap, mp: Multipart) 
         Ok(Err(r)) => return r,
         Err(_) => return too_slow(),
     };
+    // Admitted by what its photos will need in memory, told by their headers before anything is
+    // decoded; the reservation lasts until the edit ends.
+    let need = upload::memory_mb(
+        ["photo", "source"]
+            .iter()
+            .filter_map(|role| fields.files.get(role).map(|p| p.bytes.as_ref())),
+        app.max_pixels,
+    );
+    if need > app.max_memory_mb {
+        return error(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!(
+                "editing these photos needs about {need} MB of memory, more than this server allows ({} MB); send a smaller photo",
+                app.max_memory_mb
+            ),
+        );
+    }
+    let reservation = match tokio::time::timeout_at(deadline, app.memory.clone().acquire_many_owned(need as u32)).await
+    {
+        Ok(Ok(r)) => r,
+        Ok(Err(_)) => return error(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping"),
+        Err(_) => {
+            return error(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the edits in progress use the memory this server allows; try again in a minute",
+            );
+        }
+    };
     let Ok(permit) = app.checking.clone().acquire_owned().await else {
         return error(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping");
     };
@@ -492,7 +536,10 @@ async fn submit(State(app): State<Arc<App>>, headers: HeaderMap, mp: Multipart) 
         let dir = app2.work.join(&id);
         let prepared = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| prepare(&app2, &dir, fields)));
         let answer = match prepared {
-            Ok(Ok((work, names))) => match app2.queue.submit(Job::new(id.clone(), dir.clone(), work, names)) {
+            Ok(Ok((work, names))) => match app2
+                .queue
+                .submit(Job::new(id.clone(), dir.clone(), work, names).holding(reservation))
+            {
                 Ok((_, place)) => Ok((id.clone(), place)),
                 Err(full) => Err((StatusCode::SERVICE_UNAVAILABLE, full.to_string())),
             },

@@ -767,3 +767,83 @@ fn requests_naming_another_host_or_changes_from_another_origin_are_refused() {
     );
     rt.block_on(server.stop());
 }
+
+#[test]
+fn kept_edits_stay_within_their_disk_budget_the_newest_always_kept() {
+    let rt = runtime();
+    let work = dir("keep-bytes");
+    let mut cfg = config(4);
+    cfg.work = Some(work.clone());
+    cfg.keep = 32;
+    cfg.keep_bytes = 1; // smaller than any edit: only the newest stays
+    let server = rt.block_on(start(cfg)).unwrap();
+    let addr = server.addr;
+    let (photo, mask) = photo_and_mask();
+    let mut urls = Vec::new();
+    for _ in 0..3 {
+        let (s, v) = post_edit(
+            addr,
+            &[
+                ("photo", Some("car.png"), &photo),
+                ("mask", Some("car-mask.png"), &mask),
+                ("material", None, b"library:gold-polished"),
+            ],
+        );
+        assert_eq!(s, 202, "{v}");
+        let url = v["url"].as_str().unwrap().to_string();
+        assert_eq!(wait_for(addr, &url, &["done", "failed"])["state"], "done");
+        urls.push(url);
+    }
+    // The older edits and their folders are gone; the newest is served whole.
+    for url in &urls[..2] {
+        assert_eq!(http(addr, "GET", url, None, b"").0, 404, "{url}");
+    }
+    let (s, _) = http(addr, "GET", &format!("{}/files/edited.png", urls[2]), None, b"");
+    assert_eq!(s, 200);
+    let jobs: Vec<_> = std::fs::read_dir(&work)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.path().is_dir())
+        .collect();
+    assert_eq!(jobs.len(), 1, "{jobs:?}");
+    rt.block_on(server.stop());
+    let _ = std::fs::remove_dir_all(&work);
+}
+
+#[test]
+fn edits_are_admitted_by_the_memory_their_photos_need() {
+    let rt = runtime();
+    let (photo, mask) = photo_and_mask();
+    let parts: [(&str, Option<&str>, &[u8]); 3] = [
+        ("photo", Some("car.png"), &photo),
+        ("mask", Some("car-mask.png"), &mask),
+        ("material", None, b"library:gold-polished"),
+    ];
+    let need = upload::memory_mb([photo.as_slice()], u64::MAX);
+    assert_eq!(
+        upload::memory_mb([photo.as_slice()], 100),
+        64,
+        "over the pixel limit: left to the pixel check"
+    );
+    assert_eq!(need, (60 * 40 * upload::EDIT_BYTES_PER_PIXEL).div_ceil(1 << 20) + 64);
+    // A budget below one edit's need: refused by name, before decoding.
+    let mut cfg = config(4);
+    cfg.max_memory_mb = need - 1;
+    let server = rt.block_on(start(cfg)).unwrap();
+    let (s, v) = post_edit(server.addr, &parts);
+    assert_eq!(s, 413, "{v}");
+    assert!(v["error"].as_str().unwrap().contains("of memory"), "{v}");
+    rt.block_on(server.stop());
+    // A budget of one edit: edits one after another, each reservation given back at its end
+    // (five in a row would wait forever otherwise).
+    let mut cfg = config(4);
+    cfg.max_memory_mb = need;
+    let server = rt.block_on(start(cfg)).unwrap();
+    for _ in 0..5 {
+        let (s, v) = post_edit(server.addr, &parts);
+        assert_eq!(s, 202, "{v}");
+        let done = wait_for(server.addr, v["url"].as_str().unwrap(), &["done", "failed"]);
+        assert_eq!(done["state"], "done", "{done}");
+    }
+    rt.block_on(server.stop());
+}
