@@ -82,8 +82,9 @@ enum Command {
         /// Output PNG (default DIR/inspect.png).
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Number of samples (rows), chosen to cover the most shapes, materials and environments.
-        #[arg(long, default_value_t = 6)]
+        /// Number of samples (rows; 1–10000), chosen to cover the most shapes, materials and
+        /// environments.
+        #[arg(long, default_value_t = 6, value_parser = count_in(1, 10_000))]
         samples: usize,
         /// Only samples of this split.
         #[arg(long)]
@@ -93,8 +94,8 @@ enum Command {
     Bench {
         /// The manifest (TOML).
         manifest: PathBuf,
-        /// Samples, spread over the plan.
-        #[arg(long, default_value_t = 8)]
+        /// Samples, spread over the plan (1–100000).
+        #[arg(long, default_value_t = 8, value_parser = count_in(1, 100_000))]
         samples: usize,
         /// Reference the errors are measured against.
         #[arg(long, default_value = "exact")]
@@ -102,8 +103,8 @@ enum Command {
         /// Options to time, comma-separated.
         #[arg(long, default_value = "zonal,fast", value_delimiter = ',')]
         options: Vec<Quality>,
-        /// Override the image side.
-        #[arg(long)]
+        /// Override the image side (1–16384).
+        #[arg(long, value_parser = count_in(1, 16_384))]
         res: Option<usize>,
         /// Also print every sample's error per option.
         #[arg(long)]
@@ -248,12 +249,12 @@ struct RenderArgs {
     /// `sphere` (analytic unit sphere), `procedural:car|chair|sofa|monitor:SEED`, or an OBJ path.
     #[arg(long, default_value = "sphere")]
     shape: String,
-    /// Object yaw about +y, degrees.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
-    yaw: f32,
-    /// Object pitch about +x, degrees (positive tips the top towards the camera).
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
-    pitch: f32,
+    /// Object yaw about +y, degrees (−360–360).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = finite_in(-360.0, 360.0))]
+    yaw: f64,
+    /// Object pitch about +x, degrees (−360–360; positive tips the top towards the camera).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = finite_in(-360.0, 360.0))]
+    pitch: f64,
     /// Which axis of the mesh file points up (x, -x, y, -y, z, -z); it becomes +y.
     #[arg(long, default_value = "y")]
     up: UpAxis,
@@ -290,9 +291,9 @@ struct RenderArgs {
     /// Also write a tone-mapped PNG (exposure, clamp to [0, 1], sRGB; alpha = mask).
     #[arg(long)]
     png: Option<PathBuf>,
-    /// Exposure multiplier for the PNG.
-    #[arg(long, default_value_t = 1.0)]
-    exposure: f32,
+    /// Exposure multiplier for the PNG (1e-6–1e6).
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true, value_parser = finite_in(1e-6, 1e6))]
+    exposure: f64,
     /// Also write the environment as used (rotated, resampled) as EXR.
     #[arg(long)]
     env_out: Option<PathBuf>,
@@ -302,8 +303,8 @@ fn run_render(a: RenderArgs) -> Result<()> {
     let opts = RenderOptions {
         shape: a.shape,
         up: a.up,
-        yaw_deg: a.yaw,
-        pitch_deg: a.pitch,
+        yaw_deg: a.yaw as f32,
+        pitch_deg: a.pitch as f32,
         brdf: a.brdf,
         env: a.env,
         env_rotation_deg: a.env_rotation,
@@ -317,7 +318,7 @@ fn run_render(a: RenderArgs) -> Result<()> {
     let r = render(&opts)?;
     r.write_exr(&a.out)?;
     if let Some(p) = &a.png {
-        r.write_png(p, a.exposure)?;
+        r.write_png(p, a.exposure as f32)?;
     }
     if let Some(p) = &a.env_out {
         r.write_env(p)?;
@@ -438,6 +439,71 @@ pub fn main() -> ExitCode {
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
+        }
+    }
+}
+
+/// A clap value parser: a finite number in `[lo, hi]`, refused naming the range.
+fn finite_in(lo: f64, hi: f64) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
+    move |s: &str| {
+        let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
+        if !(lo..=hi).contains(&v) {
+            return Err(format!("{s:?} is outside {lo}–{hi}"));
+        }
+        Ok(v)
+    }
+}
+
+/// A clap value parser: a whole number in `[lo, hi]`.
+fn count_in(lo: usize, hi: usize) -> impl Fn(&str) -> Result<usize, String> + Clone + Send + Sync + 'static {
+    move |s: &str| {
+        let v: usize = s.trim().parse().map_err(|_| format!("{s:?} is not a whole number"))?;
+        if !(lo..=hi).contains(&v) {
+            return Err(format!("{v} is outside {lo}–{hi}"));
+        }
+        Ok(v)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numeric_options_outside_their_ranges_are_refused_naming_the_option() {
+        let render = [
+            "datagen",
+            "render",
+            "--brdf",
+            "lambert:0.5,0.5,0.5",
+            "--env",
+            "builtin:sky",
+            "--out",
+            "r.exr",
+        ];
+        for (option, value) in [
+            ("--yaw", "NaN"),
+            ("--yaw", "1e300"),
+            ("--pitch", "inf"),
+            ("--exposure", "-1"),
+            ("--exposure", "NaN"),
+            ("--exposure", "0"),
+        ] {
+            let e = Cli::try_parse_from(render.iter().chain(&[option, value]))
+                .err()
+                .unwrap_or_else(|| panic!("{option} {value} accepted"));
+            assert!(e.to_string().contains(option), "{option} {value}: {e}");
+        }
+        assert!(Cli::try_parse_from(render.iter().chain(&["--yaw", "-90", "--exposure", "2"])).is_ok());
+        for args in [
+            &["datagen", "inspect", "d", "--samples", "0"][..],
+            &["datagen", "bench", "m.toml", "--samples", "0"],
+            &["datagen", "bench", "m.toml", "--res", "0"],
+        ] {
+            let e = Cli::try_parse_from(args)
+                .err()
+                .unwrap_or_else(|| panic!("{args:?} accepted"));
+            assert!(e.to_string().contains(args[3]), "{args:?}: {e}");
         }
     }
 }

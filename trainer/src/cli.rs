@@ -62,8 +62,8 @@ enum Command {
         /// Output JSON; the tables go next to it as .md.
         #[arg(long)]
         out: PathBuf,
-        /// Samples per batch.
-        #[arg(long, default_value_t = 8)]
+        /// Samples per batch (1–4096).
+        #[arg(long, default_value_t = 8, value_parser = count_in(1, 4096))]
         batch: usize,
         /// At most this many samples (0: all).
         #[arg(long, default_value_t = 0)]
@@ -78,17 +78,17 @@ enum Command {
         /// seconds per sample), as Table 3's "+ Eq. 6" column.
         #[arg(long)]
         eq6: bool,
-        /// Eq. 6's weight a of the normal prior.
-        #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().a)]
+        /// Eq. 6's weight a of the normal prior (0–1e6).
+        #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().a, value_parser = finite_in(0.0, 1e6), allow_negative_numbers = true)]
         eq6_a: f64,
-        /// Eq. 6's weight b of the light prior.
-        #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().b)]
+        /// Eq. 6's weight b of the light prior (0–1e6).
+        #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().b, value_parser = finite_in(0.0, 1e6), allow_negative_numbers = true)]
         eq6_b: f64,
-        /// Eq. 6's rounds of (light, material, normals).
-        #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().rounds)]
+        /// Eq. 6's rounds of (light, material, normals) (1–100).
+        #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().rounds, value_parser = count_in(1, 100), allow_negative_numbers = true)]
         eq6_rounds: usize,
-        /// Eq. 6's L-BFGS iterations per property and round.
-        #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().iterations)]
+        /// Eq. 6's L-BFGS iterations per property and round (1–1000).
+        #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().iterations, value_parser = count_in(1, 1000), allow_negative_numbers = true)]
         eq6_iterations: usize,
         /// Objects of more pixels run Eq. 6's alternation on every k-th pixel (0: never).
         #[arg(long, default_value_t = crate::post_optimisation::Eq6Config::default().coarse_pixels)]
@@ -97,17 +97,17 @@ enum Command {
         /// (Table 3's baseline; slow: seconds per sample).
         #[arg(long)]
         lombardi: bool,
-        /// Its reflectance prior's relative weight.
-        #[arg(long, default_value_t = LombardiConfig::default().material_weight)]
+        /// Its reflectance prior's relative weight (0–1e6).
+        #[arg(long, default_value_t = LombardiConfig::default().material_weight, value_parser = finite_in(0.0, 1e6), allow_negative_numbers = true)]
         lombardi_material_weight: f64,
-        /// Its natural-illumination prior's relative weight.
-        #[arg(long, default_value_t = LombardiConfig::default().light_weight)]
+        /// Its natural-illumination prior's relative weight (0–1e6).
+        #[arg(long, default_value_t = LombardiConfig::default().light_weight, value_parser = finite_in(0.0, 1e6), allow_negative_numbers = true)]
         lombardi_light_weight: f64,
-        /// Its rounds of (material, light).
-        #[arg(long, default_value_t = LombardiConfig::default().rounds)]
+        /// Its rounds of (material, light) (1–100).
+        #[arg(long, default_value_t = LombardiConfig::default().rounds, value_parser = count_in(1, 100), allow_negative_numbers = true)]
         lombardi_rounds: usize,
-        /// Its L-BFGS iterations per property and round.
-        #[arg(long, default_value_t = LombardiConfig::default().iterations)]
+        /// Its L-BFGS iterations per property and round (1–1000).
+        #[arg(long, default_value_t = LombardiConfig::default().iterations, value_parser = count_in(1, 1000), allow_negative_numbers = true)]
         lombardi_iterations: usize,
         /// No progress bar.
         #[arg(long)]
@@ -129,14 +129,14 @@ enum Command {
     /// Rendering layer forward+backward time and peak memory (fused vs tensor reference), and
     /// training images/s per network configuration.
     Bench {
-        /// Batch size of the rendering-layer measurement.
-        #[arg(long, default_value_t = 8)]
+        /// Batch size of the rendering-layer measurement (1–1024).
+        #[arg(long, default_value_t = 8, value_parser = count_in(1, 1024), allow_negative_numbers = true)]
         batch: usize,
-        /// Image side of the rendering-layer measurement.
-        #[arg(long, default_value_t = 128)]
+        /// Image side of the rendering-layer measurement (1–4096).
+        #[arg(long, default_value_t = 128, value_parser = count_in(1, 4096), allow_negative_numbers = true)]
         size: usize,
-        /// Timed runs of the fused layer (the median is printed).
-        #[arg(long, default_value_t = 5)]
+        /// Timed runs of the fused layer (the median is printed; 1–1000).
+        #[arg(long, default_value_t = 5, value_parser = count_in(1, 1000), allow_negative_numbers = true)]
         runs: usize,
         /// Skip the (slow) tensor reference.
         #[arg(long)]
@@ -348,6 +348,61 @@ pub fn main(alloc: Option<&PeakAlloc>) -> ExitCode {
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
+        }
+    }
+}
+
+/// A clap value parser: a finite number in `[lo, hi]`, refused naming the range.
+fn finite_in(lo: f64, hi: f64) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
+    move |s: &str| {
+        let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
+        if !(lo..=hi).contains(&v) {
+            return Err(format!("{s:?} is outside {lo}–{hi}"));
+        }
+        Ok(v)
+    }
+}
+
+/// A clap value parser: a whole number in `[lo, hi]`.
+fn count_in(lo: usize, hi: usize) -> impl Fn(&str) -> Result<usize, String> + Clone + Send + Sync + 'static {
+    move |s: &str| {
+        let v: usize = s.trim().parse().map_err(|_| format!("{s:?} is not a whole number"))?;
+        if !(lo..=hi).contains(&v) {
+            return Err(format!("{v} is outside {lo}–{hi}"));
+        }
+        Ok(v)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numeric_options_outside_their_ranges_are_refused_naming_the_option() {
+        let eval = ["trainer", "eval", "--checkpoint", "c", "--data", "d", "--out", "o.json"];
+        for (option, value) in [
+            ("--batch", "0"),
+            ("--eq6-a", "NaN"),
+            ("--eq6-b", "-1"),
+            ("--eq6-rounds", "0"),
+            ("--eq6-iterations", "1001"),
+            ("--lombardi-material-weight", "inf"),
+            ("--lombardi-light-weight", "-1"),
+            ("--lombardi-rounds", "0"),
+            ("--lombardi-iterations", "0"),
+        ] {
+            let e = Cli::try_parse_from(eval.iter().chain(&[option, value]))
+                .err()
+                .unwrap_or_else(|| panic!("{option} {value} accepted"));
+            assert!(e.to_string().contains(option), "{option} {value}: {e}");
+        }
+        assert!(Cli::try_parse_from(eval.iter().chain(&["--batch", "4", "--eq6-b", "10"])).is_ok());
+        for (option, value) in [("--batch", "0"), ("--size", "0"), ("--runs", "0")] {
+            let e = Cli::try_parse_from(["trainer", "bench", option, value])
+                .err()
+                .unwrap_or_else(|| panic!("bench {option} {value} accepted"));
+            assert!(e.to_string().contains(option), "{option}: {e}");
         }
     }
 }
