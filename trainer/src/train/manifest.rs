@@ -411,11 +411,11 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
                 "a list of [from_step, lr] starting at step 0, in increasing steps".into(),
             ));
         }
-        if s.learning_rate.iter().any(|(_, lr)| !(lr.is_finite() && *lr > 0.0)) {
+        if let Some((_, lr)) = s.learning_rate.iter().find(|(_, lr)| !(*lr > 0.0 && *lr <= 1.0)) {
             return Err(bad(
                 st.span(),
                 &field("learning_rate"),
-                "learning rates must be positive".into(),
+                format!("learning rates must lie in (0, 1], got {lr:e}"),
             ));
         }
         for (name, b) in [("beta1", s.beta1), ("beta2", s.beta2)] {
@@ -469,6 +469,20 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         expand_vars(w).map(PathBuf::from).map_err(|e| bad(0..0, field, e))
     };
     let dataset = resolve(&m.data.dataset, "data.dataset")?;
+    if m.data.workers > 256 {
+        return Err(bad(
+            0..0,
+            "data.workers",
+            format!("at most 256 decoding threads, got {}", m.data.workers),
+        ));
+    }
+    if m.data.shuffle_buffer > 1_000_000 {
+        return Err(bad(
+            0..0,
+            "data.shuffle_buffer",
+            format!("at most 1000000 samples, got {}", m.data.shuffle_buffer),
+        ));
+    }
     let l = &m.loss;
     for (name, v) in [
         ("loss.normal", &l.normal),
@@ -477,11 +491,11 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         ("loss.illumination", &l.illumination),
         ("loss.ssim", &l.ssim),
     ] {
-        if !(v.get_ref().is_finite() && *v.get_ref() >= 0.0) {
+        if !(0.0..=1e6).contains(v.get_ref()) {
             return Err(bad(
                 v.span(),
                 name,
-                format!("a weight must be finite and ≥ 0, got {}", v.get_ref()),
+                format!("a weight must lie in [0, 1e6], got {:e}", v.get_ref()),
             ));
         }
     }
@@ -601,5 +615,37 @@ mod tests {
             [0, 19999, 20000, 26999, 27000, 29999].map(|s| finetune.lr_at(s)),
             [1e-4, 1e-4, 1e-6, 1e-6, 1e-8, 1e-8]
         );
+    }
+
+    #[test]
+    fn fields_outside_their_ranges_are_refused_naming_the_field() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../manifests/train/quickstart.toml");
+        let text = std::fs::read_to_string(&path).unwrap();
+        for (from, to, needle) in [
+            ("normal = 1e4", "normal = 1e300", "loss.normal"),
+            ("ssim = 1e4", "ssim = -1.0", "loss.ssim"),
+            ("[0, 1e-3]", "[0, 1e300]", "learning_rate"),
+            ("[0, 1e-3]", "[0, 0.0]", "learning_rate"),
+            ("workers = 2", "workers = 100000", "data.workers"),
+            (
+                "shuffle_buffer = 64",
+                "shuffle_buffer = 10000000",
+                "data.shuffle_buffer",
+            ),
+        ] {
+            assert!(text.contains(from), "{from}");
+            let e = parse(&path, text.replacen(from, to, 1))
+                .err()
+                .unwrap_or_else(|| panic!("{to} accepted"));
+            let msg = e.to_string();
+            assert!(msg.contains(needle), "{to}: {msg}");
+            assert!(msg.len() < 400, "{to}: a long message: {msg}");
+        }
+        for (from, to) in [
+            ("workers = 2", "workers = 0"),
+            ("shuffle_buffer = 64", "shuffle_buffer = 0"),
+        ] {
+            assert!(parse(&path, text.replacen(from, to, 1)).is_ok(), "{to}");
+        }
     }
 }
