@@ -11,12 +11,12 @@ use toml::Spanned;
 #[derive(Debug, thiserror::Error)]
 pub enum ManifestError {
     /// The file cannot be read.
-    #[error("{file}: cannot read: {source}")]
+    #[error("{file}: cannot read: {cause}")]
     Io {
         /// The manifest path.
         file: String,
         /// The underlying error.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// Not valid TOML, a wrong type, a missing or an unknown field (the parser's message
     /// names the line, the column and the field).
@@ -89,7 +89,7 @@ pub fn nested_too_deep(text: &str) -> Option<usize> {
 pub fn read_text(path: &Path) -> Result<String, ManifestError> {
     std::fs::read_to_string(path).map_err(|source| ManifestError::Io {
         file: path.display().to_string(),
-        source,
+        cause: source,
     })
 }
 

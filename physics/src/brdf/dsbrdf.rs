@@ -111,20 +111,20 @@ pub enum DsbrdfError {
     #[error("normalised parameter {0} is NaN")]
     NormalisedNan(usize),
     /// The file could not be read.
-    #[error("cannot read material file {path}: {source}")]
+    #[error("cannot read material file {path}: {cause}")]
     Io {
         /// File.
         path: String,
         /// Cause.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The file is not valid material JSON (serde names line and column).
-    #[error("{path}: {source}")]
+    #[error("{path}: {cause}")]
     Parse {
         /// File.
         path: String,
         /// Cause, with line and column.
-        source: serde_json::Error,
+        cause: serde_json::Error,
     },
     /// The file's header does not describe this model.
     #[error("{path}: field `{field}`: {message}")]
@@ -274,7 +274,7 @@ impl Dsbrdf {
         let p = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|source| DsbrdfError::Io {
             path: p.clone(),
-            source,
+            cause: source,
         })?;
         Self::from_json(&text, &p)
     }
@@ -283,7 +283,7 @@ impl Dsbrdf {
     pub fn from_json(text: &str, origin: &str) -> Result<Self, DsbrdfError> {
         let f: DsbrdfFile = serde_json::from_str(text).map_err(|source| DsbrdfError::Parse {
             path: origin.to_string(),
-            source,
+            cause: source,
         })?;
         let header = |field, message: String| DsbrdfError::Header {
             path: origin.to_string(),

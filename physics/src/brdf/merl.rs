@@ -53,20 +53,20 @@ const UNMEASURED: f32 = -1.0;
 #[derive(Debug, thiserror::Error)]
 pub enum MerlError {
     /// The file could not be read.
-    #[error("cannot read MERL file {path}: {source}")]
+    #[error("cannot read MERL file {path}: {cause}")]
     Io {
         /// File.
         path: String,
         /// Cause.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The file could not be written.
-    #[error("cannot write MERL file {path}: {source}")]
+    #[error("cannot write MERL file {path}: {cause}")]
     Write {
         /// File.
         path: String,
         /// Cause.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// Wrong size.
     #[error("{path}: {got} bytes; a MERL BRDF has exactly {FILE_BYTES}")]
@@ -130,7 +130,7 @@ impl MerlBrdf {
         let name = path.display().to_string();
         let bytes = std::fs::read(path).map_err(|source| MerlError::Io {
             path: name.clone(),
-            source,
+            cause: source,
         })?;
         Self::from_bytes(&bytes, &name)
     }
@@ -246,7 +246,7 @@ impl MerlBrdf {
     pub fn write(&self, path: &Path) -> Result<(), MerlError> {
         let err = |source| MerlError::Write {
             path: path.display().to_string(),
-            source,
+            cause: source,
         };
         let name = path
             .file_name()

@@ -474,7 +474,7 @@ pub fn read_photo(photo_path: &Path, mask: Option<&Path>, regions: Option<&Path>
             "alpha of the photo".to_string(),
         ),
     };
-    photo::check_mask(mask.unwrap_or(photo_path), &coverage)?;
+    photo::check_mask_shape(mask.unwrap_or(photo_path), &coverage, p.width)?;
     let labels = regions
         .map(|r| target::load_regions(r, p.width, p.height, &coverage))
         .transpose()?;

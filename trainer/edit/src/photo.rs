@@ -288,6 +288,38 @@ pub fn check_mask(path: &Path, coverage: &[f32]) -> Result<()> {
             path.display()
         );
     }
+    if object < MIN_OBJECT_PIXELS {
+        bail!(
+            "{}: the mask marks {object} pixel(s); an object needs at least {MIN_OBJECT_PIXELS} to be seen, let alone edited",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
+/// The fewest object pixels a mask may mark: fewer say nothing of the object's shape or
+/// material (the network would see them blown up to its whole input).
+pub const MIN_OBJECT_PIXELS: usize = 64;
+
+/// The narrowest an object may be, in photo pixels, across its bounding box.
+pub const MIN_OBJECT_SIDE: usize = 4;
+
+/// [`check_mask`] with the photo's width: also refuses an object narrower than
+/// [`MIN_OBJECT_SIDE`] pixels either way (a line), whatever its length.
+pub fn check_mask_shape(path: &Path, coverage: &[f32], width: usize) -> Result<()> {
+    check_mask(path, coverage)?;
+    let (mut x_lo, mut x_hi, mut y_lo, mut y_hi) = (usize::MAX, 0, usize::MAX, 0);
+    for (k, _) in coverage.iter().enumerate().filter(|(_, c)| **c > 0.0) {
+        let (x, y) = (k % width, k / width);
+        (x_lo, x_hi, y_lo, y_hi) = (x_lo.min(x), x_hi.max(x), y_lo.min(y), y_hi.max(y));
+    }
+    let (w, h) = (x_hi + 1 - x_lo, y_hi + 1 - y_lo);
+    if w.min(h) < MIN_OBJECT_SIDE {
+        bail!(
+            "{}: the object is {w}×{h} pixels; one at least {MIN_OBJECT_SIDE} pixels across both ways can be edited",
+            path.display()
+        );
+    }
     Ok(())
 }
 

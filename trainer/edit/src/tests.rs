@@ -307,6 +307,33 @@ fn bad_inputs_name_the_file_and_write_nothing() {
         format!("{e:#}").contains("dark-object.png: the object is black"),
         "{e:#}"
     );
+    // A one-pixel object and a one-pixel-thin line across the photo: both refused, by the
+    // same rule (too few pixels; too narrow), not one blown up and the other called too thin.
+    let dot = d.join("dot.png");
+    image::GrayImage::from_fn(60, 40, |x, y| image::Luma([if (x, y) == (30, 20) { 255 } else { 0 }]))
+        .save(&dot)
+        .unwrap();
+    check(request(&p, &dot, "library:rubber-red"), model(), "marks 1 pixel(s)");
+    let line = d.join("line.png");
+    image::GrayImage::from_fn(60, 40, |_, y| image::Luma([if y == 20 { 255 } else { 0 }]))
+        .save(&line)
+        .unwrap();
+    check(
+        request(&p, &line, "library:rubber-red"),
+        model(),
+        "the mask marks 60 pixel(s)",
+    );
+    let bar = d.join("bar.png");
+    image::GrayImage::from_fn(60, 40, |_, y| {
+        image::Luma([if (20..23).contains(&y) { 255 } else { 0 }])
+    })
+    .save(&bar)
+    .unwrap();
+    check(
+        request(&p, &bar, "library:rubber-red"),
+        model(),
+        "the object is 60×3 pixels",
+    );
     // An empty file and a folder, named as such.
     let empty = d.join("empty.png");
     std::fs::write(&empty, b"").unwrap();
