@@ -370,8 +370,28 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
         matedit_contract::io::write_exr_channels(&p, 60, 40, ch).unwrap();
         std::fs::read(&p).unwrap()
     };
+    // The same photo as JPEG, EXR and HDR, each cut short (every photo format the page takes).
+    let rgb = image::load_from_memory(&photo).unwrap().to_rgb8();
+    let mut jpeg = Vec::new();
+    image::DynamicImage::ImageRgb8(rgb.clone())
+        .write_to(&mut std::io::Cursor::new(&mut jpeg), image::ImageFormat::Jpeg)
+        .unwrap();
+    let linear = image::DynamicImage::ImageRgb8(rgb).to_rgb32f();
+    let exr = {
+        let p = dir("exr").join("photo.exr");
+        let plane = |c: usize| linear.pixels().map(|px| px[c]).collect::<Vec<f32>>();
+        matedit_contract::io::write_exr_channels(&p, 60, 40, vec![("R", plane(0)), ("G", plane(1)), ("B", plane(2))])
+            .unwrap();
+        std::fs::read(&p).unwrap()
+    };
+    let mut hdr = Vec::new();
+    image::codecs::hdr::HdrEncoder::new(&mut hdr)
+        .encode(&linear.pixels().copied().collect::<Vec<_>>(), 60, 40)
+        .unwrap();
+    let cut = |b: &[u8]| b[..b.len() * 3 / 4].to_vec();
+    let (cut_jpeg, cut_exr, cut_hdr) = (cut(&jpeg), cut(&exr), cut(&hdr));
     let gold: &[u8] = b"library:gold-polished";
-    let cases: Vec<(Parts, u16, &str)> = vec![
+    let mut cases: Vec<(Parts, u16, &str)> = vec![
         (vec![("material", None, gold)], 422, "no photo"),
         (
             vec![("photo", Some("a.png"), b"hello"), ("material", None, gold)],
@@ -513,6 +533,31 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
             "unexpected field",
         ),
     ];
+    for (name, bytes) in [("cut.jpg", &cut_jpeg), ("cut.exr", &cut_exr), ("cut.hdr", &cut_hdr)] {
+        cases.push((
+            vec![
+                ("photo", Some(name), bytes),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
+            ],
+            422,
+            name,
+        ));
+    }
+    // The whole files are edited.
+    for (name, bytes) in [("whole.jpg", &jpeg), ("whole.exr", &exr), ("whole.hdr", &hdr)] {
+        let (s, v) = post_edit(
+            addr,
+            &[
+                ("photo", Some(name), bytes),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
+            ],
+        );
+        assert_eq!(s, 202, "{name}: {v}");
+        let done = wait_for(addr, v["url"].as_str().unwrap(), &["done", "failed"]);
+        assert_eq!(done["state"], "done", "{name}: {done}");
+    }
     for (parts, status, needle) in &cases {
         let (s, v) = post_edit(addr, parts);
         let msg = v["error"].as_str().unwrap_or_default();
