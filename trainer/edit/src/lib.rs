@@ -6,9 +6,11 @@
 //! with the target material m_t (or R(n', m', L_new) under another illumination, Fig. 4); O'
 //! goes back into the photo at its original resolution inside the mask ([`composite`]).
 //!
-//! [`prepare`], [`network_prediction`] and [`render_all`] work in memory; [`edit`] adds reading the inputs and
-//! writing every output ([`output`]) after all of them succeeded, so a bad input writes nothing.
-//! [`transfer`] and [`swap`] are Fig. 4 and Fig. 10; [`serve`] is the editing web page over the
+//! [`prepare`] ([`photo`]), [`network_prediction`] and [`render_all`] ([`predict`]) work in
+//! memory; [`edit`] adds reading the inputs and writing every output ([`output`]) after all of
+//! them succeeded, so a bad input writes nothing. [`detail`] carries n' to the photo's
+//! resolution and [`background`] sets a light's level from the photo's surroundings.
+//! [`transfer`] and [`swap`] ([`transfer`](mod@transfer)) are Fig. 4 and Fig. 10; [`serve`] is the editing web page over the
 //! same functions; [`cli`] is their command line, the `matedit` binary. The network, the rendering
 //! layer and Eq. 6 ([`matedit_trainer::post_optimisation`]) come from the trainer; target
 //! materials by name ([`target`]) from the material library, fitted on the fly.
@@ -21,23 +23,26 @@ pub mod composite;
 pub mod detail;
 pub mod output;
 pub mod photo;
+pub mod predict;
+pub use photo::{Prepared, prepare, prepare_framed};
+pub use predict::{Predicted, network_prediction, render_all};
 pub mod serve;
 pub mod target;
 #[cfg(test)]
 mod tests;
+pub mod transfer;
+
+pub use transfer::{swap, transfer, transfer_with};
 
 use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
 use matedit_physics::brdf::Dsbrdf;
-use matedit_physics::brdf::dsbrdf::PARAMS;
 use matedit_trainer::model::network::Net;
 use matedit_trainer::post_optimisation;
 use matedit_trainer::post_optimisation::progress::{Progress, enter};
-use matedit_trainer::render::op::host;
 use matedit_trainer::render::{Batch, RenderingLayer};
-use matedit_trainer::train::batch::HostBatch;
 use matedit_trainer::train::checkpoint;
-use photo::{Framing, Photo, TRAINING_MEAN_LUMINANCE, luminance};
+use photo::{Framing, Photo, TRAINING_MEAN_LUMINANCE};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
@@ -114,203 +119,6 @@ pub struct EditRequest {
     pub composite: Composite,
     /// Refine n', m', L' with Eq. 6 before rendering.
     pub optimize: Option<post_optimisation::Eq6Config>,
-}
-
-/// The framed network input of one photo.
-#[derive(Clone, Debug)]
-pub struct Prepared {
-    /// Network input side.
-    pub size: usize,
-    /// Regions.
-    pub regions: usize,
-    /// Where the input lies in the photo.
-    pub framing: Framing,
-    /// What the photo's linear values were multiplied by.
-    pub exposure: f64,
-    /// I `[3, S, S]`, zero off the object.
-    pub input: Vec<f32>,
-    /// `[S, S]`, 0 or 1.
-    pub mask: Vec<f32>,
-    /// `[S, S]`, 0 off the object, k for region k.
-    pub region_map: Vec<u8>,
-}
-
-/// Frames a photo for a network of input side `size`: `coverage` is the soft object mask,
-/// `labels` (optional) the region of every photo pixel (0: none).
-pub fn prepare(p: &Photo, coverage: &[f32], labels: Option<(&[u8], usize)>, size: usize) -> Result<Prepared> {
-    let framing = Framing::around(coverage, p.width, p.height, size);
-    prepare_framed(p, coverage, labels, framing, None)
-}
-
-/// [`prepare`] with a given framing, and a given exposure (`None`: the one that brings the
-/// object's mean luminance to [`TRAINING_MEAN_LUMINANCE`]).
-pub fn prepare_framed(
-    p: &Photo,
-    coverage: &[f32],
-    labels: Option<(&[u8], usize)>,
-    framing: Framing,
-    exposure: Option<f64>,
-) -> Result<Prepared> {
-    let size = framing.size;
-    let object = framing.area_average(p.width, p.height, |k| [if coverage[k] > 0.0 { 1.0 } else { 0.0 }]);
-    let mut mask: Vec<f32> = object.iter().map(|o| if o[0] > 0.5 { 1.0 } else { 0.0 }).collect();
-    if !mask.iter().any(|&m| m > 0.0) {
-        bail!(
-            "the object covers less than half of every one of the network's {size}×{size} input pixels; it is too small (or too thin) to edit"
-        );
-    }
-    let rgb = framing.area_average(p.width, p.height, |k| p.rgb[k]);
-    let (regions, region_map) = match labels {
-        None => (1, mask.iter().map(|&m| m as u8).collect::<Vec<u8>>()),
-        Some((labels, count)) => {
-            let mut best = vec![(0.0_f32, 0_u8); size * size];
-            for r in 1..=count as u8 {
-                let share = framing.area_average(p.width, p.height, |k| [if labels[k] == r { 1.0 } else { 0.0 }]);
-                for (b, s) in best.iter_mut().zip(share) {
-                    if s[0] > b.0 {
-                        *b = (s[0], r);
-                    }
-                }
-            }
-            let map: Vec<u8> = best
-                .iter()
-                .zip(&mask)
-                .map(|(b, &m)| if m > 0.0 { b.1 } else { 0 })
-                .collect();
-            (count, map)
-        }
-    };
-    // Object pixels that no region claims are not rendered (the layer shades region 0 black).
-    for (m, r) in mask.iter_mut().zip(&region_map) {
-        if *r == 0 {
-            *m = 0.0;
-        }
-    }
-    let on: Vec<usize> = (0..size * size).filter(|&k| mask[k] > 0.0).collect();
-    let mean = on.iter().map(|&k| luminance(rgb[k])).sum::<f64>() / on.len().max(1) as f64;
-    if on.is_empty() || mean.is_nan() || mean <= 1e-12 {
-        bail!("the object is black in the photo (mean luminance {mean:.3e}): nothing to edit");
-    }
-    let exposure = exposure.unwrap_or(TRAINING_MEAN_LUMINANCE / mean);
-    let p2 = size * size;
-    let mut input = vec![0.0_f32; 3 * p2];
-    for &k in &on {
-        for c in 0..3 {
-            input[c * p2 + k] = (rgb[k][c] as f64 * exposure) as f32;
-        }
-    }
-    Ok(Prepared {
-        size,
-        regions,
-        framing,
-        exposure,
-        input,
-        mask,
-        region_map,
-    })
-}
-
-/// The network's predictions and the renders made from them, at the network's resolution.
-#[derive(Clone, Debug)]
-pub struct Predicted {
-    /// n' `[3, S, S]`.
-    pub normals: Vec<f32>,
-    /// m' `[R, 108]`, normalised.
-    pub materials: Vec<f32>,
-    /// L' `[3, He, 2He]`.
-    pub env: Vec<f32>,
-    /// Environment rows.
-    pub env_height: usize,
-    /// I' = R(n', m', L').
-    pub i_prime: Vec<f32>,
-    /// O' = R(n', m_t, L'), when target materials were given.
-    pub o_prime: Option<Vec<f32>>,
-    /// R(n', m', L_new), when another illumination was given.
-    pub relit: Option<Vec<f32>>,
-}
-
-/// n', m', L': the network's prediction for `prep` (normals zero off the object).
-pub fn network_prediction(net: &Net, env_height: usize, prep: &Prepared) -> Result<post_optimisation::Point> {
-    let device = Device::flex();
-    let (s, r) = (prep.size, prep.regions);
-    let hb = HostBatch {
-        batch: 1,
-        size: s,
-        regions: r,
-        env_height,
-        ids: vec!["photo".into()],
-        input: prep.input.clone(),
-        target: vec![0.0; 3 * s * s],
-        normals: vec![0.0; 3 * s * s],
-        mask: prep.mask.clone(),
-        region_map: prep.region_map.clone(),
-        env: vec![0.0; 6 * env_height * env_height],
-        materials: vec![0.0; r * PARAMS],
-        target_materials: vec![0.0; r * PARAMS],
-    };
-    let tb = hb.to_device(&device);
-    let p = net.predict(&tb.input, &tb.mask, &tb.region_masks, true);
-    let mut normals = host(&p.normals);
-    for k in 0..s * s {
-        if prep.mask[k] <= 0.0 {
-            for c in 0..3 {
-                normals[c * s * s + k] = 0.0;
-            }
-        }
-    }
-    Ok(post_optimisation::Point {
-        normals,
-        materials: host(&p.materials),
-        env: p
-            .env
-            .as_ref()
-            .map(host)
-            .context("the network predicted no illumination")?,
-    })
-}
-
-/// Renders I' from `x`, O' with `targets` (normalised, `[R, 108]`) and the relit image with
-/// `relight` (`[3, He, 2He]` camera-space radiance, scaled to L's mean radiance: a photo's
-/// exposure is arbitrary, so the other light takes the predicted light's level).
-pub fn render_all(
-    layer: &RenderingLayer,
-    prep: &Prepared,
-    x: post_optimisation::Point,
-    env_height: usize,
-    targets: Option<&[f32]>,
-    relight: Option<&[f32]>,
-) -> Result<Predicted> {
-    let (s, r) = (prep.size, prep.regions);
-    let render = |m: &[f32], l: &[f32]| -> Result<Vec<f32>> {
-        Ok(layer.forward(&Batch {
-            batch: 1,
-            size: (s, s),
-            regions: r,
-            normals: &x.normals,
-            region_map: &prep.region_map,
-            materials: m,
-            env: l,
-        })?)
-    };
-    let i_prime = render(&x.materials, &x.env)?;
-    let o_prime = targets.map(|t| render(t, &x.env)).transpose()?;
-    let mean = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>() / v.len().max(1) as f64;
-    let relit = relight
-        .map(|l| {
-            let k = (mean(&x.env) / mean(l).max(1e-30)) as f32;
-            let l: Vec<f32> = l.iter().map(|v| v * k).collect();
-            render(&x.materials, &l)
-        })
-        .transpose()?;
-    Ok(Predicted {
-        normals: x.normals,
-        materials: x.materials,
-        env: x.env,
-        env_height,
-        i_prime,
-        o_prime,
-        relit,
-    })
 }
 
 /// What Eq. 6 did, for `report.json` and `energy.png`.
@@ -841,113 +649,4 @@ fn edit_checked(
         t_load,
         watcher.map(|w| w.as_ref()),
     )
-}
-
-/// Material transfer (Fig. 4): the material predicted from photo `from` (its first region)
-/// rendered on the object of photo `to`, under `to`'s predicted light; outputs as [`edit`]'s.
-pub fn transfer(
-    model: &Path,
-    from: (&Path, Option<&Path>),
-    to: (&Path, Option<&Path>),
-    optimize: Option<&post_optimisation::Eq6Config>,
-    how: Composite,
-    out: &Path,
-) -> Result<EditReport> {
-    let t0 = Instant::now();
-    output::refuse_overwriting_inputs(out, &[Some(from.0), from.1, Some(to.0), to.1])?;
-    let model = Model::load(model)?;
-    transfer_checked(&model, from, to, optimize, how, out, None, t0)
-}
-
-/// [`transfer`] with a loaded model, watched as [`edit_with`].
-#[allow(clippy::too_many_arguments)]
-pub fn transfer_with(
-    model: &Model,
-    from: (&Path, Option<&Path>),
-    to: (&Path, Option<&Path>),
-    optimize: Option<&post_optimisation::Eq6Config>,
-    how: Composite,
-    out: &Path,
-    watcher: Option<&Arc<Progress>>,
-    t0: Instant,
-) -> Result<EditReport> {
-    output::refuse_overwriting_inputs(out, &[Some(from.0), from.1, Some(to.0), to.1])?;
-    transfer_checked(model, from, to, optimize, how, out, watcher, t0)
-}
-
-/// [`transfer_with`] once the output folder was checked.
-#[allow(clippy::too_many_arguments)]
-fn transfer_checked(
-    model: &Model,
-    from: (&Path, Option<&Path>),
-    to: (&Path, Option<&Path>),
-    optimize: Option<&post_optimisation::Eq6Config>,
-    how: Composite,
-    out: &Path,
-    watcher: Option<&Arc<Progress>>,
-    t0: Instant,
-) -> Result<EditReport> {
-    enter(watcher.map(|w| w.as_ref()), "reading")?;
-    let read_from = read_photo(from.0, from.1, None)?;
-    let read_to = read_photo(to.0, to.1, None)?;
-    let t_load = t0.elapsed().as_secs_f64();
-    let source = understand(model, read_from, from.0, optimize, &LightOptions::default(), watcher)?;
-    let target = source_material(&source)?;
-    let u = understand(model, read_to, to.0, optimize, &LightOptions::default(), watcher)?;
-    finish(
-        model,
-        u,
-        &[target],
-        None,
-        None,
-        how,
-        out,
-        t0,
-        t_load,
-        watcher.map(|w| w.as_ref()),
-    )
-}
-
-/// The DSBRDF predicted for a photo's first region, as a target for another photo.
-fn source_material(u: &Understood) -> Result<(Dsbrdf, target::RegionTarget)> {
-    let m: Vec<f64> = u.point.materials[..PARAMS].iter().map(|&v| v as f64).collect();
-    let material =
-        Dsbrdf::from_normalised(&m).with_context(|| format!("the material predicted from {}", u.path.display()))?;
-    let record = target::RegionTarget {
-        region: 1,
-        spec: format!("m' of {}", u.path.display()),
-        source: if u.eq6.is_some() {
-            "predicted, Eq. 6"
-        } else {
-            "predicted"
-        }
-        .into(),
-    };
-    Ok((material, record))
-}
-
-/// Material swap (Fig. 10): each photo's object with the other's predicted material, into
-/// `out/a` and `out/b`.
-pub fn swap(
-    model: &Path,
-    a: (&Path, Option<&Path>),
-    b: (&Path, Option<&Path>),
-    optimize: Option<&post_optimisation::Eq6Config>,
-    how: Composite,
-    out: &Path,
-) -> Result<[EditReport; 2]> {
-    let t0 = Instant::now();
-    let (out_a, out_b) = (out.join("a"), out.join("b"));
-    for o in [&out_a, &out_b] {
-        output::refuse_overwriting_inputs(o, &[Some(a.0), a.1, Some(b.0), b.1])?;
-    }
-    let model = Model::load(model)?;
-    let (read_a, read_b) = (read_photo(a.0, a.1, None)?, read_photo(b.0, b.1, None)?);
-    let t_load = t0.elapsed().as_secs_f64();
-    let ua = understand(&model, read_a, a.0, optimize, &LightOptions::default(), None)?;
-    let ub = understand(&model, read_b, b.0, optimize, &LightOptions::default(), None)?;
-    let (ta, tb) = (source_material(&ua)?, source_material(&ub)?);
-    let ra = finish(&model, ua, &[tb], None, None, how, &out_a, t0, t_load, None)?;
-    let rb = finish(&model, ub, &[ta], None, None, how, &out_b, t0, t_load, None)?;
-    Ok([ra, rb])
 }

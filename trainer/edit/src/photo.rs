@@ -422,3 +422,97 @@ impl Framing {
 pub fn luminance(p: [f32; 3]) -> f64 {
     0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64
 }
+
+/// The framed network input of one photo.
+#[derive(Clone, Debug)]
+pub struct Prepared {
+    /// Network input side.
+    pub size: usize,
+    /// Regions.
+    pub regions: usize,
+    /// Where the input lies in the photo.
+    pub framing: Framing,
+    /// What the photo's linear values were multiplied by.
+    pub exposure: f64,
+    /// I `[3, S, S]`, zero off the object.
+    pub input: Vec<f32>,
+    /// `[S, S]`, 0 or 1.
+    pub mask: Vec<f32>,
+    /// `[S, S]`, 0 off the object, k for region k.
+    pub region_map: Vec<u8>,
+}
+
+/// Frames a photo for a network of input side `size`: `coverage` is the soft object mask,
+/// `labels` (optional) the region of every photo pixel (0: none).
+pub fn prepare(p: &Photo, coverage: &[f32], labels: Option<(&[u8], usize)>, size: usize) -> Result<Prepared> {
+    let framing = Framing::around(coverage, p.width, p.height, size);
+    prepare_framed(p, coverage, labels, framing, None)
+}
+
+/// [`prepare`] with a given framing, and a given exposure (`None`: the one that brings the
+/// object's mean luminance to [`TRAINING_MEAN_LUMINANCE`]).
+pub fn prepare_framed(
+    p: &Photo,
+    coverage: &[f32],
+    labels: Option<(&[u8], usize)>,
+    framing: Framing,
+    exposure: Option<f64>,
+) -> Result<Prepared> {
+    let size = framing.size;
+    let object = framing.area_average(p.width, p.height, |k| [if coverage[k] > 0.0 { 1.0 } else { 0.0 }]);
+    let mut mask: Vec<f32> = object.iter().map(|o| if o[0] > 0.5 { 1.0 } else { 0.0 }).collect();
+    if !mask.iter().any(|&m| m > 0.0) {
+        bail!(
+            "the object covers less than half of every one of the network's {size}×{size} input pixels; it is too small (or too thin) to edit"
+        );
+    }
+    let rgb = framing.area_average(p.width, p.height, |k| p.rgb[k]);
+    let (regions, region_map) = match labels {
+        None => (1, mask.iter().map(|&m| m as u8).collect::<Vec<u8>>()),
+        Some((labels, count)) => {
+            let mut best = vec![(0.0_f32, 0_u8); size * size];
+            for r in 1..=count as u8 {
+                let share = framing.area_average(p.width, p.height, |k| [if labels[k] == r { 1.0 } else { 0.0 }]);
+                for (b, s) in best.iter_mut().zip(share) {
+                    if s[0] > b.0 {
+                        *b = (s[0], r);
+                    }
+                }
+            }
+            let map: Vec<u8> = best
+                .iter()
+                .zip(&mask)
+                .map(|(b, &m)| if m > 0.0 { b.1 } else { 0 })
+                .collect();
+            (count, map)
+        }
+    };
+    // Object pixels that no region claims are not rendered (the layer shades region 0 black).
+    for (m, r) in mask.iter_mut().zip(&region_map) {
+        if *r == 0 {
+            *m = 0.0;
+        }
+    }
+    let on: Vec<usize> = (0..size * size).filter(|&k| mask[k] > 0.0).collect();
+    let mean = on.iter().map(|&k| luminance(rgb[k])).sum::<f64>() / on.len().max(1) as f64;
+    if on.is_empty() || mean.is_nan() || mean <= 1e-12 {
+        bail!("the object is black in the photo (mean luminance {mean:.3e}): nothing to edit");
+    }
+    let exposure = exposure.unwrap_or(TRAINING_MEAN_LUMINANCE / mean);
+    let p2 = size * size;
+    let mut input = vec![0.0_f32; 3 * p2];
+    for &k in &on {
+        for c in 0..3 {
+            input[c * p2 + k] = (rgb[k][c] as f64 * exposure) as f32;
+        }
+    }
+    Ok(Prepared {
+        size,
+        regions,
+        framing,
+        exposure,
+        input,
+        mask,
+        region_map,
+    })
+}
