@@ -246,7 +246,19 @@ async fn serve_from(cfg: ServeConfig, work: PathBuf, remove_work: bool) -> Resul
             Ok(model) => {
                 let s = &model.state;
                 let _ = tx.send(Ok(json!({
-                    "checkpoint": model.dir.display().to_string(),
+                    // The run's own part of the path (run/checkpoints/stage): where the server
+                    // keeps it is nobody else's business.
+                    "checkpoint": model
+                        .dir
+                        .components()
+                        .rev()
+                        .take(3)
+                        .collect::<Vec<_>>()
+                        .into_iter()
+                        .rev()
+                        .collect::<std::path::PathBuf>()
+                        .display()
+                        .to_string(),
                     "stage": s.stage_name,
                     "input_size": s.net.input_size,
                     "env_height": s.net.env_height,

@@ -236,6 +236,14 @@ fn an_edit_matches_the_command_line_and_serves_only_its_own_files() {
     }
     let (s, b) = http(addr, "GET", &format!("{url}/files/report.json"), None, b"");
     assert_eq!((s, json_of(&b)["composite"].as_str()), (200, Some("detail")));
+    // The page's information names the model by its run's part of the path only.
+    let (s, b) = http(addr, "GET", "/api/info", None, b"");
+    let info = json_of(&b);
+    assert_eq!(s, 200);
+    let shown = info["checkpoint"].as_str().unwrap();
+    assert!(model().ends_with(shown) && shown.split('/').count() <= 3, "{shown}");
+    let (s, b) = http(addr, "GET", &format!("{url}/files/report.json"), None, b"");
+    assert_eq!(s, 200);
     // The report a user downloads names the uploads and the model's folder, no server path.
     let text = String::from_utf8_lossy(&b);
     let model_dir = model().display().to_string();
