@@ -532,8 +532,8 @@ def cmd_render(args):
 # ---------------------------------------------------------------------------------------------
 # Scoring
 
-DEFAULT_METHODS = ["render=--composite render", "render+eq6=--composite render --optimize",
-                   "ratio=--composite ratio"]
+DEFAULT_METHODS = ["render=--composite render", "ratio=--composite ratio", "detail=--composite detail",
+                   "detail+eq6=--composite detail --optimize"]
 
 
 def rgb8(path):
