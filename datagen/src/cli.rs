@@ -6,6 +6,7 @@ use crate::render::{EnvRes, RenderOptions, Shadows, render};
 use crate::shapes::UpAxis;
 use anyhow::Result;
 use clap::{Parser, Subcommand};
+use matedit_contract::args::{count_in, finite_in};
 use matedit_contract::lock::Worker;
 use matedit_physics::BrdfSpec;
 use matedit_physics::shading::Quality;
@@ -440,28 +441,6 @@ pub fn main() -> ExitCode {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
-    }
-}
-
-/// A clap value parser: a finite number in `[lo, hi]`, refused naming the range.
-fn finite_in(lo: f64, hi: f64) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
-    move |s: &str| {
-        let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
-        if !(lo..=hi).contains(&v) {
-            return Err(format!("{s:?} is outside {lo}–{hi}"));
-        }
-        Ok(v)
-    }
-}
-
-/// A clap value parser: a whole number in `[lo, hi]`.
-fn count_in(lo: usize, hi: usize) -> impl Fn(&str) -> Result<usize, String> + Clone + Send + Sync + 'static {
-    move |s: &str| {
-        let v: usize = s.trim().parse().map_err(|_| format!("{s:?} is not a whole number"))?;
-        if !(lo..=hi).contains(&v) {
-            return Err(format!("{v} is outside {lo}–{hi}"));
-        }
-        Ok(v)
     }
 }
 

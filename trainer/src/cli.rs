@@ -11,6 +11,7 @@ use crate::train::manifest;
 use crate::train::run::{Preempted, open_dataset_stream, run as run_manifest, stop_requested};
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
+use matedit_contract::args::{count_in, finite_in};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -349,28 +350,6 @@ pub fn main(alloc: Option<&PeakAlloc>) -> ExitCode {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
-    }
-}
-
-/// A clap value parser: a finite number in `[lo, hi]`, refused naming the range.
-fn finite_in(lo: f64, hi: f64) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
-    move |s: &str| {
-        let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
-        if !(lo..=hi).contains(&v) {
-            return Err(format!("{s:?} is outside {lo}–{hi}"));
-        }
-        Ok(v)
-    }
-}
-
-/// A clap value parser: a whole number in `[lo, hi]`.
-fn count_in(lo: usize, hi: usize) -> impl Fn(&str) -> Result<usize, String> + Clone + Send + Sync + 'static {
-    move |s: &str| {
-        let v: usize = s.trim().parse().map_err(|_| format!("{s:?} is not a whole number"))?;
-        if !(lo..=hi).contains(&v) {
-            return Err(format!("{v} is outside {lo}–{hi}"));
-        }
-        Ok(v)
     }
 }
 

@@ -17,6 +17,7 @@
 
 #![warn(missing_docs)]
 
+pub mod args;
 pub mod io;
 pub mod layout;
 pub mod lock;

@@ -151,11 +151,7 @@ mod tests {
         let mut env = vec![0.0; 3 * h * w];
         for j in 0..h {
             for i in 0..w {
-                let (phi, theta) = (
-                    std::f64::consts::TAU * (i as f64 + 0.5) / w as f64,
-                    std::f64::consts::PI * (j as f64 + 0.5) / h as f64,
-                );
-                let d = [theta.sin() * phi.sin(), theta.cos(), -theta.sin() * phi.cos()];
+                let d = matedit_physics::envmap::texel_direction(i, j, w, h).to_array();
                 for (c, v) in f(d).into_iter().enumerate() {
                     env[c * h * w + j * w + i] = v;
                 }

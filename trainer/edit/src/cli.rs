@@ -6,6 +6,7 @@ use crate::target::parse_material_arg;
 use crate::{Composite, EditRequest, LevelFrom, edit, swap, transfer};
 use anyhow::Result;
 use clap::{Parser, Subcommand};
+use matedit_contract::args::{count_in, finite_in};
 use matedit_trainer::post_optimisation::Eq6Config;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -70,7 +71,7 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         light_level: LevelFrom,
         /// The photo's horizontal field of view in degrees (1–170), for the directions its
         /// background is seen along. Default 40.
-        #[arg(long, value_parser = fov_deg, allow_negative_numbers = true)]
+        #[arg(long, value_parser = finite_in(1.0, 170.0), allow_negative_numbers = true)]
         fov: Option<f64>,
         /// How the render goes back into the photo.
         #[arg(long, value_enum, default_value_t = Composite::default())]
@@ -79,17 +80,17 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         #[arg(long)]
         optimize: bool,
         /// Eq. 6's weight a of the normal prior (0–1e6).
-        #[arg(long, default_value_t = Eq6Config::default().a, value_parser = eq6_weight, allow_negative_numbers = true)]
+        #[arg(long, default_value_t = Eq6Config::default().a, value_parser = finite_in(0.0, 1e6), allow_negative_numbers = true)]
         eq6_a: f64,
         /// Eq. 6's weight b of the light prior (0–1e6; the paper's 10 is for its units: see
         /// docs/PERFORMANCE.md).
-        #[arg(long, default_value_t = Eq6Config::default().b, value_parser = eq6_weight, allow_negative_numbers = true)]
+        #[arg(long, default_value_t = Eq6Config::default().b, value_parser = finite_in(0.0, 1e6), allow_negative_numbers = true)]
         eq6_b: f64,
         /// Rounds of (light, material, normals) (1–100).
-        #[arg(long, default_value_t = Eq6Config::default().rounds, value_parser = count::<1, 100>, allow_negative_numbers = true)]
+        #[arg(long, default_value_t = Eq6Config::default().rounds, value_parser = count_in(1, 100), allow_negative_numbers = true)]
         eq6_rounds: usize,
         /// L-BFGS iterations per property and round (1–1000).
-        #[arg(long, default_value_t = Eq6Config::default().iterations, value_parser = count::<1, 1000>, allow_negative_numbers = true)]
+        #[arg(long, default_value_t = Eq6Config::default().iterations, value_parser = count_in(1, 1000), allow_negative_numbers = true)]
         eq6_iterations: usize,
         /// Objects of more pixels run Eq. 6's alternation on every k-th pixel (0: never).
         #[arg(long, default_value_t = Eq6Config::default().coarse_pixels)]
@@ -166,25 +167,25 @@ file system. Binds to 127.0.0.1 unless --bind says otherwise.")]
         bind: std::net::IpAddr,
         /// Edits that may wait beyond the running one (1–1024: an edit waits in the queue
         /// until the worker takes it).
-        #[arg(long, default_value_t = 8, value_parser = count::<1, 1024>)]
+        #[arg(long, default_value_t = 8, value_parser = count_in(1, 1024))]
         queue: usize,
         /// Largest upload in MB (photo, mask and transfer photo together; 1–4096).
-        #[arg(long, default_value_t = 32, value_parser = count::<1, 4096>)]
+        #[arg(long, default_value_t = 32, value_parser = count_in(1, 4096))]
         max_upload_mb: usize,
         /// Largest photo in megapixels (0.01–1000).
-        #[arg(long, default_value_t = 25.0, value_parser = megapixels, allow_negative_numbers = true)]
+        #[arg(long, default_value_t = 25.0, value_parser = finite_in(0.01, 1000.0), allow_negative_numbers = true)]
         max_megapixels: f64,
         /// Finished edits whose files are kept for download (1–10000).
-        #[arg(long, default_value_t = 32, value_parser = count::<1, 10000>, allow_negative_numbers = true)]
+        #[arg(long, default_value_t = 32, value_parser = count_in(1, 10000), allow_negative_numbers = true)]
         keep: usize,
         /// The most disk the kept edits may use together, in MB (1–1000000); the oldest go
         /// first.
-        #[arg(long, default_value_t = 2048, value_parser = count::<1, 1_000_000>, allow_negative_numbers = true)]
+        #[arg(long, default_value_t = 2048, value_parser = count_in(1, 1_000_000), allow_negative_numbers = true)]
         keep_mb: usize,
         /// The most memory the edits in the server may need together, in MB (256–1000000),
         /// estimated from each photo's size before it is decoded; a photo that needs more is
         /// refused, others wait for memory (within --upload-seconds).
-        #[arg(long, default_value_t = 4096, value_parser = count::<256, 1_000_000>, allow_negative_numbers = true)]
+        #[arg(long, default_value_t = 4096, value_parser = count_in(256, 1_000_000), allow_negative_numbers = true)]
         max_memory_mb: usize,
         /// Folder for uploads and outputs (default: a temporary one, removed on exit).
         #[arg(long)]
@@ -195,7 +196,7 @@ file system. Binds to 127.0.0.1 unless --bind says otherwise.")]
         allow_hosts: Vec<String>,
         /// Seconds a client may take to send an upload whole (1–3600); a stalled upload gives
         /// its place back when they are up.
-        #[arg(long, default_value_t = 60, value_parser = count::<1, 3600>, allow_negative_numbers = true)]
+        #[arg(long, default_value_t = 60, value_parser = count_in(1, 3600), allow_negative_numbers = true)]
         upload_seconds: usize,
     },
 }
@@ -214,46 +215,11 @@ struct Finish {
     out: PathBuf,
 }
 
-/// An Eq. 6 weight: a finite number in [0, 1e6] (a negative or NaN weight makes E unbounded
-/// or meaningless).
-fn megapixels(s: &str) -> Result<f64, String> {
-    let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
-    if !(0.01..=1000.0).contains(&v) {
-        return Err(format!("{s:?} is outside 0.01–1000"));
-    }
-    Ok(v)
-}
-
 fn host_name(s: &str) -> Result<String, String> {
     match crate::serve::guard::host_of(s) {
         Some(h) if h == s.trim().to_ascii_lowercase() => Ok(h),
         _ => Err(format!("{s:?} is not a host name (give it without a port or scheme)")),
     }
-}
-
-fn fov_deg(s: &str) -> Result<f64, String> {
-    let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
-    if !(1.0..=170.0).contains(&v) {
-        return Err(format!("{s:?} is outside 1–170 degrees"));
-    }
-    Ok(v)
-}
-
-fn eq6_weight(s: &str) -> Result<f64, String> {
-    let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
-    if !(0.0..=1e6).contains(&v) {
-        return Err(format!("{s:?} is outside 0–1e6"));
-    }
-    Ok(v)
-}
-
-/// A whole number in [LO, HI].
-fn count<const LO: usize, const HI: usize>(s: &str) -> Result<usize, String> {
-    let v: usize = s.trim().parse().map_err(|_| format!("{s:?} is not a whole number"))?;
-    if !(LO..=HI).contains(&v) {
-        return Err(format!("{v} is outside {LO}–{HI}"));
-    }
-    Ok(v)
 }
 
 fn run(cli: Cli) -> Result<()> {

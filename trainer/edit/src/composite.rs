@@ -128,9 +128,10 @@ pub fn composite(
         let Some(r) = sample(render, &prep.mask, n, u, v) else {
             continue;
         };
-        // I*, for the composites that compare the photo with it.
+        // I*, for the composites that compare the photo with it per pixel (`detail` did, for
+        // its gain, above).
         let i = match how {
-            Composite::Render => [0.0; 3],
+            Composite::Render | Composite::Detail => [0.0; 3],
             _ => match sample(i_prime, &prep.mask, n, u, v) {
                 Some(i) => i,
                 None => continue,

@@ -380,32 +380,31 @@ pub fn understand(
         }
     };
     let fov_deg = light.fov_deg.unwrap_or(background::DEFAULT_FOV_DEG);
-    let level = match light.level {
-        LevelFrom::Auto if light.given.is_some() => LevelFrom::Background,
-        LevelFrom::Auto => LevelFrom::Network,
-        other => other,
+    let from_background = match light.level {
+        LevelFrom::Auto => light.given.is_some(),
+        LevelFrom::Background => true,
+        LevelFrom::Network => false,
     };
-    let light_level = match level {
-        LevelFrom::Background | LevelFrom::Auto => {
-            let level = background::light_level(
-                &p,
-                &coverage,
-                &x.env,
-                model.state.net.env_height,
-                prep.exposure,
-                fov_deg,
-            );
-            let k = level.scale as f32;
-            x.env.iter_mut().for_each(|v| *v *= k);
-            level
-        }
-        LevelFrom::Network => background::LightLevel {
+    let light_level = if from_background {
+        let level = background::light_level(
+            &p,
+            &coverage,
+            &x.env,
+            model.state.net.env_height,
+            prep.exposure,
+            fov_deg,
+        );
+        let k = level.scale as f32;
+        x.env.iter_mut().for_each(|v| *v *= k);
+        level
+    } else {
+        background::LightLevel {
             source: "network".into(),
             scale: 1.0,
             pixels: 0,
             fov_deg,
             note: None,
-        },
+        }
     };
     Ok(Understood {
         photo: p,
