@@ -479,12 +479,18 @@ pub fn report(device_arg: Option<&str>, opts: &Options, alloc: Option<&PeakAlloc
     use std::fmt::Write;
     let device = device_arg.unwrap_or("cpu");
     let dev = crate::train::run::device_for(device)?;
-    let mut out = String::new();
+    let mut out = Printed::default();
     let _ = writeln!(
         out,
         "# trainer bench (device {device}: {dev:?}; {} threads)",
         rayon::current_num_threads()
     );
+    #[cfg(feature = "wgpu")]
+    if crate::render::on_cube(&dev) {
+        if let Some(a) = crate::render::gpu::adapter::preferred() {
+            let _ = writeln!(out, "adapter: {a}");
+        }
+    }
     let (batch, size, runs) = (opts.batch, opts.size, opts.runs);
     let _ = writeln!(
         out,
@@ -550,7 +556,30 @@ pub fn report(device_arg: Option<&str>, opts: &Options, alloc: Option<&PeakAlloc
         let _ = writeln!(out, "{what}:");
         out.push_str(&workload_line(batch, &m, &w));
     }
-    Ok(out)
+    Ok(out.text)
+}
+
+/// The report as it grows, each piece also printed at once: a bench stopped by a time limit
+/// (a GPU check's, a scheduler's) still leaves the figures measured before it.
+#[derive(Default)]
+struct Printed {
+    text: String,
+}
+
+impl Printed {
+    fn push_str(&mut self, s: &str) {
+        use std::io::Write as _;
+        self.text.push_str(s);
+        let mut stdout = std::io::stdout().lock();
+        let _ = stdout.write_all(s.as_bytes()).and_then(|()| stdout.flush());
+    }
+}
+
+impl std::fmt::Write for Printed {
+    fn write_str(&mut self, s: &str) -> std::fmt::Result {
+        self.push_str(s);
+        Ok(())
+    }
 }
 
 /// The GPU kernels' line of the report, on a GPU device.

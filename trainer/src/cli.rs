@@ -127,6 +127,13 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// The graphics adapters wgpu sees and the one the `wgpu` device takes (`--features wgpu`).
+    GpuInfo {
+        /// Fail (exit 1) unless the wgpu device takes a hardware GPU: refuse Mesa's lavapipe,
+        /// llvmpipe and every CPU adapter.
+        #[arg(long)]
+        require_hardware: bool,
+    },
     /// Rendering layer forward+backward time and peak memory (fused vs tensor reference), and
     /// training images/s per network configuration.
     Bench {
@@ -198,6 +205,46 @@ fn eval_to(checkpoints: &[PathBuf], opts: &EvalOptions, out: &std::path::Path) -
     }
     eprintln!("wrote {} and {}", out.display(), md_path.display());
     Ok(())
+}
+
+/// `trainer gpu-info`: every adapter, the one the wgpu device takes, and with
+/// `require_hardware` an error unless that one is a hardware GPU.
+#[cfg(feature = "wgpu")]
+fn gpu_info(require_hardware: bool) -> Result<()> {
+    use crate::render::gpu::adapter;
+    let all = adapter::adapters();
+    if all.is_empty() {
+        println!("wgpu sees no adapter");
+    }
+    for a in &all {
+        println!("adapter: {a}");
+    }
+    match adapter::preferred() {
+        Some(a) if require_hardware && a.is_software() => {
+            anyhow::bail!("the wgpu device would take {a}, a software rasteriser, not a GPU (--require-hardware)")
+        }
+        Some(a) => println!("the wgpu device takes: {a}"),
+        None => anyhow::bail!("wgpu found no adapter: no Vulkan, DX12 or OpenGL driver is installed"),
+    }
+    // Burn's reductions at the sizes of the quickstart, bench and paper configurations.
+    let device = crate::render::gpu::wgpu_device().map_err(|e| anyhow::anyhow!(e))?;
+    for (batch, size) in [(8, 64), (16, 128), (16, 256)] {
+        let wrong = adapter::inexact_reductions(&device, batch, size);
+        if wrong.is_empty() {
+            println!("Burn's reductions at batch {batch}, {size}²: exact");
+        } else {
+            println!(
+                "Burn's reductions at batch {batch}, {size}²: WRONG: {}",
+                wrong.join("; ")
+            );
+        }
+    }
+    Ok(())
+}
+
+#[cfg(not(feature = "wgpu"))]
+fn gpu_info(_require_hardware: bool) -> Result<()> {
+    anyhow::bail!("this trainer was built without GPU support: build it with `--features wgpu`")
 }
 
 fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
@@ -304,6 +351,7 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
             std::fs::write(&out, m.to_json())?;
             eprintln!("wrote {}", out.display());
         }
+        Command::GpuInfo { require_hardware } => gpu_info(require_hardware)?,
         Command::Bench {
             batch,
             size,
@@ -327,7 +375,8 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
                 checkpoint,
                 steps: steps as usize,
             };
-            print!("{}", bench::report(device.as_deref(), &opts, alloc)?);
+            // The report prints itself as it goes.
+            bench::report(device.as_deref(), &opts, alloc)?;
         }
     }
     Ok(())

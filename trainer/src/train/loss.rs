@@ -21,16 +21,60 @@ use burn::tensor::module::{avg_pool2d, conv2d};
 use burn::tensor::ops::{AvgPoolOptions, ConvOptions};
 use burn::tensor::{Tensor, TensorData};
 
+/// The sum of each row of `x` (`[B, N]` → `[B]`). On a CubeCL device Burn 0.22.1's reduction
+/// kernels are wrong once a reduction spans more than 65,535 workgroups (measured on lavapipe:
+/// the row sums of a `[16, 65534]` tensor of ones came out 65520, 0, 0, …; `trainer gpu-info`
+/// probes a device), so there the sum is a matrix product with a column of ones, whose kernels
+/// tile the output instead; the host keeps Burn's reduction.
+pub fn row_sums(x: Tensor<2>) -> Tensor<1> {
+    let [b, n] = x.dims();
+    let device = x.device();
+    if crate::render::on_cube(&device) {
+        // Burn's matrix product is wrong there too for long enough rows (a `[1, 3·2²⁰]` row of
+        // ones summed to 262140 on lavapipe): rows longer than CHUNK are summed in pieces of
+        // CHUNK (zero padded), then the pieces' sums.
+        const CHUNK: usize = 4096;
+        if n <= CHUNK {
+            return x.matmul(Tensor::ones([n, 1], &device)).reshape([b]);
+        }
+        let k = n.div_ceil(CHUNK);
+        let x = if k * CHUNK > n {
+            Tensor::cat(vec![x, Tensor::zeros([b, k * CHUNK - n], &device)], 1)
+        } else {
+            x
+        };
+        row_sums(
+            x.reshape([b * k, CHUNK])
+                .matmul(Tensor::ones([CHUNK, 1], &device))
+                .reshape([b, k]),
+        )
+    } else {
+        x.sum_dim(1).reshape([b])
+    }
+}
+
+/// The sum of every value of `x`, as `[1]` (see [`row_sums`]).
+pub fn sum_all<const D: usize>(x: Tensor<D>) -> Tensor<1> {
+    let n = x.shape().num_elements();
+    row_sums(x.reshape([1, n]))
+}
+
+/// The mean of every value of `x`, as `[1]` (see [`row_sums`]).
+pub fn mean<const D: usize>(x: Tensor<D>) -> Tensor<1> {
+    let n = x.shape().num_elements();
+    sum_all(x).div_scalar(n.max(1) as f64)
+}
+
 /// Masked mean of |n − n'|² over object pixels (Eq. 3, averaged rather than summed so that the
 /// weight does not depend on the resolution). `mask` is `[B, 1, H, W]`.
 pub fn normal_loss(pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -> Tensor<1> {
     let d = (pred - truth).powi_scalar(2).sum_dim(1) * mask.clone();
-    d.sum() / mask.sum().add_scalar(1e-6)
+    sum_all(d) / sum_all(mask).add_scalar(1e-6)
 }
 
 /// Mean squared difference of the normalised parameters (Eq. 4).
 pub fn material_loss(pred: Tensor<3>, truth: Tensor<3>) -> Tensor<1> {
-    (pred - truth).powi_scalar(2).mean()
+    mean((pred - truth).powi_scalar(2))
 }
 
 /// Exponent of [`display`]'s soft clamp s = y·(1 + y^p)^(−1/p): within 2 % of y up to y = 0.5.
@@ -99,7 +143,7 @@ pub fn illumination_loss(pred: Tensor<4>, truth: Tensor<4>) -> Tensor<1> {
     let [b, _, h, w] = truth.dims();
     let all = Tensor::ones([b, 1, h, w], &truth.device());
     let e = exposure(&truth, &all);
-    (display(pred, e.clone()) - display(truth, e)).powi_scalar(2).mean()
+    mean((display(pred, e.clone()) - display(truth, e)).powi_scalar(2))
 }
 
 /// The fallback perceptual loss between a rendered image and the ground truth (`[B, 3, H, W]`,
@@ -119,7 +163,7 @@ pub fn perceptual_fallback(pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -
             m = avg_pool2d(m, AvgPoolOptions::new([2, 2]).with_stride([2, 2]));
         }
         // Mean over covered pixels and channels.
-        let term = d.clone().powi_scalar(2).sum() / m.clone().sum().mul_scalar(3.0).add_scalar(1e-6);
+        let term = sum_all(d.clone().powi_scalar(2)) / sum_all(m.clone()).mul_scalar(3.0).add_scalar(1e-6);
         total = Some(match total {
             Some(t) => t + term,
             None => term,
@@ -236,14 +280,9 @@ pub fn ssim_loss(pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -> Tensor<1
     // finite; the clamp keeps a rounding-negative variance from shrinking the denominator.
     let den = (mx.clone() * mx + my.clone() * my).add_scalar(SSIM_C1) * (vx + vy).clamp_min(0.0).add_scalar(SSIM_C2);
     let dissimilarity = (num / den).neg().add_scalar(1.0).reshape([b, c, h, w]) * mask.clone();
-    let per_image = dissimilarity.reshape([b, c * h * w]).sum_dim(1).reshape([b])
-        / mask
-            .reshape([b, h * w])
-            .sum_dim(1)
-            .reshape([b])
-            .mul_scalar(c as f64)
-            .add_scalar(1e-6);
-    per_image.mean()
+    let per_image = row_sums(dissimilarity.reshape([b, c * h * w]))
+        / row_sums(mask.reshape([b, h * w])).mul_scalar(c as f64).add_scalar(1e-6);
+    mean(per_image)
 }
 
 #[cfg(test)]
@@ -278,5 +317,96 @@ mod tests {
                 assert!((p - q).abs() <= 1e-4 * (1.0 + p.abs()), "{h}x{w}: {p} vs {q}");
             }
         }
+    }
+
+    /// The losses' sums on the GPU device are exact where Burn's reductions are not (lavapipe,
+    /// 2026-11-27: Burn's row sums of `[16, 65534]` ones gave 65520, 0, 0, …).
+    #[cfg(feature = "wgpu")]
+    #[test]
+    fn the_losses_sums_on_the_gpu_device_are_exact_at_training_sizes() {
+        let Some(gpu) = crate::render::gpu::tests::device() else {
+            return;
+        };
+        for (b, n) in [
+            (1, 3),
+            (2, 4097),
+            (1, 65535),
+            (16, 65534),
+            (16, 196_608),
+            (4, 1 << 20),
+            (1, 3 << 20),
+        ] {
+            let sums: Vec<f32> = row_sums(Tensor::<2>::ones([b, n], &gpu))
+                .into_data()
+                .try_to_vec()
+                .expect("f32");
+            assert_eq!(sums, vec![n as f32; b], "[{b}, {n}]");
+        }
+        let all = |t: Tensor<1>| t.into_data().try_to_vec::<f32>().expect("f32")[0];
+        assert_eq!(
+            all(sum_all(Tensor::<4>::ones([16, 3, 256, 256], &gpu))),
+            (16 * 3 * 65536) as f32
+        );
+        assert_eq!(all(mean(Tensor::<4>::ones([16, 3, 256, 256], &gpu))), 1.0);
+        // Not only ones: a ramp whose sum is exact in f32.
+        let ramp: Vec<f32> = (0..2 * 65536).map(|i| (i % 256) as f32).collect();
+        let t = Tensor::<2>::from_data(TensorData::new(ramp, [2, 65536]), &gpu);
+        assert_eq!(
+            row_sums(t).into_data().try_to_vec::<f32>().expect("f32"),
+            vec![255.0 * 128.0 * 256.0; 2]
+        );
+    }
+
+    /// The structural loss on the wgpu device (the window as matrix products) against the CPU
+    /// device (the convolutions), at the paper's 256²: the answer to whether a device's matmul
+    /// rounds the window's means (TF32 on CUDA from compute capability 8.0) enough to move the
+    /// variances, which are differences of such means. Prints the worst relative difference.
+    #[cfg(feature = "wgpu")]
+    #[test]
+    fn the_structural_loss_on_the_gpu_device_equals_the_cpu_devices() {
+        let Some(gpu) = crate::render::gpu::tests::device() else {
+            return;
+        };
+        let cpu = burn::tensor::Device::flex();
+        let (b, h, w) = (2, 256, 256);
+        let mut x = 0x2545_f491u32;
+        let mut noise = move || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x as f32 / u32::MAX as f32
+        };
+        // Smooth shading with texture, HDR highlights, and a disc mask: what a render looks like.
+        let mut truth = Vec::with_capacity(b * 3 * h * w);
+        let mut pred = Vec::with_capacity(b * 3 * h * w);
+        for i in 0..b * 3 * h * w {
+            let (y, x) = ((i / w) % h, i % w);
+            let base = 0.2 + 0.6 * ((x as f32 / 37.0).sin() * (y as f32 / 23.0).cos()).abs();
+            let t = base + 0.1 * noise() + if noise() > 0.995 { 20.0 } else { 0.0 };
+            truth.push(t);
+            pred.push(t * (0.9 + 0.2 * noise()));
+        }
+        let mask: Vec<f32> = (0..b * h * w)
+            .map(|i| {
+                let (y, x) = ((i / w) % h, i % w);
+                let (dy, dx) = (y as f32 - 128.0, x as f32 - 128.0);
+                f32::from(dy * dy + dx * dx < 100.0 * 100.0)
+            })
+            .collect();
+        let loss = |device: &burn::tensor::Device| -> f32 {
+            let t = |v: &Vec<f32>, c| Tensor::<4>::from_data(TensorData::new(v.clone(), [b, c, h, w]), device);
+            let l = ssim_loss(t(&pred, 3), t(&truth, 3), t(&mask, 1));
+            l.into_data().try_to_vec::<f32>().expect("f32")[0]
+        };
+        let (on_cpu, on_gpu) = (loss(&cpu), loss(&gpu));
+        let rel = (on_cpu - on_gpu).abs() / on_cpu.abs().max(1e-6);
+        eprintln!(
+            "structural loss at 256²: CPU device {on_cpu:.7}, GPU device {on_gpu:.7}, relative difference {rel:.2e}"
+        );
+        assert!(on_cpu > 0.01, "the case must be dissimilar: {on_cpu}");
+        // The variances are differences of means of squares on the 0–255 scale, so the two
+        // windows' roundings (products against convolutions) leave ~1e-4 in a pixel's SSIM;
+        // lavapipe: 8.3e-5 of the loss. Burn's own row sums were off by 33 % here.
+        assert!(rel <= 5e-4, "CPU {on_cpu} vs GPU {on_gpu}: relative {rel:.2e}");
     }
 }

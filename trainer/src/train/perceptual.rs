@@ -85,7 +85,7 @@ impl Perceptual {
                 let ft = net.features(show(truth).detach(), layers);
                 fp.into_iter()
                     .zip(ft)
-                    .map(|(a, b)| (a - b).powi_scalar(2).mean())
+                    .map(|(a, b)| crate::train::loss::mean((a - b).powi_scalar(2)))
                     .reduce(|a, b| a + b)
                     .unwrap_or_else(|| Tensor::zeros([1], &mask.device()))
             }

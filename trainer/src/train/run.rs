@@ -236,6 +236,34 @@ pub fn device_for(name: &str) -> Result<Device> {
     }
 }
 
+/// On a GPU device, refuses a run whose sizes Burn's reduction kernels get wrong there (see
+/// `render::gpu::adapter::inexact_reductions`): such a run would train on wrong gradients
+/// without a sign. `MATEDIT_ALLOW_INEXACT_REDUCTIONS=1` trains anyway (a speed measurement).
+fn check_reductions(plan: &TrainPlan, device: &Device) -> Result<()> {
+    #[cfg(feature = "wgpu")]
+    if crate::render::on_cube(device) {
+        let m = &plan.manifest;
+        let size = *m.model.input_size.get_ref();
+        let batch = m.stages.iter().map(|s| s.get_ref().batch_size).max().unwrap_or(1);
+        let wrong = crate::render::gpu::adapter::inexact_reductions(device, batch, size);
+        if !wrong.is_empty() {
+            let why = format!(
+                "Burn's reduction kernels on this GPU device are wrong at batch {batch} and {size}²: {}; \
+                 training would use wrong gradients (`trainer gpu-info` probes a device; train on the cpu \
+                 device, or with smaller batches)",
+                wrong.join("; ")
+            );
+            if std::env::var("MATEDIT_ALLOW_INEXACT_REDUCTIONS").as_deref() == Ok("1") {
+                eprintln!("warning (MATEDIT_ALLOW_INEXACT_REDUCTIONS=1): {why}");
+            } else {
+                bail!("{why}");
+            }
+        }
+    }
+    let _ = (plan, device);
+    Ok(())
+}
+
 /// The Adam optimiser of a stage (its β1, β2).
 pub fn adam(stage: &super::manifest::StageSection) -> ModuleOptimizer {
     AdamConfig::new()
@@ -285,6 +313,7 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
     checkpoint::remove_stale_temporaries(out)?;
     let latest = checkpoint::latest(out)?;
     let device = device_for(plan.device.name())?;
+    check_reductions(plan, &device)?;
     // Where to start: a fresh run, or the latest checkpoint.
     let (mut net, mut start): (Net, Option<(State, PathBuf)>) = match (&latest, resume) {
         (Some(_), false) => bail!(

@@ -11,6 +11,7 @@
 //! on machines without a GPU). The fused CPU layer stays the path for the CPU device; the test
 //! suite holds the two to 1e-4 of each other.
 
+pub mod adapter;
 mod kernels;
 #[cfg(test)]
 pub(crate) mod tests;
