@@ -81,7 +81,7 @@ run_check() {
   local log=$out/log.txt summary=$out/summary.md
   : >"$log"
   local size=256 widths=paper batch=16 bench_train="paper:256:16,cpu-small:64:8" bench_size=256
-  local train_s=${GPU_CHECK_TRAIN_S:-150}
+  local train_s=${GPU_CHECK_TRAIN_S:-120}
   if [ $tiny = 1 ]; then
     size=32 widths=cpu-small batch=2 bench_train="cpu-small:32:2" bench_size=32
     train_s=${GPU_CHECK_TRAIN_S:-240}
@@ -180,7 +180,7 @@ run_check() {
   MATEDIT_REQUIRE_GPU=1 step device-tests "${GPU_CHECK_TESTS_S:-120}" "$bin/trainer-tests" gpu --test-threads=1 --nocapture
 
   # Speed: the layer at batch × size², the training steps of the paper and cpu-small networks.
-  step bench-wgpu "${GPU_CHECK_BENCH_S:-120}" "$bin/trainer" bench --device wgpu --batch "$batch" --size "$bench_size" \
+  step bench-wgpu "${GPU_CHECK_BENCH_S:-150}" "$bin/trainer" bench --device wgpu --batch "$batch" --size "$bench_size" \
     --runs 5 --no-reference --train "$bench_train"
   step bench-cpu "${GPU_CHECK_BENCH_CPU_S:-60}" "$bin/trainer" bench --device cpu --batch "$batch" --size "$bench_size" \
     --runs 1 --no-reference --train ""

@@ -486,10 +486,10 @@ pub fn report(device_arg: Option<&str>, opts: &Options, alloc: Option<&PeakAlloc
         rayon::current_num_threads()
     );
     #[cfg(feature = "wgpu")]
-    if crate::render::on_cube(&dev) {
-        if let Some(a) = crate::render::gpu::adapter::preferred() {
-            let _ = writeln!(out, "adapter: {a}");
-        }
+    if crate::render::on_cube(&dev)
+        && let Some(a) = crate::render::gpu::adapter::preferred()
+    {
+        let _ = writeln!(out, "adapter: {a}");
     }
     let (batch, size, runs) = (opts.batch, opts.size, opts.runs);
     let _ = writeln!(

@@ -1,7 +1,7 @@
 //! One decoded training tuple and the decoding of its two EXR files.
 //!
 //! The image EXR holds `R, G, B` (I), `O.R, O.G, O.B` (O), `normal.X/Y/Z`, `mask` and `region`
-//! (datagen's `store::IMAGE_CHANNELS`); the `.env.exr` holds the camera-space environment as
+//! (the contract's `records::IMAGE_CHANNELS`); the `.env.exr` holds the camera-space environment as
 //! `R, G, B`. Decoding is strict about the layout (missing channels, non-square images, region
 //! values outside the record's regions are errors) and lenient about values: a non-finite
 //! sample becomes 0 and is counted, so one bad pixel cannot poison a training step.

@@ -53,16 +53,24 @@ pub fn row_sums(x: Tensor<2>) -> Tensor<1> {
     }
 }
 
-/// The sum of every value of `x`, as `[1]` (see [`row_sums`]).
+/// The sum of every value of `x`, as `[1]` (see [`row_sums`]; the host keeps Burn's `sum`).
 pub fn sum_all<const D: usize>(x: Tensor<D>) -> Tensor<1> {
-    let n = x.shape().num_elements();
-    row_sums(x.reshape([1, n]))
+    if crate::render::on_cube(&x.device()) {
+        let n = x.shape().num_elements();
+        row_sums(x.reshape([1, n]))
+    } else {
+        x.sum()
+    }
 }
 
-/// The mean of every value of `x`, as `[1]` (see [`row_sums`]).
+/// The mean of every value of `x`, as `[1]` (see [`row_sums`]; the host keeps Burn's `mean`).
 pub fn mean<const D: usize>(x: Tensor<D>) -> Tensor<1> {
-    let n = x.shape().num_elements();
-    sum_all(x).div_scalar(n.max(1) as f64)
+    if crate::render::on_cube(&x.device()) {
+        let n = x.shape().num_elements();
+        sum_all(x).div_scalar(n.max(1) as f64)
+    } else {
+        x.mean()
+    }
 }
 
 /// Masked mean of |n − n'|² over object pixels (Eq. 3, averaged rather than summed so that the
