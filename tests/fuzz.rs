@@ -265,6 +265,69 @@ fn dsbrdf_json() {
     });
 }
 
+/// A valid `*.nbrdf.json` (the format of eval-assets' MERL neural BRDFs) with weights `w(l, i)`.
+fn nbrdf_file(w: impl Fn(usize, usize) -> f64) -> Vec<u8> {
+    use matedit_physics::brdf::nbrdf::{ACTIVATIONS, FORMAT, INPUTS};
+    let widths = [6, 21, 21, 3];
+    let layers: Vec<serde_json::Value> = (0..3)
+        .map(|l| {
+            let weight: Vec<Vec<f64>> = (0..widths[l])
+                .map(|r| (0..widths[l + 1]).map(|c| w(l, r * 32 + c)).collect())
+                .collect();
+            let bias: Vec<f64> = (0..widths[l + 1]).map(|c| w(l, 5000 + c)).collect();
+            serde_json::json!({ "weight": weight, "bias": bias })
+        })
+        .collect();
+    serde_json::json!({ "format": FORMAT, "name": "fuzz", "input": INPUTS, "activations": ACTIVATIONS, "layers": layers })
+        .to_string()
+        .into_bytes()
+}
+
+#[test]
+fn neural_brdfs() {
+    use matedit_physics::brdf::{Brdf, NeuralBrdf};
+    let mut seeds = vec![
+        (
+            "small weights".to_string(),
+            nbrdf_file(|l, i| 0.3 * ((l * 7 + i) as f64 * 0.37).sin()),
+        ),
+        ("large weights".to_string(), nbrdf_file(|_, i| 50.0 * (i as f64).cos())),
+    ];
+    if let Some(root) = eval_assets() {
+        let real = root.join("brdfs/merl-nbrdf/gold-metallic-paint.nbrdf.json");
+        if let Ok(bytes) = std::fs::read(&real) {
+            seeds.push(("MERL gold-metallic-paint".to_string(), bytes));
+        }
+    }
+    let read = |p: &Path| -> Result<Verdict, String> {
+        let b = NeuralBrdf::read(p).map_err(err)?;
+        let dirs = [
+            glam::DVec3::Z,
+            glam::DVec3::new(0.6, 0.0, 0.8),
+            glam::DVec3::new(-0.999_999_9, 0.0, 0.000_447),
+        ];
+        for wi in dirs {
+            for wo in dirs {
+                let f = b.eval(wi.normalize(), wo.normalize());
+                if f.iter().any(|v| !v.is_finite() || *v < 0.0) {
+                    return Ok(Err(format!("f = {f:?}")));
+                }
+            }
+        }
+        Ok(Ok(()))
+    };
+    fuzz(&Reader {
+        name: "nbrdf",
+        file_name: "m.nbrdf.json",
+        seeds,
+        cases: 300,
+        floor_bytes: 4 * MB,
+        per_input_byte: None,
+        prepare: None,
+        read: &read,
+    });
+}
+
 #[test]
 fn dataset_manifests() {
     let mut seeds = Vec::new();

@@ -31,7 +31,7 @@ enum Command {
     Render(RenderArgs),
     /// Fit the 108-parameter DSBRDF to a BRDF (analytic, dsbrdf or merl) and report the error.
     Fit {
-        /// The source: lambert:R,G,B | ggx:ALPHA:F0R,F0G,F0B | plastic:ALPHA:R,G,B | dsbrdf:PATH | merl:PATH | library:NAME.
+        /// The source: lambert:R,G,B | ggx:ALPHA:F0R,F0G,F0B | plastic:ALPHA:R,G,B | dsbrdf:PATH | merl:PATH | nbrdf:PATH (a MERL neural BRDF, *.nbrdf.json) | library:NAME.
         #[arg(long)]
         brdf: BrdfSpec,
         /// Output material file (JSON); the report goes beside it as FILE.fit.json.
@@ -259,7 +259,7 @@ struct RenderArgs {
     /// Which axis of the mesh file points up (x, -x, y, -y, z, -z); it becomes +y.
     #[arg(long, default_value = "y")]
     up: UpAxis,
-    /// Material: lambert:R,G,B | ggx:ALPHA:F0R,F0G,F0B | plastic:ALPHA:R,G,B | dsbrdf:PATH | merl:PATH
+    /// Material: lambert:R,G,B | ggx:ALPHA:F0R,F0G,F0B | plastic:ALPHA:R,G,B | dsbrdf:PATH | merl:PATH | nbrdf:PATH
     /// | library:NAME (a library material's source BRDF) | fit:NAME (its fitted DSBRDF).
     #[arg(long)]
     brdf: BrdfSpec,
@@ -301,6 +301,15 @@ struct RenderArgs {
 }
 
 fn run_render(a: RenderArgs) -> Result<()> {
+    // The image is an EXR whatever the name: a `.png` name would hold EXR bytes no viewer opens.
+    if let Some(ext) = a.out.extension().and_then(|e| e.to_str())
+        && ["png", "jpg", "jpeg"].contains(&ext.to_ascii_lowercase().as_str())
+    {
+        anyhow::bail!(
+            "--out {}: the render is written as EXR (radiance, normals, mask); name it .exr, and ask for a tone-mapped preview with --png FILE",
+            a.out.display()
+        );
+    }
     let opts = RenderOptions {
         shape: a.shape,
         up: a.up,

@@ -97,6 +97,14 @@ fn bad_arguments_name_the_problem_and_leave_existing_output_alone() {
             &["--brdf", "lambert:0.5,0.5,0.5", "--env", "builtin:sky", "--res", "0"],
             "--res",
         ),
+        (
+            &["--brdf", "nbrdf:/nonexistent/m.nbrdf.json", "--env", "builtin:sky"],
+            "cannot read neural BRDF /nonexistent/m.nbrdf.json",
+        ),
+        (
+            &["--brdf", "nbrdf:", "--env", "builtin:sky"],
+            "missing neural BRDF file path",
+        ),
     ];
     for (args, needle) in cases {
         let out = datagen()
@@ -111,6 +119,29 @@ fn bad_arguments_name_the_problem_and_leave_existing_output_alone() {
         assert!(err.contains(needle), "{args:?}: {err}");
         assert_eq!(std::fs::read(&exr).unwrap(), b"previous", "{args:?} touched the output");
     }
+    // An EXR under a PNG's name is refused before anything is rendered or written.
+    let png = d.join("keep.png");
+    std::fs::write(&png, b"previous").unwrap();
+    let out = datagen()
+        .args([
+            "render",
+            "--brdf",
+            "lambert:0.5,0.5,0.5",
+            "--env",
+            "builtin:sky",
+            "--res",
+            "8",
+            "--out",
+        ])
+        .arg(&png)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("written as EXR") && err.contains("--png"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(&png).unwrap(), b"previous");
 }
 
 #[test]

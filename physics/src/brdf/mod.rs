@@ -4,7 +4,9 @@
 //! * [`lambert::Lambert`]: ideal diffuse, f = ρ/π;
 //! * [`ggx::Ggx`]: GGX microfacet with separable Smith masking and Schlick (or no) Fresnel;
 //! * [`plastic::Plastic`]: Lambert plus a GGX coat with F0 = 0.04;
-//! * [`dsbrdf::Dsbrdf`]: the paper's 108-parameter Directional Statistics BRDF.
+//! * [`dsbrdf::Dsbrdf`]: the paper's 108-parameter Directional Statistics BRDF;
+//! * [`merl::MerlBrdf`] and [`nbrdf::NeuralBrdf`]: measured materials, as MERL's tables and as
+//!   the neural BRDFs of Sztrajman et al. 2021.
 //!
 //! [`BrdfModel`] is the closed set the fast shading path specialises for; [`BrdfSpec`] parses
 //! the `--brdf` strings of the command line.
@@ -13,6 +15,7 @@ pub mod dsbrdf;
 pub mod ggx;
 pub mod lambert;
 pub mod merl;
+pub mod nbrdf;
 pub mod plastic;
 mod spec;
 
@@ -20,6 +23,7 @@ pub use dsbrdf::Dsbrdf;
 pub use ggx::{Fresnel, Ggx};
 pub use lambert::Lambert;
 pub use merl::MerlBrdf;
+pub use nbrdf::NeuralBrdf;
 pub use plastic::Plastic;
 pub use spec::{BrdfSpec, SpecError};
 
@@ -49,6 +53,8 @@ pub enum BrdfModel {
     /// A measured MERL table, shaded through the exact path (a 3-D table has no per-texel
     /// factorisation).
     Measured(std::sync::Arc<MerlBrdf>),
+    /// A measured material as a neural BRDF (`nbrdf:`), shaded through the exact path too.
+    Neural(std::sync::Arc<NeuralBrdf>),
 }
 
 impl Brdf for BrdfModel {
@@ -59,6 +65,7 @@ impl Brdf for BrdfModel {
             BrdfModel::Plastic(b) => b.eval(wi, wo),
             BrdfModel::Dsbrdf(b) => b.eval(wi, wo),
             BrdfModel::Measured(b) => b.eval(wi, wo),
+            BrdfModel::Neural(b) => b.eval(wi, wo),
         }
     }
 }

@@ -1,5 +1,5 @@
 //! The `--brdf SPEC` strings: `lambert:R,G,B`, `ggx:ALPHA:F0R,F0G,F0B`, `plastic:ALPHA:R,G,B`,
-//! `dsbrdf:PATH`, `merl:PATH`, `library:NAME`, `fit:NAME`.
+//! `dsbrdf:PATH`, `merl:PATH`, `nbrdf:PATH`, `library:NAME`, `fit:NAME`.
 
 use super::{BrdfModel, Dsbrdf, Fresnel, Ggx, Lambert, Plastic, dsbrdf::DsbrdfError};
 use std::path::PathBuf;
@@ -27,6 +27,8 @@ pub enum BrdfSpec {
     Dsbrdf(PathBuf),
     /// `merl:PATH`: a measured MERL `.binary` file.
     Merl(PathBuf),
+    /// `nbrdf:PATH`: a measured material as a neural BRDF (`*.nbrdf.json`).
+    Nbrdf(PathBuf),
     /// `library:NAME`: a material of the dataset factory's library, with its source BRDF.
     Library(String),
     /// `fit:NAME`: the fitted DSBRDF of a library material.
@@ -38,7 +40,7 @@ pub enum BrdfSpec {
 pub enum SpecError {
     /// Syntax or value error, with the offending part named.
     #[error(
-        "--brdf {spec:?}: {message} (expected lambert:R,G,B | ggx:ALPHA:F0R,F0G,F0B | plastic:ALPHA:R,G,B | dsbrdf:PATH)"
+        "--brdf {spec:?}: {message} (expected lambert:R,G,B | ggx:ALPHA:F0R,F0G,F0B | plastic:ALPHA:R,G,B | dsbrdf:PATH | merl:PATH | nbrdf:PATH | library:NAME | fit:NAME)"
     )]
     Invalid {
         /// The whole string.
@@ -52,6 +54,9 @@ pub enum SpecError {
     /// The MERL file could not be loaded.
     #[error(transparent)]
     Merl(#[from] super::merl::MerlError),
+    /// The neural BRDF file could not be loaded.
+    #[error(transparent)]
+    Nbrdf(#[from] super::nbrdf::NbrdfError),
     /// `library:`/`fit:` names are resolved by the dataset factory, which owns the library.
     #[error("{0}: library materials are resolved by matedit-datagen (materials::resolve)")]
     NeedsLibrary(String),
@@ -103,6 +108,8 @@ impl std::str::FromStr for BrdfSpec {
             "dsbrdf" => Err(bad("missing material file path".into())),
             "merl" if !rest.is_empty() => Ok(BrdfSpec::Merl(PathBuf::from(rest))),
             "merl" => Err(bad("missing MERL file path".into())),
+            "nbrdf" if !rest.is_empty() => Ok(BrdfSpec::Nbrdf(PathBuf::from(rest))),
+            "nbrdf" => Err(bad("missing neural BRDF file path (*.nbrdf.json)".into())),
             "library" if !rest.is_empty() => Ok(BrdfSpec::Library(rest.to_string())),
             "fit" if !rest.is_empty() => Ok(BrdfSpec::Fit(rest.to_string())),
             "library" | "fit" => Err(bad("missing material name".into())),
@@ -122,6 +129,7 @@ impl BrdfSpec {
             BrdfSpec::Library(n) => return Err(SpecError::NeedsLibrary(format!("library:{n}"))),
             BrdfSpec::Fit(n) => return Err(SpecError::NeedsLibrary(format!("fit:{n}"))),
             BrdfSpec::Merl(path) => BrdfModel::Measured(std::sync::Arc::new(super::MerlBrdf::read(path)?)),
+            BrdfSpec::Nbrdf(path) => BrdfModel::Neural(std::sync::Arc::new(super::NeuralBrdf::read(path)?)),
         })
     }
 }

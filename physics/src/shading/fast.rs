@@ -179,7 +179,7 @@ impl FastShader {
                     gamma: std::array::from_fn(|ck| lobe_col(ck, false)),
                 })
             }
-            BrdfModel::Measured(_) => return None,
+            BrdfModel::Measured(_) | BrdfModel::Neural(_) => return None,
         };
         #[cfg(target_arch = "x86_64")]
         let avx2 = std::is_x86_feature_detected!("avx2");

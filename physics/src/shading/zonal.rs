@@ -373,7 +373,7 @@ impl ZonalGrid {
         let edges = normal_edges();
         let uniform = match brdf {
             BrdfModel::Dsbrdf(_) => 0.0,
-            BrdfModel::Measured(_) => return None,
+            BrdfModel::Measured(_) | BrdfModel::Neural(_) => return None,
             other => 1.0 / sharpness(other)?.max(1.0).sqrt(),
         };
         Some(std::array::from_fn(|i| {
@@ -463,7 +463,7 @@ pub fn sharpness(brdf: &BrdfModel) -> Option<f64> {
         BrdfModel::Ggx(g) => Some(2.0 / (g.alpha * g.alpha)),
         BrdfModel::Plastic(p) => Some(2.0 / (p.coat.alpha * p.coat.alpha)),
         BrdfModel::Dsbrdf(m) => Some(1.0 / dsbrdf_width_over(m, 0.0, 90.0).powi(2)),
-        BrdfModel::Measured(_) => None,
+        BrdfModel::Measured(_) | BrdfModel::Neural(_) => None,
     }
 }
 
@@ -596,7 +596,7 @@ impl ZonalKernel {
 
     /// [`new`](ZonalKernel::new) with spectra cut at `tail` (see [`TAIL`]).
     pub fn with_tail(brdf: &BrdfModel, grid: ZonalGrid, tail: f64) -> Option<Self> {
-        if matches!(brdf, BrdfModel::Measured(_)) {
+        if matches!(brdf, BrdfModel::Measured(_) | BrdfModel::Neural(_)) {
             return None;
         }
         let n = grid.phi;
