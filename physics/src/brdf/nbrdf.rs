@@ -199,7 +199,7 @@ impl NeuralBrdf {
 
 impl Brdf for NeuralBrdf {
     fn eval(&self, wi: DVec3, wo: DVec3) -> [f64; 3] {
-        if !(wi.z > 0.0 && wo.z > 0.0) || !wi.is_finite() || !wo.is_finite() {
+        if !(wi.z > 0.0 && wo.z > 0.0 && wi.is_finite() && wo.is_finite()) {
             return [0.0; 3];
         }
         let (th, _, td, pd) = directions_to_half_diff(wi, wo);
