@@ -673,3 +673,74 @@ const QUICKSTART_DEAL: [Deal; 2] = [
         ],
     ),
 ];
+
+/// A valid `*.nbrdf.json` whose output layer's biases give the material its colour (the
+/// network's other weights are small and shared).
+fn nbrdf_text(rgb_bias: [f64; 3]) -> String {
+    use matedit_physics::brdf::nbrdf::{ACTIVATIONS, FORMAT, INPUTS};
+    let widths = [6, 21, 21, 3];
+    let layers: Vec<Value> = (0..3)
+        .map(|l| {
+            let weight: Vec<Vec<f64>> = (0..widths[l])
+                .map(|r| {
+                    (0..widths[l + 1])
+                        .map(|c| 0.05 * (((l * 31 + r * 7 + c) % 11) as f64 - 5.0) / 5.0)
+                        .collect()
+                })
+                .collect();
+            let bias: Vec<f64> = (0..widths[l + 1])
+                .map(|c| if l == 2 { rgb_bias[c] } else { 0.1 })
+                .collect();
+            serde_json::json!({ "weight": weight, "bias": bias })
+        })
+        .collect();
+    serde_json::json!({ "format": FORMAT, "name": "t", "input": INPUTS, "activations": ACTIVATIONS, "layers": layers })
+        .to_string()
+}
+
+/// `source = "nbrdf"`: a folder of MERL neural BRDFs becomes materials `nbrdf:NAME`, MERL's
+/// numbered variants (red, red2) one group that no split divides, and a dataset with measured
+/// ground truth renders them and verifies.
+#[test]
+fn a_folder_of_neural_brdfs_is_a_material_source_whose_variants_stay_together() {
+    let d = scratch("nbrdf");
+    shape_folder(&d, false);
+    let m = d.join("merl");
+    std::fs::create_dir_all(&m).unwrap();
+    for (name, rgb) in [
+        ("red", [-0.5, -2.0, -2.0]),
+        ("red2", [-0.4, -2.0, -2.0]),
+        ("blue", [-2.0, -2.0, -0.5]),
+        ("green", [-2.0, -0.5, -2.0]),
+        ("grey", [-1.0, -1.0, -1.0]),
+    ] {
+        std::fs::write(m.join(format!("{name}.nbrdf.json")), nbrdf_text(rgb)).unwrap();
+    }
+    std::fs::write(m.join("notes.txt"), "not a material").unwrap();
+    let text = manifest(7, "\n[[splits]]\nname = \"train\"\nshapes = { car = 3 }\nmaterials = 2\n\n[[splits]]\nname = \"test\"\nshapes = { car = 2 }\nmaterials = 2\n")
+        .replace("source = \"dsbrdf\"\npath = \"materials\"", "source = \"nbrdf\"\npath = \"merl\"")
+        .replace("quality = \"fast\"", "quality = \"exact\"\nground_truth = \"measured\"");
+    for seed in 0..6 {
+        let p = write(&d, "m.toml", &text.replace("seed = 7", &format!("seed = {seed}")));
+        let l = load(&p).unwrap();
+        let cat = &l.plan.catalogue;
+        let ids: BTreeSet<&str> = cat.materials.iter().map(|m| m.id.as_str()).collect();
+        assert_eq!(
+            ids,
+            ["nbrdf:blue", "nbrdf:green", "nbrdf:grey", "nbrdf:red", "nbrdf:red2"]
+                .into_iter()
+                .collect()
+        );
+        let group = |id: &str| cat.materials.iter().find(|m| m.id == id).unwrap().group.clone();
+        assert_eq!(group("nbrdf:red"), "merl:red");
+        assert_eq!(group("nbrdf:red2"), "merl:red");
+        let holding = splits_holding(&l, &["nbrdf:red", "nbrdf:red2"], false);
+        assert!(holding.len() <= 1, "seed {seed}: red and red2 in {holding:?}");
+    }
+    let out = d.join("out");
+    run_to(&write(&d, "m.toml", &text), &out);
+    let rep = verify(&out).unwrap();
+    assert!(rep.problems.is_empty(), "{:?}", rep.problems);
+    let o = Command::new(datagen()).arg("verify").arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stdout));
+}

@@ -49,6 +49,8 @@ pub enum MaterialSource {
     Dsbrdf(PathBuf),
     /// A MERL measurement.
     Merl(PathBuf),
+    /// A `*.nbrdf.json` neural BRDF (MERL's materials as Sztrajman et al.'s networks).
+    Nbrdf(PathBuf),
 }
 
 /// A material of the catalogue.
@@ -509,7 +511,7 @@ fn materials_of(
                 .map_err(|e| mf.invalid(span.clone(), &format!("{field}.names"), e))?;
             cat.materials.extend(items);
         }
-        MaterialSourceName::Dsbrdf | MaterialSourceName::Merl => {
+        MaterialSourceName::Dsbrdf | MaterialSourceName::Merl | MaterialSourceName::Nbrdf => {
             not_for(
                 mf,
                 &span,
@@ -517,10 +519,10 @@ fn materials_of(
                 source,
                 &[("names", s.names.is_some()), ("families", s.families.is_some())],
             )?;
-            let suffix = if kind == MaterialSourceName::Dsbrdf {
-                ".dsbrdf.json"
-            } else {
-                ".binary"
+            let suffix = match kind {
+                MaterialSourceName::Dsbrdf => ".dsbrdf.json",
+                MaterialSourceName::Nbrdf => ".nbrdf.json",
+                _ => ".binary",
             };
             match existing_path(
                 mf,
@@ -547,14 +549,18 @@ fn materials_of(
                     }
                     for f in files {
                         let name = stem(&f, suffix);
-                        let (id, group, source) = if kind == MaterialSourceName::Dsbrdf {
-                            (
+                        // A MERL material as a table and as a network shares one group, so that
+                        // the two forms cannot land on both sides of a split.
+                        let (id, group, source) = match kind {
+                            MaterialSourceName::Dsbrdf => (
                                 format!("dsbrdf:{name}"),
                                 format!("dsbrdf:{name}"),
                                 MaterialSource::Dsbrdf(f),
-                            )
-                        } else {
-                            (format!("merl:{name}"), merl_group(&name), MaterialSource::Merl(f))
+                            ),
+                            MaterialSourceName::Nbrdf => {
+                                (format!("nbrdf:{name}"), merl_group(&name), MaterialSource::Nbrdf(f))
+                            }
+                            _ => (format!("merl:{name}"), merl_group(&name), MaterialSource::Merl(f)),
                         };
                         cat.materials.push(MaterialItem {
                             id,

@@ -202,10 +202,13 @@ pub fn material_fingerprint(source: &MaterialSource) -> Result<String, String> {
             let m = Dsbrdf::load(path).map_err(|e| format!("{}: {e}", path.display()))?;
             Ok(hash_f64s("material-v1 dsbrdf", m.params()))
         }
-        MaterialSource::Merl(path) => {
+        MaterialSource::Merl(path) | MaterialSource::Nbrdf(path) => {
             let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
             let mut h = blake3::Hasher::new();
-            h.update(b"material-v1 merl\0");
+            h.update(match &source {
+                MaterialSource::Nbrdf(_) => b"material-v1 nbrdf\0".as_slice(),
+                _ => b"material-v1 merl\0".as_slice(),
+            });
             h.update(&bytes);
             Ok(format!("blake3:{}", h.finalize().to_hex()))
         }

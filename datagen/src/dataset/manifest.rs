@@ -46,6 +46,8 @@ pub enum MaterialSource {
     Dsbrdf,
     /// MERL measurements.
     Merl,
+    /// MERL's materials as neural BRDFs (`*.nbrdf.json`).
+    Nbrdf,
 }
 
 impl Named for MaterialSource {
@@ -53,6 +55,7 @@ impl Named for MaterialSource {
         ("library", MaterialSource::Library),
         ("dsbrdf", MaterialSource::Dsbrdf),
         ("merl", MaterialSource::Merl),
+        ("nbrdf", MaterialSource::Nbrdf),
     ];
 }
 

@@ -14,7 +14,7 @@ use matedit_assets::materials::fit::fit_dsbrdf;
 use matedit_contract::io::write_atomically;
 use matedit_physics::BrdfModel;
 use matedit_physics::brdf::Dsbrdf;
-use matedit_physics::brdf::MerlBrdf;
+use matedit_physics::brdf::{MerlBrdf, NeuralBrdf};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -65,6 +65,11 @@ fn fingerprint(item: &MaterialItem) -> String {
             // Fits made while MERL lookups took the nearest bin must not be reused.
             format!("{FIT_VERSION}|merl-trilinear|{size}")
         }
+        MaterialSource::Nbrdf(p) => {
+            // The network's own bytes: a changed file is a changed material.
+            let bytes = std::fs::read(p).unwrap_or_default();
+            format!("{FIT_VERSION}|nbrdf|{}", blake3::hash(&bytes).to_hex())
+        }
     }
 }
 
@@ -73,6 +78,7 @@ fn source_model(item: &MaterialItem) -> Result<BrdfModel> {
         MaterialSource::Library(spec) => spec.build().with_context(|| item.id.clone())?,
         MaterialSource::Dsbrdf(p) => BrdfModel::Dsbrdf(Box::new(Dsbrdf::load(p)?)),
         MaterialSource::Merl(p) => BrdfModel::Measured(Arc::new(MerlBrdf::read(p)?)),
+        MaterialSource::Nbrdf(p) => BrdfModel::Neural(Arc::new(NeuralBrdf::read(p)?)),
     })
 }
 
