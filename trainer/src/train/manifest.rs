@@ -7,8 +7,7 @@ use crate::data::OnCorrupt;
 use crate::model::network::NetConfig;
 use crate::model::vgg16::Layer;
 use crate::model::{Init, Widths};
-use crate::train::run::DeviceName;
-use matedit_contract::manifest::{Choice, ManifestError, choice, expand_vars, invalid, parse_toml, read_text};
+use matedit_contract::manifest::{Choice, ManifestError, Named, choice, expand_vars, invalid, parse_toml, read_text};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use toml::Spanned;
@@ -576,6 +575,54 @@ impl TrainPlan {
     pub fn hash(&self) -> String {
         blake3::hash(self.text.as_bytes()).to_hex().to_string()
     }
+}
+
+/// A device a run trains on, by its name in manifests and on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DeviceName {
+    /// Burn's flex CPU backend.
+    Cpu,
+    /// Burn's wgpu backend (a build with `--features wgpu`).
+    Wgpu,
+    /// Burn's CUDA backend (a build with `--features cuda`).
+    Cuda,
+}
+
+impl Named for DeviceName {
+    const NAMES: &'static [(&'static str, Self)] = &[
+        ("cpu", DeviceName::Cpu),
+        ("wgpu", DeviceName::Wgpu),
+        ("cuda", DeviceName::Cuda),
+    ];
+    fn refusal(name: &str) -> String {
+        let names: Vec<&str> = Self::NAMES.iter().map(|(n, _)| *n).collect();
+        format!("unknown device {name:?} ({})", names.join(", "))
+    }
+}
+
+impl DeviceName {
+    /// Whether this build can train on it, and if not, why.
+    pub fn check_built(self) -> std::result::Result<(), String> {
+        let missing = |feature: &str, what: &str| {
+            Err(format!(
+                "this build has no {what} backend: build the trainer with `--features {feature}`"
+            ))
+        };
+        match self {
+            DeviceName::Cpu => Ok(()),
+            DeviceName::Wgpu if cfg!(feature = "wgpu") => Ok(()),
+            DeviceName::Wgpu => missing("wgpu", "wgpu (Vulkan, Metal, DX12)"),
+            DeviceName::Cuda if cfg!(feature = "cuda") => Ok(()),
+            DeviceName::Cuda => missing("cuda", "CUDA"),
+        }
+    }
+}
+
+/// Whether this build can train on the device `name`, and if not, why.
+pub fn check_device_name(name: &str) -> std::result::Result<(), String> {
+    DeviceName::from_name(name)
+        .ok_or_else(|| DeviceName::refusal(name))?
+        .check_built()
 }
 
 #[cfg(test)]

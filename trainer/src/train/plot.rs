@@ -1,10 +1,10 @@
 //! `loss.png`: the loss curves of a run (total and each term of Eq. 5, log scale), one colour
 //! per term (each step faint, a running mean bold), stage boundaries marked.
 
-use super::run::MetricsLine;
-use super::step::LossWeights;
+use super::step::{LossWeights, Losses};
 use anyhow::{Result, anyhow};
 use plotters::prelude::*;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// Draws the curves of `lines` into `path` (PNG, 960×540).
@@ -126,6 +126,21 @@ pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Resul
     }
     std::fs::rename(&tmp, path)?;
     Ok(())
+}
+
+/// One line of `metrics.jsonl`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MetricsLine {
+    /// Stage name.
+    pub stage: String,
+    /// Step within the stage (1-based: steps completed).
+    pub step: usize,
+    /// Steps completed in the run.
+    pub global_step: usize,
+    /// Learning rate of the step.
+    pub lr: f64,
+    /// Loss terms.
+    pub losses: Losses,
 }
 
 #[cfg(test)]

@@ -10,9 +10,10 @@
 
 use super::batch::HostBatch;
 use super::checkpoint::{self, State};
-use super::manifest::TrainPlan;
+use super::manifest::{TrainPlan, check_device_name};
 use super::perceptual::Perceptual;
-use super::step::{Losses, StepContext, StepKind, train_step};
+use super::plot::MetricsLine;
+use super::step::{StepContext, StepKind, train_step};
 use crate::data::{Dataset, Epochs, Loader, LoaderConfig, OnCorrupt};
 use crate::model::network::Net;
 use crate::render::RenderingLayer;
@@ -22,7 +23,6 @@ use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::tensor::Device;
 use matedit_contract::manifest::Named;
 use matedit_contract::progress::Progress;
-use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -142,21 +142,6 @@ pub fn open_dataset_stream(plan: &TrainPlan, stage: usize, position: u64) -> Res
     Ok(Box::new(DatasetStream::open(plan, stage, position)?))
 }
 
-/// One line of `metrics.jsonl`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct MetricsLine {
-    /// Stage name.
-    pub stage: String,
-    /// Step within the stage (1-based: steps completed).
-    pub step: usize,
-    /// Steps completed in the run.
-    pub global_step: usize,
-    /// Learning rate of the step.
-    pub lr: f64,
-    /// Loss terms.
-    pub losses: Losses,
-}
-
 /// What a finished run produced.
 #[derive(Clone, Debug)]
 pub struct RunSummary {
@@ -171,54 +156,6 @@ pub struct RunSummary {
 fn step_seed(seed: u64, stage: usize, step: usize) -> u64 {
     let h = blake3::hash(format!("{seed}/{stage}/{step}").as_bytes());
     u64::from_le_bytes(h.as_bytes()[..8].try_into().unwrap_or([0; 8]))
-}
-
-/// A device a run trains on, by its name in manifests and on the command line.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum DeviceName {
-    /// Burn's flex CPU backend.
-    Cpu,
-    /// Burn's wgpu backend (a build with `--features wgpu`).
-    Wgpu,
-    /// Burn's CUDA backend (a build with `--features cuda`).
-    Cuda,
-}
-
-impl Named for DeviceName {
-    const NAMES: &'static [(&'static str, Self)] = &[
-        ("cpu", DeviceName::Cpu),
-        ("wgpu", DeviceName::Wgpu),
-        ("cuda", DeviceName::Cuda),
-    ];
-    fn refusal(name: &str) -> String {
-        let names: Vec<&str> = Self::NAMES.iter().map(|(n, _)| *n).collect();
-        format!("unknown device {name:?} ({})", names.join(", "))
-    }
-}
-
-impl DeviceName {
-    /// Whether this build can train on it, and if not, why.
-    pub fn check_built(self) -> std::result::Result<(), String> {
-        let missing = |feature: &str, what: &str| {
-            Err(format!(
-                "this build has no {what} backend: build the trainer with `--features {feature}`"
-            ))
-        };
-        match self {
-            DeviceName::Cpu => Ok(()),
-            DeviceName::Wgpu if cfg!(feature = "wgpu") => Ok(()),
-            DeviceName::Wgpu => missing("wgpu", "wgpu (Vulkan, Metal, DX12)"),
-            DeviceName::Cuda if cfg!(feature = "cuda") => Ok(()),
-            DeviceName::Cuda => missing("cuda", "CUDA"),
-        }
-    }
-}
-
-/// Whether this build can train on the device `name`, and if not, why.
-pub fn check_device_name(name: &str) -> std::result::Result<(), String> {
-    DeviceName::from_name(name)
-        .ok_or_else(|| DeviceName::refusal(name))?
-        .check_built()
 }
 
 /// The Burn device of a run, with autodiff. A GPU device that this build has but the machine

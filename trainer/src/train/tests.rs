@@ -582,7 +582,7 @@ fn the_ssim_loss_trains_through_the_rendering_layer() {
 /// A device a manifest names is checked before anything runs, and a refusal says why.
 #[test]
 fn device_names_are_checked_with_their_reason() {
-    use super::run::check_device_name;
+    use super::manifest::check_device_name;
     assert!(check_device_name("cpu").is_ok());
     let e = check_device_name("tpu").unwrap_err();
     assert!(
