@@ -267,20 +267,7 @@ fn dsbrdf_json() {
 
 /// A valid `*.nbrdf.json` (the format of eval-assets' MERL neural BRDFs) with weights `w(l, i)`.
 fn nbrdf_file(w: impl Fn(usize, usize) -> f64) -> Vec<u8> {
-    use matedit_physics::brdf::nbrdf::{ACTIVATIONS, FORMAT, INPUTS};
-    let widths = [6, 21, 21, 3];
-    let layers: Vec<serde_json::Value> = (0..3)
-        .map(|l| {
-            let weight: Vec<Vec<f64>> = (0..widths[l])
-                .map(|r| (0..widths[l + 1]).map(|c| w(l, r * 32 + c)).collect())
-                .collect();
-            let bias: Vec<f64> = (0..widths[l + 1]).map(|c| w(l, 5000 + c)).collect();
-            serde_json::json!({ "weight": weight, "bias": bias })
-        })
-        .collect();
-    serde_json::json!({ "format": FORMAT, "name": "fuzz", "input": INPUTS, "activations": ACTIVATIONS, "layers": layers })
-        .to_string()
-        .into_bytes()
+    matedit_physics::brdf::NeuralBrdf::json_of("fuzz", |l, r, c| w(l, r * 32 + c), |l, c| w(l, 5000 + c)).into_bytes()
 }
 
 #[test]

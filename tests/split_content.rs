@@ -677,25 +677,11 @@ const QUICKSTART_DEAL: [Deal; 2] = [
 /// A valid `*.nbrdf.json` whose output layer's biases give the material its colour (the
 /// network's other weights are small and shared).
 fn nbrdf_text(rgb_bias: [f64; 3]) -> String {
-    use matedit_physics::brdf::nbrdf::{ACTIVATIONS, FORMAT, INPUTS};
-    let widths = [6, 21, 21, 3];
-    let layers: Vec<Value> = (0..3)
-        .map(|l| {
-            let weight: Vec<Vec<f64>> = (0..widths[l])
-                .map(|r| {
-                    (0..widths[l + 1])
-                        .map(|c| 0.05 * (((l * 31 + r * 7 + c) % 11) as f64 - 5.0) / 5.0)
-                        .collect()
-                })
-                .collect();
-            let bias: Vec<f64> = (0..widths[l + 1])
-                .map(|c| if l == 2 { rgb_bias[c] } else { 0.1 })
-                .collect();
-            serde_json::json!({ "weight": weight, "bias": bias })
-        })
-        .collect();
-    serde_json::json!({ "format": FORMAT, "name": "t", "input": INPUTS, "activations": ACTIVATIONS, "layers": layers })
-        .to_string()
+    matedit_physics::brdf::NeuralBrdf::json_of(
+        "t",
+        |l, r, c| 0.05 * (((l * 31 + r * 7 + c) % 11) as f64 - 5.0) / 5.0,
+        |l, c| if l == 2 { rgb_bias[c] } else { 0.1 },
+    )
 }
 
 /// `source = "nbrdf"`: a folder of MERL neural BRDFs becomes materials `nbrdf:NAME`, MERL's

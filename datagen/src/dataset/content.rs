@@ -202,17 +202,18 @@ pub fn material_fingerprint(source: &MaterialSource) -> Result<String, String> {
             let m = Dsbrdf::load(path).map_err(|e| format!("{}: {e}", path.display()))?;
             Ok(hash_f64s("material-v1 dsbrdf", m.params()))
         }
-        MaterialSource::Merl(path) | MaterialSource::Nbrdf(path) => {
-            let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
-            let mut h = blake3::Hasher::new();
-            h.update(match &source {
-                MaterialSource::Nbrdf(_) => b"material-v1 nbrdf\0".as_slice(),
-                _ => b"material-v1 merl\0".as_slice(),
-            });
-            h.update(&bytes);
-            Ok(format!("blake3:{}", h.finalize().to_hex()))
-        }
+        MaterialSource::Merl(path) => file_fingerprint(b"material-v1 merl\0", path),
+        MaterialSource::Nbrdf(path) => file_fingerprint(b"material-v1 nbrdf\0", path),
     }
+}
+
+/// A measured material's fingerprint: its file's bytes under a tag naming the format.
+fn file_fingerprint(tag: &[u8], path: &std::path::Path) -> Result<String, String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut h = blake3::Hasher::new();
+    h.update(tag);
+    h.update(&bytes);
+    Ok(format!("blake3:{}", h.finalize().to_hex()))
 }
 
 /// The pixel fingerprint of a decoded environment map.

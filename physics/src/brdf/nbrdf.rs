@@ -167,7 +167,8 @@ impl NeuralBrdf {
         })
     }
 
-    /// The network's output y (before eʸ − 1) for the half/difference angles.
+    /// The network's output y (before eʸ − 1) for the half/difference angles. Evaluated per
+    /// texel and pixel on the exact path, so on the stack.
     pub fn log_value(&self, th: f64, td: f64, pd: f64) -> [f64; 3] {
         let x = [
             th.sin(),
@@ -177,9 +178,10 @@ impl NeuralBrdf {
             td.sin() * pd.sin(),
             td.cos(),
         ];
-        let dense = |input: &[f64], (w, b): &(Vec<f64>, Vec<f64>), relu: bool| -> Vec<f64> {
+        // out = b + input·W (W row-major in × out), then relu where asked.
+        fn dense(input: &[f64], (w, b): &(Vec<f64>, Vec<f64>), relu: bool, out: &mut [f64]) {
             let cols = b.len();
-            let mut out = b.clone();
+            out.copy_from_slice(b);
             for (i, &xi) in input.iter().enumerate() {
                 for (o, wv) in out.iter_mut().zip(&w[i * cols..(i + 1) * cols]) {
                     *o += xi * wv;
@@ -188,12 +190,34 @@ impl NeuralBrdf {
             if relu {
                 out.iter_mut().for_each(|v| *v = v.max(0.0));
             }
-            out
-        };
-        let a1 = dense(&x, &self.layers[0], true);
-        let a2 = dense(&a1, &self.layers[1], true);
-        let y = dense(&a2, &self.layers[2], false);
-        [y[0], y[1], y[2]]
+        }
+        let (mut a1, mut a2, mut y) = ([0.0; WIDTHS[1]], [0.0; WIDTHS[2]], [0.0; WIDTHS[3]]);
+        dense(&x, &self.layers[0], true, &mut a1);
+        dense(&a1, &self.layers[1], true, &mut a2);
+        dense(&a2, &self.layers[2], false, &mut y);
+        y
+    }
+
+    /// A file of this format whose weights are `weight(layer, row, column)` and biases
+    /// `bias(layer, column)`: synthetic networks for tests and fixtures.
+    pub fn json_of(
+        name: &str,
+        weight: impl Fn(usize, usize, usize) -> f64,
+        bias: impl Fn(usize, usize) -> f64,
+    ) -> String {
+        let layers: Vec<serde_json::Value> = (0..3)
+            .map(|l| {
+                let w: Vec<Vec<f64>> = (0..WIDTHS[l])
+                    .map(|r| (0..WIDTHS[l + 1]).map(|c| weight(l, r, c)).collect())
+                    .collect();
+                let b: Vec<f64> = (0..WIDTHS[l + 1]).map(|c| bias(l, c)).collect();
+                serde_json::json!({ "weight": w, "bias": b })
+            })
+            .collect();
+        serde_json::json!({
+            "format": FORMAT, "name": name, "input": INPUTS, "activations": ACTIVATIONS, "layers": layers
+        })
+        .to_string()
     }
 }
 
@@ -217,20 +241,11 @@ mod tests {
 
     /// A file of the format with every weight and bias set by `value(layer, index)`.
     pub(crate) fn file_with(value: impl Fn(usize, usize) -> f64) -> String {
-        let layers: Vec<serde_json::Value> = (0..3)
-            .map(|l| {
-                let (rows, cols) = (WIDTHS[l], WIDTHS[l + 1]);
-                let weight: Vec<Vec<f64>> = (0..rows)
-                    .map(|r| (0..cols).map(|c| value(l, r * cols + c)).collect())
-                    .collect();
-                let bias: Vec<f64> = (0..cols).map(|c| value(l, 1000 + c)).collect();
-                serde_json::json!({ "weight": weight, "bias": bias })
-            })
-            .collect();
-        serde_json::json!({
-            "format": FORMAT, "name": "test", "input": INPUTS, "activations": ACTIVATIONS, "layers": layers
-        })
-        .to_string()
+        NeuralBrdf::json_of(
+            "test",
+            |l, r, c| value(l, r * WIDTHS[l + 1] + c),
+            |l, c| value(l, 1000 + c),
+        )
     }
 
     /// Hand-computed: with W1 = 0 and b1 = 1 every hidden unit of layer 1 is 1; with W2 = 0.1 and

@@ -61,26 +61,27 @@ fn instance(backend: wgpu::Backend) -> wgpu::Instance {
     })
 }
 
-/// Every adapter of every API in the runtime's chain, in enumeration order.
-pub fn adapters() -> Vec<Adapter> {
+/// Every adapter of each API in the runtime's chain, in enumeration order.
+fn listed() -> Vec<(wgpu::Backend, Vec<Adapter>)> {
     CHAIN
         .iter()
-        .flat_map(|&b| block_on(instance(b).enumerate_adapters(b.into())))
-        .map(|a| Adapter::of(&a.get_info()))
+        .map(|&b| {
+            let found = block_on(instance(b).enumerate_adapters(b.into()));
+            (b, found.iter().map(|a| Adapter::of(&a.get_info())).collect())
+        })
         .collect()
+}
+
+/// Every adapter of every API in the runtime's chain, in enumeration order.
+pub fn adapters() -> Vec<Adapter> {
+    listed().into_iter().flat_map(|(_, a)| a).collect()
 }
 
 /// The adapter Burn's default wgpu device takes: on the first API of the chain that has a
 /// non-CPU adapter (or, where none has, the first with any), wgpu's answer to a
 /// high-performance request.
 pub fn preferred() -> Option<Adapter> {
-    let listed: Vec<(wgpu::Backend, Vec<Adapter>)> = CHAIN
-        .iter()
-        .map(|&b| {
-            let found = block_on(instance(b).enumerate_adapters(b.into()));
-            (b, found.iter().map(|a| Adapter::of(&a.get_info())).collect())
-        })
-        .collect();
+    let listed = listed();
     let backend = listed
         .iter()
         .find(|(_, a)| a.iter().any(|a| a.device_type != "Cpu"))
