@@ -11,7 +11,9 @@
 #                        modules (L2), trains the illumination module through the rendering
 #                        layer, then all three jointly (Eq. 5); evaluates every stage on the
 #                        held-out test split and prints the tables (out/train/quickstart/eval.md,
-#                        eval.json, eval.png, loss.png).
+#                        eval.json, eval.png, loss.png). Its perceptual loss is VGG16's where
+#                        ImageNet's weights are there (`bash scripts/fetch_vgg16.sh`, or
+#                        VGG16_WEIGHTS), the documented fallback otherwise; it says which.
 # Rerunning the script continues both steps where a killed run stopped (`--resume` starts a
 # fresh training run when there is none, and re-evaluates a finished one).
 set -euo pipefail
@@ -26,5 +28,19 @@ out=out/quickstart
 "$dg" verify "$out"
 "$dg" inspect "$out" --samples 8
 echo "quickstart: $(wc -l < "$out/index.jsonl") samples in $out/ (index.jsonl, dataset.json, shards/, inspect.png)"
-"$tr" run manifests/train/quickstart.toml --out out/train/quickstart --resume
+# VGG16's weights where scripts/fetch_vgg16.sh put them, unless VGG16_WEIGHTS says otherwise (an
+# empty one: the fallback); a run already started keeps the loss it started with.
+vgg=${MATEDIT_CACHE:-$HOME/.cache/matedit}/vgg16/vgg16-imagenet.safetensors
+run=out/train/quickstart
+if [ -z "${VGG16_WEIGHTS+set}" ] && [ -f "$vgg" ]; then
+  if [ ! -e "$run/latest.json" ] || grep -qs '"perceptual": "vgg16' "$run"/checkpoints/*/state.json; then
+    export VGG16_WEIGHTS=$vgg
+  fi
+fi
+if [ -n "${VGG16_WEIGHTS:-}" ]; then
+  echo "quickstart: perceptual loss: VGG16 ($VGG16_WEIGHTS)"
+else
+  echo "quickstart: perceptual loss: the fallback (bash scripts/fetch_vgg16.sh fetches VGG16's ImageNet weights)"
+fi
+"$tr" run manifests/train/quickstart.toml --out "$run" --resume
 echo "quickstart: model, metrics and tables in out/train/quickstart/ (eval.md, eval.json, eval.png, loss.png)"

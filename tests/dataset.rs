@@ -369,10 +369,40 @@ fn bench_puts_the_reference_first_and_measures_every_option_against_it() {
     let picks = bench::spread(&l.plan, 3);
     assert_eq!(picks.len(), 3);
     // The reference listed among the options is not rendered twice.
-    let rows = bench::bench(&l.plan, &mats, &picks, Quality::Fast, &[Quality::Zonal, Quality::Fast]).unwrap();
-    assert_eq!(
-        rows.iter().map(|r| r.quality).collect::<Vec<_>>(),
-        [Quality::Fast, Quality::Zonal]
+    let (fast, zonal) = (
+        bench::Shading::Quality(Quality::Fast),
+        bench::Shading::Quality(Quality::Zonal),
+    );
+    let rows = bench::bench(&l.plan, &mats, None, &picks, fast, &[zonal, fast]).unwrap();
+    assert_eq!(rows.iter().map(|r| r.quality).collect::<Vec<_>>(), [fast, zonal]);
+    // `measured` without the source BRDFs prepared is an error, not a silent fallback.
+    let e = bench::bench(&l.plan, &mats, None, &picks, fast, &[bench::Shading::Measured]).unwrap_err();
+    assert!(format!("{e:#}").contains("measured"), "{e:#}");
+    // Against the source BRDFs, the fitted labels (exact path) err by the fit alone: not zero,
+    // not large for the library's analytic materials.
+    let measured = materials::prepare_all(
+        &d.join("materials-measured"),
+        &l.plan.catalogue.materials,
+        &materials::needed(&l.plan),
+        matedit_datagen::dataset::plan::GroundTruth::Measured,
+        &|| {},
+    )
+    .unwrap();
+    let exact = bench::Shading::Quality(Quality::Exact);
+    let fit = bench::bench(
+        &l.plan,
+        &mats,
+        Some(&measured),
+        &picks,
+        bench::Shading::Measured,
+        &[exact],
+    )
+    .unwrap();
+    assert_eq!(fit[0].quality, bench::Shading::Measured);
+    assert!(
+        fit[1].max_rel_rmse > 1e-4 && fit[1].median_rel_rmse < 0.3,
+        "{:?}",
+        fit[1]
     );
     assert_eq!(rows[0].max_rel_rmse, 0.0);
     assert_eq!(rows[0].setup_materials, 0);

@@ -30,7 +30,11 @@ fn main() -> ExitCode {
         return matedit_trainer::cli::main(Some(&ALLOC));
     }
     let args = libtest_mimic::Arguments::from_args();
-    let tests: [(&str, fn()); 8] = [
+    let tests: [(&str, fn()); 9] = [
+        (
+            "the_perceptual_loss_is_said_and_a_resume_keeps_it",
+            the_perceptual_loss_is_said_and_a_resume_keeps_it,
+        ),
         (
             "a_killed_run_resumes_to_the_same_losses_and_metrics",
             a_killed_run_resumes_to_the_same_losses_and_metrics,
@@ -805,6 +809,86 @@ checkpoint_every = 3
 "#,
         run_head(dataset, name, 6)
     )
+}
+
+/// A VGG16 file in torchvision's layout (conv1_1 … conv4_3, zero weights), written as
+/// safetensors from its specification: a little-endian u64 header length, the JSON header, the data.
+fn zero_vgg16(path: &Path) {
+    let mut header = serde_json::Map::new();
+    let (mut offset, mut cin) = (0usize, 3usize);
+    let indices = [0, 2, 5, 7, 10, 12, 14, 17, 19, 21];
+    let outs = [64, 64, 128, 128, 256, 256, 256, 512, 512, 512];
+    for (idx, cout) in indices.into_iter().zip(outs) {
+        for (name, shape) in [("weight", vec![cout, cin, 3, 3]), ("bias", vec![cout])] {
+            let len = 4 * shape.iter().product::<usize>();
+            header.insert(
+                format!("features.{idx}.{name}"),
+                serde_json::json!({"dtype": "F32", "shape": shape, "data_offsets": [offset, offset + len]}),
+            );
+            offset += len;
+        }
+        cin = cout;
+    }
+    header.insert("__metadata__".into(), serde_json::json!({"preprocessing": "caffe"}));
+    let mut h = serde_json::to_vec(&Value::Object(header)).unwrap();
+    while !h.len().is_multiple_of(8) {
+        h.push(b' ');
+    }
+    let mut bytes = (h.len() as u64).to_le_bytes().to_vec();
+    bytes.extend(h);
+    bytes.resize(bytes.len() + offset, 0);
+    std::fs::write(path, bytes).unwrap();
+}
+
+/// `[loss].vgg16 = "${VAR:-}"` is the fallback while VAR is unset, and the log says so; a run
+/// trained with one perceptual loss is not resumed with the other, and the refusal says which.
+fn the_perceptual_loss_is_said_and_a_resume_keeps_it() {
+    let m = write_manifest(
+        "vgg.toml",
+        &(one_stage_manifest(dataset(), "vgg", "joint", 2) + "\n[loss]\nvgg16 = \"${MATEDIT_TEST_VGG16:-}\"\n"),
+    );
+    let weights = root().join("vgg16-zero.safetensors");
+    zero_vgg16(&weights);
+    let run = |out: &Path, vgg: bool, resume: bool| {
+        let mut c = trainer();
+        c.arg("run").arg(&m).arg("--out").arg(out).arg("--quiet");
+        if resume {
+            c.arg("--resume");
+        }
+        if vgg {
+            c.env("MATEDIT_TEST_VGG16", &weights);
+        } else {
+            c.env_remove("MATEDIT_TEST_VGG16");
+        }
+        let o = c.output().unwrap();
+        (o.status.success(), String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let (fallback, vgg) = (root().join("run-fallback"), root().join("run-vgg"));
+    let (ok, e) = run(&fallback, false, false);
+    assert!(
+        ok && e.contains("perceptual loss: fallback") && e.contains("expands to no path"),
+        "{e}"
+    );
+    let (ok, e) = run(&vgg, true, false);
+    assert!(ok && e.contains("perceptual loss: VGG16") && e.contains("Caffe"), "{e}");
+    let state = std::fs::read_to_string(vgg.join("checkpoints/vgg/state.json")).unwrap();
+    assert!(state.contains("\"perceptual\": \"vgg16 blake3:"), "{state}");
+    let state = std::fs::read_to_string(fallback.join("checkpoints/vgg/state.json")).unwrap();
+    assert!(
+        !state.contains("perceptual"),
+        "a fallback run's checkpoint keeps its bytes: {state}"
+    );
+    // Each resumed with the other loss: refused, naming both.
+    let (ok, e) = run(&fallback, true, true);
+    assert!(
+        !ok && e.contains("perceptual loss the fallback") && e.contains("vgg16 blake3:"),
+        "{e}"
+    );
+    let (ok, e) = run(&vgg, false, true);
+    assert!(!ok && e.contains("the manifest now gives the fallback"), "{e}");
+    // With its own loss, a finished run resumes (to its evaluation).
+    let (ok, e) = run(&vgg, true, true);
+    assert!(ok, "{e}");
 }
 
 fn total_losses(out: &Path) -> Vec<f64> {

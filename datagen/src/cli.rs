@@ -98,12 +98,14 @@ enum Command {
         /// Samples, spread over the plan (1–100000).
         #[arg(long, default_value_t = 8, value_parser = count_in(1, 100_000))]
         samples: usize,
-        /// Reference the errors are measured against.
+        /// Reference the errors are measured against: a quality (exact, fast, zonal: the
+        /// manifest's ground truth), or measured (every material's source BRDF itself, e.g. a
+        /// MERL neural BRDF rather than its DSBRDF fit).
         #[arg(long, default_value = "exact")]
-        reference: Quality,
-        /// Options to time, comma-separated.
+        reference: crate::dataset::bench::Shading,
+        /// Options to time, comma-separated (the same names).
         #[arg(long, default_value = "zonal,fast", value_delimiter = ',')]
-        options: Vec<Quality>,
+        options: Vec<crate::dataset::bench::Shading>,
         /// Override the image side (1–16384).
         #[arg(long, value_parser = count_in(1, 16_384))]
         res: Option<usize>,

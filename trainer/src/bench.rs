@@ -287,7 +287,7 @@ pub fn training(
     let ctx = StepContext {
         layer: &layer,
         weights: &w,
-        perceptual: &Perceptual::Fallback,
+        perceptual: &Perceptual::Fallback { why: "bench" },
         device: &device,
     };
     let mut seed = 2;

@@ -222,7 +222,8 @@ impl Named for matedit_physics::shading::Quality {
     }
 }
 
-/// Expands `${NAME}` from the environment.
+/// Expands `${NAME}` from the environment, and `${NAME:-DEFAULT}` as a shell does (DEFAULT,
+/// possibly empty, where NAME is unset or empty).
 pub fn expand_vars(s: &str) -> Result<String, String> {
     let mut out = String::new();
     let mut rest = s;
@@ -230,8 +231,19 @@ pub fn expand_vars(s: &str) -> Result<String, String> {
         out.push_str(&rest[..start]);
         let after = &rest[start + 2..];
         let end = after.find('}').ok_or_else(|| format!("unclosed ${{ in {s:?}"))?;
-        let name = &after[..end];
-        let value = std::env::var(name).map_err(|_| format!("environment variable {name} is not set"))?;
+        let (name, default) = match after[..end].split_once(":-") {
+            Some((name, default)) => (name, Some(default)),
+            None => (&after[..end], None),
+        };
+        if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+            return Err(format!("{:?} is not an environment variable's name (in {s:?})", name));
+        }
+        let value = match (std::env::var(name), default) {
+            (Ok(v), Some(d)) if v.is_empty() => d.to_string(),
+            (Ok(v), _) => v,
+            (Err(_), Some(d)) => d.to_string(),
+            (Err(_), None) => return Err(format!("environment variable {name} is not set")),
+        };
         out.push_str(&value);
         rest = &after[end + 1..];
     }
@@ -242,6 +254,32 @@ pub fn expand_vars(s: &str) -> Result<String, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn variables_take_shell_defaults() {
+        // SAFETY of the test: variable names no other test uses.
+        unsafe {
+            std::env::set_var("MATEDIT_TEST_SET", "/w");
+            std::env::set_var("MATEDIT_TEST_EMPTY", "");
+        }
+        assert_eq!(expand_vars("${MATEDIT_TEST_SET:-/d}/x").unwrap(), "/w/x");
+        assert_eq!(expand_vars("${MATEDIT_TEST_EMPTY:-/d}/x").unwrap(), "/d/x");
+        assert_eq!(expand_vars("${MATEDIT_TEST_UNSET_ANYWHERE:-}").unwrap(), "");
+        assert_eq!(expand_vars("a${MATEDIT_TEST_UNSET_ANYWHERE:-b:-c}d").unwrap(), "ab:-cd");
+        assert_eq!(expand_vars("${MATEDIT_TEST_EMPTY}").unwrap(), "");
+        assert!(
+            expand_vars("${MATEDIT_TEST_UNSET_ANYWHERE}")
+                .unwrap_err()
+                .contains("not set")
+        );
+        for bad in ["${}", "${:-x}", "${A B}", "${A-x}"] {
+            assert!(
+                expand_vars(bad).unwrap_err().contains("not an environment variable"),
+                "{bad}"
+            );
+        }
+        assert!(expand_vars("${MATEDIT_TEST_SET").unwrap_err().contains("unclosed"));
+    }
 
     #[derive(Clone, Copy, Debug, PartialEq)]
     enum Colour {

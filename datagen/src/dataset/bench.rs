@@ -3,20 +3,56 @@
 //! environment, shading of I and O, EXR encoding); errors are relative RMSE of I and O against
 //! the reference option over the object's pixels. Work done once per material and run (the
 //! `zonal` kernels) is timed apart from the samples, as `datagen run` amortises it.
+//!
+//! Besides the qualities (which shade the manifest's ground truth, by default the fitted
+//! DSBRDF), `measured` shades each material's source BRDF itself (a MERL table or neural BRDF,
+//! an analytic model; the exact path), whatever the manifest's `ground_truth`: against it, the
+//! qualities' error is what choosing the fit as the dataset's ground truth costs.
 
 use super::materials::MaterialEntry;
-use super::plan::Plan;
+use super::plan::{GroundTruth, Plan};
 use super::sample::{Renderer, encode};
 use anyhow::Result;
 use matedit_physics::shading::Quality;
 use rayon::prelude::*;
 use std::time::Instant;
 
+/// What an option shades with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Shading {
+    /// The manifest's ground truth with this quality.
+    Quality(Quality),
+    /// Every material's source BRDF (the exact path), whatever the manifest's ground truth.
+    Measured,
+}
+
+impl std::str::FromStr for Shading {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "measured" => Ok(Self::Measured),
+            _ => s
+                .parse()
+                .map(Self::Quality)
+                .map_err(|e| format!("{e}, or measured (the source BRDFs themselves)")),
+        }
+    }
+}
+
+impl std::fmt::Display for Shading {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Quality(q) => write!(f, "{q:?}"),
+            Self::Measured => write!(f, "measured"),
+        }
+    }
+}
+
 /// One option's figures.
 #[derive(Clone, Debug)]
 pub struct BenchRow {
     /// The shading option.
-    pub quality: Quality,
+    pub quality: Shading,
     /// Samples per second (all threads), per-material set-up excluded.
     pub samples_per_s: f64,
     /// Seconds of per-material set-up before the first sample (all threads; `zonal` kernels).
@@ -59,19 +95,31 @@ pub fn spread(plan: &Plan, n: usize) -> Vec<(usize, usize)> {
 }
 
 /// Renders `picks` with the reference and every other option in `options` and compares each
-/// with the reference; the first row is the reference itself.
+/// with the reference; the first row is the reference itself. `materials` are prepared for the
+/// plan's ground truth, `measured` (needed only by [`Shading::Measured`]) for the source BRDFs.
 pub fn bench(
     plan: &Plan,
     materials: &[Option<MaterialEntry>],
+    measured: Option<&[Option<MaterialEntry>]>,
     picks: &[(usize, usize)],
-    reference: Quality,
-    options: &[Quality],
+    reference: Shading,
+    options: &[Shading],
 ) -> Result<Vec<BenchRow>> {
     // Every material of the splits the picks come from.
     let used = plan.materials_of(picks.iter().map(|&(s, _)| s));
-    let render_all = |q: Quality| -> Result<Rendered> {
+    let render_all = |shading: Shading| -> Result<Rendered> {
         let mut p = plan.clone();
-        p.settings.quality = q;
+        let materials = match shading {
+            Shading::Quality(q) => {
+                p.settings.quality = q;
+                materials
+            }
+            Shading::Measured => {
+                p.settings.quality = Quality::Exact;
+                p.settings.ground_truth = GroundTruth::Measured;
+                measured.ok_or_else(|| anyhow::anyhow!("`measured` needs the source BRDFs prepared"))?
+            }
+        };
         let r = Renderer::new(&p, materials);
         let t = Instant::now();
         let setup_materials = r.prepare_zonal(&used, &|| {})?;
@@ -158,8 +206,8 @@ pub fn bench(
 pub fn bench_manifest(
     manifest: &std::path::Path,
     samples: usize,
-    reference: Quality,
-    options: &[Quality],
+    reference: Shading,
+    options: &[Shading],
     res: Option<usize>,
     per_sample: bool,
 ) -> Result<String> {
@@ -170,23 +218,34 @@ pub fn bench_manifest(
         l.plan.settings.resolution = res;
     }
     let dir = std::env::temp_dir().join(format!("matedit-bench-materials-{}", std::process::id()));
-    let materials = super::materials::prepare_all(
-        &dir,
-        &l.plan.catalogue.materials,
-        &super::materials::needed(&l.plan),
-        l.plan.settings.ground_truth,
-        &|| {},
-    )?;
+    let prepare = |truth: GroundTruth| {
+        super::materials::prepare_all(
+            &dir,
+            &l.plan.catalogue.materials,
+            &super::materials::needed(&l.plan),
+            truth,
+            &|| {},
+        )
+    };
+    let prepared = prepare(l.plan.settings.ground_truth);
+    let measured = if reference == Shading::Measured || options.contains(&Shading::Measured) {
+        Some(prepare(GroundTruth::Measured))
+    } else {
+        None
+    };
     let _ = std::fs::remove_dir_all(&dir);
+    let materials = prepared?;
+    let measured = measured.transpose()?;
     let picks = spread(&l.plan, samples);
-    let rows = bench(&l.plan, &materials, &picks, reference, options)?;
+    let rows = bench(&l.plan, &materials, measured.as_deref(), &picks, reference, options)?;
     let _ = writeln!(
         out,
-        "{} samples of {} at {}², {} threads, reference {reference:?}",
+        "{} samples of {} at {}², {} threads, ground truth {:?}, reference {reference}",
         picks.len(),
         manifest.display(),
         l.plan.settings.resolution,
-        rayon::current_num_threads()
+        rayon::current_num_threads(),
+        l.plan.settings.ground_truth
     );
     let _ = writeln!(
         out,
@@ -208,7 +267,7 @@ pub fn bench_manifest(
         };
         let _ = writeln!(
             out,
-            "| {:?} | {rate:.decimals$} | {:.3} % | {:.3} % | {:.0} | {setup} |",
+            "| {} | {rate:.decimals$} | {:.3} % | {:.3} % | {:.0} | {setup} |",
             row.quality,
             100.0 * row.median_rel_rmse,
             100.0 * row.max_rel_rmse,
@@ -222,7 +281,7 @@ pub fn bench_manifest(
         for row in &rows {
             for ((s, i), e) in picks.iter().zip(&row.per_sample_rel_rmse) {
                 let split = &l.plan.splits[*s].name;
-                let _ = writeln!(out, "| {:?} | {split} | {i} | {:.3} % |", row.quality, 100.0 * e);
+                let _ = writeln!(out, "| {} | {split} | {i} | {:.3} % |", row.quality, 100.0 * e);
             }
         }
     }

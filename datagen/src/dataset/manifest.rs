@@ -489,6 +489,10 @@ pub struct SplitToml {
     pub material_ids: Vec<String>,
     /// Number of environments; when no split gives one, every split uses every environment.
     pub environments: Option<Spanned<usize>>,
+    /// Explicit environment ids (in addition to the count), e.g. `file:city.exr`. Not echoed
+    /// into `dataset.json` when empty, so datasets of manifests without it keep their bytes.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub environment_ids: Vec<String>,
 }
 
 /// A loaded manifest: its text (for line numbers), its path and its parsed form.

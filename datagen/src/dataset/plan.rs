@@ -355,7 +355,10 @@ impl Plan {
                 }
             })
             .collect::<Result<_, _>>()?;
-        let envs_dealt = m.splits.iter().any(|s| s.get_ref().environments.is_some());
+        let envs_dealt = m
+            .splits
+            .iter()
+            .any(|s| s.get_ref().environments.is_some() || !s.get_ref().environment_ids.is_empty());
         super::content::analyse(mf, &mut catalogue, envs_dealt)?;
         let shapes = deal_shapes(mf, &catalogue, seed)?;
         let materials = deal_materials(mf, &catalogue, seed, &roles)?;
@@ -803,14 +806,49 @@ fn deal_materials(
 fn deal_envs(mf: &ManifestFile, cat: &Catalogue, seed: u64) -> Result<Vec<Vec<usize>>, ManifestError> {
     let splits = &mf.manifest.splits;
     let counted: Vec<_> = splits.iter().map(|s| s.get_ref().environments.as_ref()).collect();
-    if counted.iter().all(Option::is_none) {
+    if counted.iter().all(Option::is_none) && splits.iter().all(|s| s.get_ref().environment_ids.is_empty()) {
         return Ok(vec![(0..cat.envs.len()).collect(); splits.len()]);
+    }
+    // Explicit ids first: each takes its whole group of identical maps away from the dealing
+    // (the group's other members stay unused), and no group is named by two splits.
+    let index: BTreeMap<&str, usize> = cat.envs.iter().enumerate().map(|(k, e)| (e.id.as_str(), k)).collect();
+    let mut owner: BTreeMap<&str, (usize, usize)> = BTreeMap::new();
+    let mut out: Vec<Vec<usize>> = vec![Vec::new(); splits.len()];
+    for (i, s) in splits.iter().enumerate() {
+        let field = format!("splits[{i}].environment_ids");
+        for id in &s.get_ref().environment_ids {
+            let &k = index.get(id.as_str()).ok_or_else(|| {
+                mf.invalid(
+                    s.span(),
+                    &field,
+                    format!("{id} is not provided by any [[environments]] source"),
+                )
+            })?;
+            let g = cat.envs[k].group.as_str();
+            if let Some(&(j, other)) = owner.get(g) {
+                let why = if j == i && other == k {
+                    format!("{id} is listed twice")
+                } else {
+                    format!(
+                        "{id} and {} in split {:?} are one map by content (identical pixels): splits may not share an environment",
+                        cat.envs[other].id,
+                        splits[j].get_ref().name
+                    )
+                };
+                return Err(mf.invalid(s.span(), &field, why));
+            }
+            owner.insert(g, (i, k));
+            out[i].push(k);
+        }
     }
     // Whole groups of identical pixels, in the order of their first member (single maps deal
     // as before).
     let mut pool: Vec<Vec<usize>> = Vec::new();
     let mut slot: BTreeMap<&str, usize> = BTreeMap::new();
     for (k, e) in cat.envs.iter().enumerate() {
+        if owner.contains_key(e.group.as_str()) {
+            continue;
+        }
         let at = *slot.entry(e.group.as_str()).or_insert_with(|| {
             pool.push(Vec::new());
             pool.len() - 1
@@ -819,13 +857,18 @@ fn deal_envs(mf: &ManifestFile, cat: &Catalogue, seed: u64) -> Result<Vec<Vec<us
     }
     shuffle(&mut pool, &mut Draw::new(seed, stream_of(&["environments"])));
     let mut next = 0;
-    let mut out = Vec::new();
     for (i, (s, c)) in splits.iter().zip(&counted).enumerate() {
+        let mut mine = std::mem::take(&mut out[i]);
         let Some(n) = c else {
+            if !mine.is_empty() {
+                mine.sort();
+                out[i] = mine;
+                continue;
+            }
             return Err(mf.invalid(
                 s.span(),
                 &format!("splits[{i}].environments"),
-                "when one split counts its environments, every split must (environments are then split too)",
+                "when one split counts or lists its environments, every split must (environments are then split too)",
             ));
         };
         let want = *n.get_ref();
@@ -840,17 +883,18 @@ fn deal_envs(mf: &ManifestFile, cat: &Catalogue, seed: u64) -> Result<Vec<Vec<us
                 ),
             ));
         }
-        let mut mine = Vec::new();
-        while mine.len() < want {
+        let mut dealt = 0;
+        while dealt < want {
             for &k in &pool[next] {
-                if mine.len() < want {
+                if dealt < want {
                     mine.push(k);
+                    dealt += 1;
                 }
             }
             next += 1;
         }
         mine.sort();
-        out.push(mine);
+        out[i] = mine;
     }
     Ok(out)
 }

@@ -42,6 +42,10 @@ pub struct State {
     pub model_checksum: String,
     /// `blake3:HEX` of `optimizer.bpk`.
     pub optimizer_checksum: String,
+    /// The perceptual loss, where it is not the fallback: `vgg16 blake3:HEX` of the weights (a
+    /// resume refuses another). Absent for the fallback, so such checkpoints keep their bytes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub perceptual: Option<String>,
 }
 
 impl State {
@@ -60,6 +64,7 @@ impl State {
             net,
             model_checksum: String::new(),
             optimizer_checksum: String::new(),
+            perceptual: None,
         }
     }
 }

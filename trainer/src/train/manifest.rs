@@ -511,10 +511,14 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
             let p = expand_vars(v.get_ref())
                 .map(PathBuf::from)
                 .map_err(|e| bad(v.span(), "loss.vgg16", e))?;
-            if !p.is_file() {
+            if p.as_os_str().is_empty() {
+                // `"${VGG16_WEIGHTS:-}"` with the variable unset: the fallback, said in the log.
+                None
+            } else if !p.is_file() {
                 return Err(bad(v.span(), "loss.vgg16", format!("{}: no such file", p.display())));
+            } else {
+                Some(p)
             }
-            Some(p)
         }
     };
     let init_from = match &m.run.init_from {

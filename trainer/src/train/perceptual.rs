@@ -22,7 +22,10 @@ pub const DEFAULT_LAYERS: [Layer; 4] = [Layer::Relu1_2, Layer::Relu2_2, Layer::R
 #[derive(Debug)]
 pub enum Perceptual {
     /// Tone-mapped multi-scale L2 (no VGG16 weights configured).
-    Fallback,
+    Fallback {
+        /// Why: for the run's log.
+        why: &'static str,
+    },
     /// VGG16 feature reconstruction loss.
     Vgg16 {
         /// The frozen network.
@@ -31,6 +34,8 @@ pub enum Perceptual {
         layers: Vec<Layer>,
         /// Where the weights came from.
         source: PathBuf,
+        /// `blake3:HEX` of the weights file.
+        checksum: String,
     },
 }
 
@@ -43,32 +48,56 @@ impl Perceptual {
         if layers.is_empty() {
             anyhow::bail!("at least one VGG16 layer is needed for the perceptual loss");
         }
+        let bytes = std::fs::read(weights).map_err(|e| anyhow::anyhow!("{}: {e}", weights.display()))?;
         Ok(Self::Vgg16 {
             net: Box::new(Vgg16::load(weights, device)?),
             layers,
             source: weights.to_path_buf(),
+            checksum: format!("blake3:{}", blake3::hash(&bytes).to_hex()),
         })
     }
 
     /// The perceptual loss a training plan asks for: VGG16 where `[loss].vgg16` names weights,
     /// the fallback otherwise.
     pub fn of_plan(plan: &super::manifest::TrainPlan, device: &Device) -> Result<Self> {
-        match &plan.vgg16 {
-            Some(w) => Self::vgg16(w, plan.manifest.loss.vgg16_layers.get_ref(), device),
-            None => Ok(Self::Fallback),
+        match (&plan.vgg16, &plan.manifest.loss.vgg16) {
+            (Some(w), _) => Self::vgg16(w, plan.manifest.loss.vgg16_layers.get_ref(), device),
+            (None, None) => Ok(Self::Fallback {
+                why: "no VGG16 weights are configured ([loss].vgg16)",
+            }),
+            (None, Some(_)) => Ok(Self::Fallback {
+                why: "[loss].vgg16 expands to no path (VGG16_WEIGHTS is not set; scripts/fetch_vgg16.sh \
+                      fetches ImageNet's weights)",
+            }),
+        }
+    }
+
+    /// What a checkpoint records of the loss: `None` for the fallback, `vgg16 blake3:HEX` for
+    /// VGG16 (the same weights wherever they are).
+    pub fn identity(&self) -> Option<String> {
+        match self {
+            Self::Fallback { .. } => None,
+            Self::Vgg16 { checksum, layers, .. } => Some(format!("vgg16 {checksum} {layers:?}")),
         }
     }
 
     /// One line for the run's log.
     pub fn description(&self) -> String {
         match self {
-            Self::Fallback => {
-                "perceptual loss: fallback (multi-scale L2 in [0, 255] after the metric's tone map, made \
-                 smooth; see trainer/src/train/loss.rs): no VGG16 weights are configured ([loss].vgg16)"
-                    .into()
+            Self::Fallback { why } => {
+                format!(
+                    "perceptual loss: fallback (multi-scale L2 in [0, 255] after the metric's tone map, made \
+                     smooth; see trainer/src/train/loss.rs): {why}"
+                )
             }
-            Self::Vgg16 { layers, source, .. } => {
-                format!("perceptual loss: VGG16 features {layers:?} from {}", source.display())
+            Self::Vgg16 {
+                net, layers, source, ..
+            } => {
+                format!(
+                    "perceptual loss: VGG16 features {layers:?} from {} ({:?} preprocessing)",
+                    source.display(),
+                    net.preprocessing()
+                )
             }
         }
     }
@@ -77,7 +106,7 @@ impl Perceptual {
     /// (`mask`, `[B, 1, H, W]`).
     pub fn loss(&self, pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -> Tensor<1> {
         match self {
-            Self::Fallback => perceptual_fallback(pred, truth, mask),
+            Self::Fallback { .. } => perceptual_fallback(pred, truth, mask),
             Self::Vgg16 { net, layers, .. } => {
                 let e = exposure(&truth, &mask);
                 let show = |x: Tensor<4>| (display(x, e.clone()) * mask.clone()).div_scalar(255.0);

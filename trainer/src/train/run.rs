@@ -251,6 +251,7 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
     let latest = checkpoint::latest(out)?;
     let device = device_for(plan.device.name())?;
     check_reductions(plan, &device)?;
+    let perceptual = Perceptual::of_plan(plan, &device)?;
     // Where to start: a fresh run, or the latest checkpoint.
     let (mut net, mut start): (Net, Option<(State, PathBuf)>) = match (&latest, resume) {
         (Some(_), false) => bail!(
@@ -265,6 +266,21 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
                     plan.path.display(),
                     plan.hash(),
                     state.manifest_hash
+                );
+            }
+            if state.perceptual != perceptual.identity() {
+                let name = |p: &Option<String>| p.clone().unwrap_or_else(|| "the fallback".into());
+                bail!(
+                    "{}: this run was trained with the perceptual loss {}, the manifest now gives {} \
+                     ([loss].vgg16{}); resume with the run's own (an empty VGG16_WEIGHTS= selects the fallback), \
+                     or choose another --out",
+                    out.display(),
+                    name(&state.perceptual),
+                    name(&perceptual.identity()),
+                    plan.vgg16
+                        .as_ref()
+                        .map(|p| format!(" = {}", p.display()))
+                        .unwrap_or_default()
                 );
             }
             truncate_lines(&metrics_path, state.global_step)?;
@@ -301,7 +317,6 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
     };
     matedit_contract::io::write_atomically(&out.join("manifest.toml"), |p| Ok(std::fs::write(p, &plan.text)?))?;
     let layer = RenderingLayer::new(plan.net.env_height);
-    let perceptual = Perceptual::of_plan(plan, &device)?;
     // Which perceptual loss trains the network, and where, is never silent, not even with --quiet.
     eprintln!("{}", perceptual.description());
     let layer_on = if crate::render::on_device(&device, plan.net.env_height).is_some() {
@@ -412,6 +427,7 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
                     net: plan.net.clone(),
                     model_checksum: String::new(),
                     optimizer_checksum: String::new(),
+                    perceptual: perceptual.identity(),
                 };
                 let name = if done {
                     final_name.clone()

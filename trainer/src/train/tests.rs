@@ -41,7 +41,7 @@ fn run_with(kind: StepKind, steps: usize, seed: u64, w: &LossWeights) -> Vec<sup
     let ctx = StepContext {
         layer: &layer,
         weights: w,
-        perceptual: &Perceptual::Fallback,
+        perceptual: &Perceptual::Fallback { why: "tests" },
         device: &device,
     };
     let mut out = Vec::new();
@@ -88,7 +88,7 @@ fn the_encoder_decoder_baseline_lowers_its_loss_on_a_fixed_batch_and_is_reproduc
         let ctx = StepContext {
             layer: &layer,
             weights: &w,
-            perceptual: &Perceptual::Fallback,
+            perceptual: &Perceptual::Fallback { why: "tests" },
             device: &device,
         };
         let kind = StepKind {
@@ -116,7 +116,7 @@ fn the_encoder_decoder_baseline_lowers_its_loss_on_a_fixed_batch_and_is_reproduc
     let ctx = StepContext {
         layer: &layer,
         weights: &LossWeights::default(),
-        perceptual: &Perceptual::Fallback,
+        perceptual: &Perceptual::Fallback { why: "tests" },
         device: &device,
     };
     let kind = StepKind {
@@ -521,7 +521,7 @@ fn one_joint_step(seed: u64, w: &LossWeights, kind: StepKind) -> (super::step::L
     let ctx = StepContext {
         layer: &layer,
         weights: w,
-        perceptual: &Perceptual::Fallback,
+        perceptual: &Perceptual::Fallback { why: "tests" },
         device: &device,
     };
     let (net, l) = train_step(net, &mut AdamConfig::new().init(), 1e-3, &batch, kind, &ctx).unwrap();
@@ -640,7 +640,7 @@ fn training_steps_on_the_gpu_device_give_the_cpu_devices_losses() {
             let ctx = StepContext {
                 layer: &layer,
                 weights: &w,
-                perceptual: &Perceptual::Fallback,
+                perceptual: &Perceptual::Fallback { why: "tests" },
                 device,
             };
             let mut optim = AdamConfig::new().init();

@@ -47,6 +47,14 @@ fn bytes(v: &[f32]) -> Vec<u8> {
 }
 
 fn write_safetensors(path: &Path, sd: &[(String, Vec<usize>, Vec<f32>)]) {
+    write_safetensors_with(path, sd, None)
+}
+
+fn write_safetensors_with(
+    path: &Path,
+    sd: &[(String, Vec<usize>, Vec<f32>)],
+    metadata: Option<std::collections::HashMap<String, String>>,
+) {
     let raw: Vec<(String, Vec<usize>, Vec<u8>)> = sd.iter().map(|(k, s, v)| (k.clone(), s.clone(), bytes(v))).collect();
     let views: Vec<(String, safetensors::tensor::TensorView)> = raw
         .iter()
@@ -55,7 +63,7 @@ fn write_safetensors(path: &Path, sd: &[(String, Vec<usize>, Vec<f32>)]) {
             (k.clone(), view)
         })
         .collect();
-    std::fs::write(path, safetensors::serialize(views, None).unwrap()).unwrap();
+    std::fs::write(path, safetensors::serialize(views, metadata).unwrap()).unwrap();
 }
 
 /// Pickle (protocol 2) of an `OrderedDict` of `_rebuild_tensor_v2` calls on persistent storages
@@ -223,6 +231,7 @@ fn features_have_the_block_shapes_and_identical_images_give_zero_loss() {
         net: Box::new(net),
         layers: crate::train::perceptual::DEFAULT_LAYERS.to_vec(),
         source: "random weights".into(),
+        checksum: String::new(),
     };
     let img: Vec<f32> = (0..2 * 3 * 32 * 32)
         .map(|k| 0.3 + 0.25 * (k as f32 * 0.11).sin())
@@ -237,4 +246,128 @@ fn features_have_the_block_shapes_and_identical_images_give_zero_loss() {
     let diff = crate::render::op::host(&loss.loss(b, a, mask))[0];
     assert_eq!(same, 0.0);
     assert!(diff.is_finite() && diff > 0.0, "{diff}");
+}
+
+fn metadata(preprocessing: &str) -> Option<std::collections::HashMap<String, String>> {
+    Some([("preprocessing".to_string(), preprocessing.to_string())].into())
+}
+
+/// A file that says `caffe` computes VGG16 on 255 x − mean₂₅₅: the same activations as the
+/// torchvision convention on the image x' with (x' − mean) / std = 255 x − mean₂₅₅.
+#[test]
+fn caffe_preprocessing_is_read_from_the_metadata_and_applied() {
+    let device = Device::flex();
+    let sd = state_dict(None);
+    let d = dir();
+    let (caffe, tv, bad) = (
+        d.join("caffe.safetensors"),
+        d.join("tv.safetensors"),
+        d.join("bad.safetensors"),
+    );
+    write_safetensors_with(&caffe, &sd, metadata("caffe"));
+    write_safetensors_with(&tv, &sd, metadata("torchvision"));
+    write_safetensors_with(&bad, &sd, metadata("keras-bgr"));
+    let caffe_net = Vgg16::load(&caffe, &device).unwrap();
+    let tv_net = Vgg16::load(&tv, &device).unwrap();
+    assert_eq!(caffe_net.preprocessing(), Preprocessing::Caffe);
+    assert_eq!(tv_net.preprocessing(), Preprocessing::Torchvision);
+    let e = Vgg16::load(&bad, &device)
+        .err()
+        .map(|e| format!("{e:#}"))
+        .unwrap_or_default();
+    assert!(e.contains("bad.safetensors") && e.contains("keras-bgr"), "{e}");
+
+    let (h, w) = (16, 16);
+    let x: Vec<f32> = (0..3 * h * w).map(|k| 0.5 + 0.45 * (k as f32 * 0.23).sin()).collect();
+    let x_tv: Vec<f32> = x
+        .iter()
+        .enumerate()
+        .map(|(k, v)| {
+            let c = k / (h * w);
+            STD[c] * (255.0 * v - CAFFE_MEAN[c]) + MEAN[c]
+        })
+        .collect();
+    let t = |v: Vec<f32>| Tensor::<4>::from_data(TensorData::new(v, [1, 3, h, w]), &device);
+    let layers = [Layer::Relu1_2, Layer::Relu3_3];
+    let a = caffe_net.features(t(x), &layers);
+    let b = tv_net.features(t(x_tv), &layers);
+    for (a, b) in a.into_iter().zip(b) {
+        let (a, b) = (values(a), values(b));
+        let scale = b.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let err = a.iter().zip(&b).fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+        assert!(scale > 0.0 && err <= 1e-4 * scale, "max error {err} of {scale}");
+    }
+}
+
+/// Where `scripts/fetch_vgg16.sh` put the converted weights and onnxruntime's reference:
+/// `$VGG16_WEIGHTS` (the reference beside it), or the script's default folder.
+fn fetched_vgg16() -> Option<(std::path::PathBuf, std::path::PathBuf)> {
+    let weights = match std::env::var_os("VGG16_WEIGHTS").filter(|v| !v.is_empty()) {
+        Some(p) => std::path::PathBuf::from(p),
+        None => {
+            let cache = std::env::var_os("MATEDIT_CACHE")
+                .map(std::path::PathBuf::from)
+                .or_else(|| std::env::var_os("HOME").map(|h| std::path::PathBuf::from(h).join(".cache/matedit")))?;
+            cache.join("vgg16/vgg16-imagenet.safetensors")
+        }
+    };
+    let reference = weights.with_file_name("vgg16-reference.safetensors");
+    (weights.is_file() && reference.is_file()).then_some((weights, reference))
+}
+
+/// The real ImageNet VGG16 (Keras' weights, converted by `scripts/vgg16_from_onnx.py`) gives
+/// onnxruntime's activations of the original ONNX graph on a real photo, at every layer the
+/// perceptual loss compares: relative error ≤ 1e-4 of each layer's largest activation.
+#[test]
+fn onnxruntime_reference() {
+    let Some((weights, reference)) = fetched_vgg16() else {
+        assert!(
+            std::env::var_os("MATEDIT_REQUIRE_VGG16").is_none(),
+            "MATEDIT_REQUIRE_VGG16 is set but no fetched VGG16 weights and reference were found"
+        );
+        eprintln!(
+            "skipped: no VGG16 weights and reference (run scripts/fetch_vgg16.sh, or set VGG16_WEIGHTS \
+             to its output; CI fetches them)"
+        );
+        return;
+    };
+    let device = Device::flex();
+    let net = Vgg16::load(&weights, &device).unwrap_or_else(|e| panic!("{e:#}"));
+    assert_eq!(net.preprocessing(), Preprocessing::Caffe, "{}", weights.display());
+    let bytes = std::fs::read(&reference).unwrap();
+    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let input = st.tensor("input_rgb").unwrap();
+    let (h, w) = (input.shape()[0], input.shape()[1]);
+    assert_eq!(input.shape(), &[h, w, 3]);
+    let mut x = vec![0f32; 3 * h * w];
+    for (k, &v) in input.data().iter().enumerate() {
+        let (pixel, c) = (k / 3, k % 3);
+        x[c * h * w + pixel] = v as f32 / 255.0;
+    }
+    let x = Tensor::<4>::from_data(TensorData::new(x, [1, 3, h, w]), &device);
+    let layers = [Layer::Relu1_2, Layer::Relu2_2, Layer::Relu3_3, Layer::Relu4_3];
+    let ours = net.features(x, &layers);
+    for (name, ours) in ["relu1_2", "relu2_2", "relu3_3", "relu4_3"].into_iter().zip(ours) {
+        let r = st.tensor(name).unwrap();
+        assert_eq!(r.shape(), &ours.dims()[..], "{name}");
+        let theirs: Vec<f32> = r
+            .data()
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        let ours = values(ours);
+        let scale = theirs.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let err = ours.iter().zip(&theirs).fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+        let (mut num, mut den) = (0f64, 0f64);
+        for (a, b) in ours.iter().zip(&theirs) {
+            num += f64::from(a - b).powi(2);
+            den += f64::from(*b).powi(2);
+        }
+        eprintln!(
+            "{name}: max |ours − onnxruntime| {err:.3e} of max {scale:.4e} ({:.2e}); relative L2 {:.2e}",
+            err / scale,
+            (num / den).sqrt()
+        );
+        assert!(scale > 0.0 && err <= 1e-4 * scale, "{name}: max error {err} of {scale}");
+    }
 }
