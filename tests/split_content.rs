@@ -549,24 +549,30 @@ materials = 1
     }
 }
 
-#[test]
-fn identical_environment_maps_are_dealt_together_when_splits_deal_environments() {
-    let d = scratch("envs");
-    shape_folder(&d, false);
-    material_folder(&d);
+/// The manifest's environment source, and the one that reads `env_folder`'s maps instead.
+const PROCEDURAL_ENV: &str = "source = \"procedural\"\nfamily = \"overcast\"\ncount = 1";
+const FOLDER_ENV: &str = "source = \"folder\"\npath = \"envs\"";
+
+/// `d/envs`: five maps, `a` and `a-copy` identical.
+fn env_folder(d: &Path) {
     let envs = d.join("envs");
     std::fs::create_dir_all(&envs).unwrap();
     for (name, v) in [("a", 1.0), ("a-copy", 1.0), ("b", 2.0), ("c", 3.0), ("e", 4.0)] {
         let map = EnvMap::from_fn(8, |dir| [v, v * (0.5 + 0.5 * dir.y as f32), 0.3]);
         write_env_exr(&envs.join(format!("{name}.exr")), &map).unwrap();
     }
+}
+
+#[test]
+fn identical_environment_maps_are_dealt_together_when_splits_deal_environments() {
+    let d = scratch("envs");
+    shape_folder(&d, false);
+    material_folder(&d);
+    env_folder(&d);
     let dups = ["file:a.exr", "file:a-copy.exr"];
     for seed in 0..8 {
         let text = manifest(seed, COUNTED)
-            .replace(
-                "source = \"procedural\"\nfamily = \"overcast\"\ncount = 1",
-                "source = \"folder\"\npath = \"envs\"",
-            )
+            .replace(PROCEDURAL_ENV, FOLDER_ENV)
             .replace("materials = 3\n", "materials = 3\nenvironments = 2\n")
             .replace("materials = 2\n", "materials = 2\nenvironments = 2\n");
         let p = write(&d, "e.toml", &text);
@@ -598,18 +604,10 @@ fn environment_ids_place_maps_and_keep_the_split_by_content() {
     let d = scratch("env-ids");
     shape_folder(&d, false);
     material_folder(&d);
-    let envs = d.join("envs");
-    std::fs::create_dir_all(&envs).unwrap();
-    for (name, v) in [("a", 1.0), ("a-copy", 1.0), ("b", 2.0), ("c", 3.0), ("e", 4.0)] {
-        let map = EnvMap::from_fn(8, |dir| [v, v * (0.5 + 0.5 * dir.y as f32), 0.3]);
-        write_env_exr(&envs.join(format!("{name}.exr")), &map).unwrap();
-    }
+    env_folder(&d);
     let with = |train: &str, test: &str| {
         manifest(1, COUNTED)
-            .replace(
-                "source = \"procedural\"\nfamily = \"overcast\"\ncount = 1",
-                "source = \"folder\"\npath = \"envs\"",
-            )
+            .replace(PROCEDURAL_ENV, FOLDER_ENV)
             .replacen("materials = 3\n", &format!("materials = 3\n{train}\n"), 1)
             .replacen("materials = 2\n", &format!("materials = 2\n{test}\n"), 1)
     };

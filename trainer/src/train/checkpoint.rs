@@ -69,9 +69,10 @@ impl State {
     }
 }
 
-fn checksum(path: &Path) -> Result<String> {
+/// `blake3:HEX` of a file (checkpoints, and the perceptual loss's weights a checkpoint records).
+pub(crate) fn checksum(path: &Path) -> Result<String> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    Ok(format!("blake3:{}", blake3::hash(&bytes).to_hex()))
+    Ok(matedit_contract::records::checksum(&bytes))
 }
 
 /// Writes checkpoint `name` under `root/checkpoints/` and points `root/latest.json` at it.

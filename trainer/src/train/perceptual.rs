@@ -48,12 +48,11 @@ impl Perceptual {
         if layers.is_empty() {
             anyhow::bail!("at least one VGG16 layer is needed for the perceptual loss");
         }
-        let bytes = std::fs::read(weights).map_err(|e| anyhow::anyhow!("{}: {e}", weights.display()))?;
         Ok(Self::Vgg16 {
             net: Box::new(Vgg16::load(weights, device)?),
             layers,
             source: weights.to_path_buf(),
-            checksum: format!("blake3:{}", blake3::hash(&bytes).to_hex()),
+            checksum: super::checkpoint::checksum(weights)?,
         })
     }
 
@@ -66,7 +65,7 @@ impl Perceptual {
                 why: "no VGG16 weights are configured ([loss].vgg16)",
             }),
             (None, Some(_)) => Ok(Self::Fallback {
-                why: "[loss].vgg16 expands to no path (VGG16_WEIGHTS is not set; scripts/fetch_vgg16.sh \
+                why: "[loss].vgg16 expands to no path (its variable is unset or empty; scripts/fetch_vgg16.sh \
                       fetches ImageNet's weights)",
             }),
         }
