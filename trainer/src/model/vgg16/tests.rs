@@ -276,6 +276,27 @@ fn caffe_preprocessing_is_read_from_the_metadata_and_applied() {
         .map(|e| format!("{e:#}"))
         .unwrap_or_default();
     assert!(e.contains("bad.safetensors") && e.contains("keras-bgr"), "{e}");
+    // Headers that are not safetensors': too short, a length past any header, not JSON.
+    for (name, bytes) in [
+        ("short.safetensors", vec![1u8, 2, 3]),
+        ("huge.safetensors", u64::MAX.to_le_bytes().to_vec()),
+        (
+            "cut.safetensors",
+            [16u64.to_le_bytes().to_vec(), b"{\"a\"".to_vec()].concat(),
+        ),
+        (
+            "junk.safetensors",
+            [4u64.to_le_bytes().to_vec(), b"}}}}".to_vec()].concat(),
+        ),
+    ] {
+        let p = d.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        let e = Vgg16::load(&p, &device)
+            .err()
+            .map(|e| format!("{e:#}"))
+            .unwrap_or_default();
+        assert!(e.contains(name) && e.contains("safetensors"), "{name}: {e}");
+    }
 
     let (h, w) = (16, 16);
     let x: Vec<f32> = (0..3 * h * w).map(|k| 0.5 + 0.45 * (k as f32 * 0.23).sin()).collect();
