@@ -122,16 +122,31 @@ fn hdr_environment_maps() {
     if let Some(assets) = eval_assets() {
         seeds.extend(seed_file(&assets.join("envmaps/studio_small_03_1k.hdr")));
     }
-    fuzz(&Reader {
+    fuzz(&hdr_reader(seeds, 200));
+}
+
+/// The loader's own bound: up to `HDR_PIXELS_PER_BYTE` pixels per byte, each decoded to 12
+/// bytes and copied once (24 bytes a pixel).
+fn hdr_reader(seeds: Vec<(String, Vec<u8>)>, cases: u32) -> Reader<'static> {
+    Reader {
         name: "hdr",
         file_name: "map.hdr",
         seeds,
-        cases: 200,
+        cases,
         floor_bytes: 32 * MB,
-        per_input_byte: None,
+        per_input_byte: Some(24 * matedit_assets::envfile::HDR_PIXELS_PER_BYTE as usize + 16),
         prepare: None,
         read: &read_env,
-    });
+    }
+}
+
+/// CI, 2026-11-27: a 92-byte file whose header claims 265091 × 11 pixels made the decoder
+/// allocate 35 MB before reading a row.
+#[test]
+fn regression_hdr_header_claims_a_huge_image() {
+    let mut bytes = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 11 +X 265091\n".to_vec();
+    bytes.extend_from_slice(&[128, 64, 32, 129, 1, 1, 1, 255, 1, 1, 1, 255, 1, 1, 1, 3]);
+    assert!(!fuzz::regression(&hdr_reader(Vec::new(), 0), &bytes));
 }
 
 fn read_env(p: &Path) -> Result<Verdict, String> {
