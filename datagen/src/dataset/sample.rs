@@ -386,8 +386,16 @@ mod tests {
     #[test]
     fn convexity_is_detected() {
         let cylinder = || {
-            let mut b = crate::shapes::procedural::Builder::new(["a", "b"], "cylinder".into());
-            b.cylinder(Vec3::ZERO, Vec3::Y, 0.5, 24, 0);
+            let mut b = crate::shapes::procedural::Builder::new(&["a"], "cylinder".into());
+            b.superquadric(
+                Vec3::ZERO,
+                Vec3::new(0.5, 1.0, 0.5),
+                0.3,
+                1.0,
+                glam::Mat3::IDENTITY,
+                (24, 12),
+                0,
+            );
             b.finish()
         };
         assert!(is_convex(&cylinder(), usize::MAX));

@@ -6,8 +6,25 @@ use anyhow::Result;
 use matedit_physics::shading::Quality;
 use std::path::{Path, PathBuf};
 
-/// Colours of region 0 and region 1 in the OBJ materials and the contact sheet.
-pub const REGION_COLOURS: [[f32; 3]; 2] = [[0.45, 0.6, 0.9], [0.95, 0.5, 0.15]];
+/// Colours of a category's regions, by id, in the OBJ materials and the contact sheet: a car's
+/// body, rims, tyres, glass and lights; the others' frame (housing) and seat (cushions, screen).
+pub fn region_colours(c: Category) -> &'static [[f32; 3]] {
+    match c {
+        Category::Car => &[
+            [0.45, 0.6, 0.9],
+            [0.8, 0.8, 0.82],
+            [0.06, 0.06, 0.06],
+            [0.12, 0.2, 0.24],
+            [1.0, 0.85, 0.45],
+        ],
+        _ => &[[0.45, 0.6, 0.9], [0.95, 0.5, 0.15]],
+    }
+}
+
+/// The contact sheet's light and material: a procedural sun and sky, a glossy white paint
+/// tinted per region.
+const SHEET_ENV: &str = "builtin:sunsky:3";
+const SHEET_BRDF: &str = "library:carpaint-white-gloss";
 
 /// A view that shows each category's parts: (yaw, pitch) in degrees.
 pub fn sheet_pose(c: Category) -> (f32, f32) {
@@ -23,11 +40,12 @@ pub fn sheet_pose(c: Category) -> (f32, f32) {
 pub fn write_category_set(dir: &Path, count: usize, seed: u64) -> Result<Vec<PathBuf>> {
     let mut paths = Vec::new();
     let mut tiles = Vec::new();
-    const RES: usize = 128;
+    const RES: usize = 192;
     for c in Category::ALL {
         for s in seed..seed + count as u64 {
             let path = dir.join(format!("{}_{s}.obj", c.name()));
-            c.generate(s).write_obj(&path, &REGION_COLOURS)?;
+            let colours = region_colours(c);
+            c.generate(s).write_obj(&path, colours)?;
             paths.push(path);
             let (yaw, pitch) = sheet_pose(c);
             let r = render(&RenderOptions {
@@ -35,8 +53,8 @@ pub fn write_category_set(dir: &Path, count: usize, seed: u64) -> Result<Vec<Pat
                 up: Default::default(),
                 yaw_deg: yaw,
                 pitch_deg: pitch,
-                brdf: "lambert:1,1,1".parse()?,
-                env: "builtin:studio".into(),
+                brdf: SHEET_BRDF.parse()?,
+                env: SHEET_ENV.into(),
                 env_rotation_deg: 0.0,
                 env_res: EnvRes::Rows(32),
                 res: RES,
@@ -48,8 +66,8 @@ pub fn write_category_set(dir: &Path, count: usize, seed: u64) -> Result<Vec<Pat
             let g = &r.gbuffer;
             let tile = (0..RES * RES)
                 .map(|p| {
-                    let tint = REGION_COLOURS[(g.region[p] as usize).min(1)];
-                    let c = [0, 1, 2].map(|k| matedit_physics::tonemap::tonemap_u8(r.radiance[p][k] * tint[k], 1.2));
+                    let tint = colours[(g.region[p] as usize).min(colours.len() - 1)];
+                    let c = [0, 1, 2].map(|k| matedit_physics::tonemap::tonemap_u8(r.radiance[p][k] * tint[k], 0.6));
                     [c[0], c[1], c[2], (g.mask[p] * 255.0) as u8]
                 })
                 .collect();

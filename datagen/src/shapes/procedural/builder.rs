@@ -1,86 +1,133 @@
-//! Primitive geometry for the procedural shapes: rounded boxes and capped cylinders, with
-//! analytic smooth normals, each tagged with a region.
+//! Assembling the procedural shapes from smooth closed parts ([`surface`](super::surface)), each
+//! tagged with regions.
 
+use super::surface::{self, Patch, Topology};
 use crate::shapes::Mesh;
-use glam::{Mat3, Vec3};
+use glam::{Mat3, Vec2, Vec3};
 
-/// Accumulates primitives into a [`Mesh`].
+/// Accumulates parts into a [`Mesh`].
 pub struct Builder {
     mesh: Mesh,
+    parts: Vec<std::ops::Range<usize>>,
 }
+
+/// Grid density of a part: (around, along).
+pub type Grid = (usize, usize);
 
 impl Builder {
     /// An empty mesh with the given region names.
-    pub fn new(regions: [&str; 2], source: String) -> Self {
+    pub fn new(regions: &[&str], source: String) -> Self {
         Self {
             mesh: Mesh {
-                regions: regions.map(String::from).to_vec(),
+                regions: regions.iter().map(|r| r.to_string()).collect(),
                 source,
                 ..Default::default()
             },
+            parts: Vec::new(),
         }
     }
 
-    fn tri(&mut self, p: [Vec3; 3], n: [Vec3; 3], region: u32) {
+    /// Adds a sampled part; `region(centroid, normal, uv)` labels each triangle.
+    pub fn patch(&mut self, p: Patch, region: &dyn Fn(Vec3, Vec3, Vec2) -> u32) {
         let base = self.mesh.positions.len() as u32;
-        self.mesh.positions.extend(p);
-        self.mesh.triangles.push([base, base + 1, base + 2]);
-        self.mesh.corner_normals.push(n);
-        self.mesh.triangle_region.push(region);
+        let first = self.mesh.triangles.len();
+        for (t, uv) in &p.triangles {
+            let corners = t.map(|i| p.positions[i as usize]);
+            let normals = t.map(|i| p.normals[i as usize]);
+            let centroid = (corners[0] + corners[1] + corners[2]) / 3.0;
+            let normal = (normals[0] + normals[1] + normals[2]).normalize_or_zero();
+            self.mesh.triangles.push(t.map(|i| base + i));
+            self.mesh.corner_normals.push(normals);
+            self.mesh.triangle_region.push(region(centroid, normal, *uv));
+        }
+        self.mesh.positions.extend(p.positions);
+        self.parts.push(first..self.mesh.triangles.len());
     }
 
-    /// A box of half-extents `half` whose edges are rounded with radius `round` (clamped to the
-    /// smallest half-extent), rotated by `rot` and centred at `centre`. Each face is a 6×6 grid
-    /// projected onto the rounded surface, normals from the inner box.
-    pub fn rounded_box(&mut self, centre: Vec3, half: Vec3, round: f32, rot: Mat3, region: u32) {
-        const N: usize = 6;
-        let round = round.clamp(1e-4, half.min_element());
-        let inner = half - Vec3::splat(round);
-        let point = |u: Vec3| {
-            let p = u * half;
-            let q = p.clamp(-inner, inner);
-            let n = (p - q).normalize_or(u);
-            (centre + rot * (q + n * round), rot * n)
-        };
-        for axis in 0..3 {
-            for sign in [-1.0_f32, 1.0] {
-                // Face frame (a, b, normal) right-handed so triangles wind outwards.
-                let mut nrm = Vec3::ZERO;
-                nrm[axis] = sign;
-                let a = Vec3::from_array(std::array::from_fn(|k| if k == (axis + 1) % 3 { 1.0 } else { 0.0 }));
-                let b = nrm.cross(a);
-                let at = |i: usize, j: usize| {
-                    let (s, t) = (2.0 * i as f32 / N as f32 - 1.0, 2.0 * j as f32 / N as f32 - 1.0);
-                    point(nrm + a * s + b * t)
-                };
-                for i in 0..N {
-                    for j in 0..N {
-                        let (p00, p10, p11, p01) = (at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1));
-                        self.tri([p00.0, p10.0, p11.0], [p00.1, p10.1, p11.1], region);
-                        self.tri([p00.0, p11.0, p01.0], [p00.1, p11.1, p01.1], region);
-                    }
-                }
-            }
-        }
+    /// A superellipsoid part (see [`surface::superellipsoid`]) of one region, its polar axis
+    /// along its smallest extent (`e_polar` shapes the profile along it): the poles' fans then
+    /// cover the broad faces, and a thin edge is not left to a few long triangles.
+    #[allow(clippy::too_many_arguments)]
+    pub fn superquadric(
+        &mut self,
+        centre: Vec3,
+        half: Vec3,
+        e_polar: f32,
+        e_around: f32,
+        rot: Mat3,
+        grid: Grid,
+        region: u32,
+    ) {
+        self.superquadric_with(centre, half, (e_polar, e_around), rot, grid, &|_| region);
     }
 
-    /// A capped cylinder from `a` to `b` of radius `r` with `segments` sides.
-    pub fn cylinder(&mut self, a: Vec3, b: Vec3, r: f32, segments: usize, region: u32) {
-        let axis = (b - a).normalize_or(Vec3::Y);
-        let u = axis.any_orthonormal_vector();
-        let v = axis.cross(u);
-        let ring = |k: usize| {
-            let t = std::f32::consts::TAU * k as f32 / segments as f32;
-            u * t.cos() + v * t.sin()
+    /// [`Builder::superquadric`] with regions: `region(p)` labels each quad of the grid by its
+    /// centre `p` in the part's own frame (before `rot` and `centre`), so region edges follow
+    /// the grid.
+    pub fn superquadric_with(
+        &mut self,
+        centre: Vec3,
+        half: Vec3,
+        (e_polar, e_around): (f32, f32),
+        rot: Mat3,
+        grid: Grid,
+        region: &dyn Fn(Vec3) -> u32,
+    ) {
+        let k = if half.x <= half.y.min(half.z) {
+            0
+        } else if half.z < half.y {
+            2
+        } else {
+            1
         };
-        for k in 0..segments {
-            let (n0, n1) = (ring(k), ring(k + 1));
-            let (a0, a1, b0, b1) = (a + n0 * r, a + n1 * r, b + n0 * r, b + n1 * r);
-            self.tri([a0, a1, b1], [n0, n1, n1], region);
-            self.tri([a0, b1, b0], [n0, n1, n0], region);
-            self.tri([b, b0, b1], [axis; 3], region);
-            self.tri([a, a1, a0], [-axis; 3], region);
-        }
+        let swap = move |mut v: Vec3| {
+            let y = v.y;
+            v.y = v[k];
+            v[k] = y;
+            v
+        };
+        let g = surface::superellipsoid(swap(half), e_polar, e_around);
+        let f = move |u: f32, v: f32| swap(g(u, v));
+        self.patch(
+            surface::sample(Topology::Sphere, grid.0, grid.1, &f).placed(centre, rot),
+            &|_, _, uv| region(f(uv.x, uv.y)),
+        );
+    }
+
+    /// A solid of revolution about the segment `a` → `b`: `radius(t)` for t from 0 at `a` to 1
+    /// at `b` (0 at both ends closes it).
+    pub fn lathe(&mut self, a: Vec3, b: Vec3, radius: &dyn Fn(f32) -> f32, grid: Grid, region: u32) {
+        let axis = b - a;
+        let len = axis.length().max(1e-6);
+        let rot = Mat3::from_quat(glam::Quat::from_rotation_arc(Vec3::Y, axis / len));
+        let f = surface::lathe(|t| (radius(t), t * len));
+        self.patch(
+            surface::sample(Topology::Sphere, grid.0, grid.1, &f).placed(a, rot),
+            &|_, _, _| region,
+        );
+    }
+
+    /// A rod from `a` to `b` of radius `r` with rounded ends (a capsule's profile, flattened so
+    /// its ends read as cut).
+    pub fn rod(&mut self, a: Vec3, b: Vec3, r: f32, region: u32) {
+        let len = (b - a).length().max(1e-6);
+        let cap = (r / len).min(0.5);
+        let radius = move |t: f32| {
+            let edge = (t / cap).min((1.0 - t) / cap).min(1.0);
+            r * (1.0 - (1.0 - edge).powi(4)).max(0.0).powf(0.25)
+        };
+        self.lathe(a, b, &radius, (16, 24), region);
+    }
+
+    /// Triangle ranges of the parts, in the order added (each part is closed).
+    pub fn parts(&self) -> &[std::ops::Range<usize>] {
+        &self.parts
+    }
+
+    /// The mesh so far, before normalisation.
+    #[cfg(test)]
+    pub fn mesh(&self) -> &Mesh {
+        &self.mesh
     }
 
     /// The finished mesh, normalised to the unit ball like any loaded mesh.
@@ -101,28 +148,4 @@ pub fn rot_x(deg: f32) -> Mat3 {
 /// Rotation about +y by `deg` degrees.
 pub fn rot_y(deg: f32) -> Mat3 {
     Mat3::from_rotation_y(deg.to_radians())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn rounded_boxes_wind_outwards_with_unit_normals() {
-        let mut b = Builder::new(["a", "b"], "test".into());
-        b.rounded_box(Vec3::ZERO, Vec3::new(1.0, 0.5, 0.25), 0.1, Mat3::IDENTITY, 0);
-        b.cylinder(Vec3::new(0.0, 1.0, 0.0), Vec3::new(0.0, 2.0, 0.0), 0.2, 12, 1);
-        let m = &b.mesh;
-        for (t, ns) in m.triangles.iter().zip(&m.corner_normals) {
-            let [p0, p1, p2] = t.map(|i| m.positions[i as usize]);
-            let g = (p1 - p0).cross(p2 - p0);
-            if g.length() > 1e-9 {
-                let avg = ns[0] + ns[1] + ns[2];
-                assert!(g.dot(avg) > 0.0, "triangle winds inwards");
-            }
-            for n in ns {
-                assert!((n.length() - 1.0).abs() < 1e-5);
-            }
-        }
-    }
 }
