@@ -51,7 +51,16 @@ fn images_and_files_are_identical_on_1_2_and_3_threads() {
         n + 2
     );
     std::fs::write(&scene, text).unwrap();
-    for shape in [obj.to_str().unwrap(), scene.to_str().unwrap()] {
+    // And the procedural shapes: lofted, self-shadowing, tens of thousands of triangles.
+    let shapes = [
+        obj.to_str().unwrap(),
+        scene.to_str().unwrap(),
+        "procedural:car:7",
+        "procedural:chair:3",
+        "procedural:sofa:5",
+        "procedural:monitor:2",
+    ];
+    for shape in shapes {
         let a = render_with_threads(1, shape, &dir.join("a.exr"));
         let b = render_with_threads(2, shape, &dir.join("b.exr"));
         let c = render_with_threads(3, shape, &dir.join("c.exr"));

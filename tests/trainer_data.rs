@@ -154,7 +154,8 @@ fn every_sample_loads_with_consistent_shapes_normals_regions_and_materials() {
             }
         }
     }
-    assert_eq!(region_counts.into_iter().collect::<Vec<_>>(), vec![1, 2]);
+    // The OBJ monitor has one region, a procedural car five (body, wheels, tyres, glass, lights).
+    assert_eq!(region_counts.into_iter().collect::<Vec<_>>(), vec![1, 5]);
 }
 
 #[test]
@@ -274,21 +275,23 @@ fn mixed_region_counts_are_padded_with_the_last_material() {
         .next()
         .unwrap()
         .unwrap();
-    assert_eq!((b.batch, b.size, b.regions, b.env_height), (12, 16, 2, 4));
+    assert_eq!((b.batch, b.size, b.regions, b.env_height), (12, 16, 5, 4));
     assert_eq!(b.input.len(), 12 * 3 * 256);
     assert_eq!((b.mask.len(), b.region_map.len()), (12 * 256, 12 * 256));
     assert_eq!(b.env.len(), 12 * 3 * 4 * 8);
-    assert_eq!(b.materials.len(), 12 * 2 * 108);
-    assert!(b.region_counts.contains(&1) && b.region_counts.contains(&2));
+    assert_eq!(b.materials.len(), 12 * 5 * 108);
+    assert!(b.region_counts.contains(&1) && b.region_counts.contains(&5));
     for (i, rec) in ds.records("train").iter().enumerate() {
         let r = b.region_counts[i];
-        let mat = |v: &[f32], k: usize| v[(i * 2 + k) * 108..(i * 2 + k + 1) * 108].to_vec();
+        let mat = |v: &[f32], k: usize| v[(i * 5 + k) * 108..(i * 5 + k + 1) * 108].to_vec();
         assert_eq!(
             mat(&b.materials, 0),
             ds.normalised_material(&rec.material_ids[0]).unwrap().to_vec()
         );
-        assert_eq!(mat(&b.target_materials, r - 1), mat(&b.target_materials, 1));
-        assert_eq!(mat(&b.materials, r - 1), mat(&b.materials, 1));
+        for k in r..5 {
+            assert_eq!(mat(&b.target_materials, k), mat(&b.target_materials, r - 1));
+            assert_eq!(mat(&b.materials, k), mat(&b.materials, r - 1));
+        }
         assert!(b.region_map[i * 256..(i + 1) * 256].iter().all(|&g| g as usize <= r));
     }
 }
