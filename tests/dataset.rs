@@ -384,7 +384,7 @@ fn bench_puts_the_reference_first_and_measures_every_option_against_it() {
         &d.join("materials-measured"),
         &l.plan.catalogue.materials,
         &materials::needed(&l.plan),
-        matedit_datagen::dataset::plan::GroundTruth::Measured,
+        matedit_datagen::dataset::manifest::GroundTruth::Measured,
         &|| {},
     )
     .unwrap();

@@ -346,7 +346,7 @@ pub fn manifest_training(
     let device = crate::train::run::device_for(device_name.unwrap_or(plan.device.name()))?;
     device.seed(plan.manifest.run.seed);
     let layer = RenderingLayer::new(plan.net.env_height);
-    let perceptual = Perceptual::of_plan(plan, &device)?;
+    let perceptual = plan.perceptual(&device)?;
     let ctx = StepContext {
         layer: &layer,
         weights: &plan.weights,

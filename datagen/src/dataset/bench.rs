@@ -9,8 +9,9 @@
 //! an analytic model; the exact path), whatever the manifest's `ground_truth`: against it, the
 //! qualities' error is what choosing the fit as the dataset's ground truth costs.
 
+use super::manifest::GroundTruth;
 use super::materials::MaterialEntry;
-use super::plan::{GroundTruth, Plan};
+use super::plan::Plan;
 use super::sample::{Renderer, encode};
 use anyhow::Result;
 use matedit_physics::shading::Quality;

@@ -6,8 +6,8 @@
 //! `FILE:LINE: FIELD: message` through [`ManifestError`]. The field-by-field reference is
 //! `manifests/README.md`.
 
-use super::plan::{GroundTruth, ShadowPolicy};
 use crate::accel::Accel;
+use crate::render::Shadows;
 use crate::shapes::UpAxis;
 use matedit_contract::manifest::{
     Choice, ManifestError, Named, choice, expand_vars, invalid, line_of, parse_toml, read_text,
@@ -549,6 +549,51 @@ impl ManifestFile {
         let base = self.path.parent().unwrap_or(Path::new(""));
         Ok(base.join(p))
     }
+}
+
+impl Named for ShadowPolicy {
+    const NAMES: &'static [(&'static str, Self)] = &[
+        ("off", ShadowPolicy::Off),
+        ("on", ShadowPolicy::On),
+        ("auto", ShadowPolicy::Auto),
+    ];
+}
+
+impl Named for GroundTruth {
+    const NAMES: &'static [(&'static str, Self)] =
+        &[("dsbrdf", GroundTruth::Dsbrdf), ("measured", GroundTruth::Measured)];
+}
+
+/// Shadow policy of the manifest.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum ShadowPolicy {
+    /// Never trace shadow rays (the paper's rendering layer).
+    Off,
+    /// Always (except the analytic sphere).
+    On,
+    /// Only for meshes that can shadow themselves (not convex).
+    Auto,
+}
+
+impl ShadowPolicy {
+    /// Whether a shape with this convexity gets shadow rays.
+    pub fn for_shape(self, convex: bool) -> Shadows {
+        match self {
+            ShadowPolicy::Off => Shadows::Off,
+            ShadowPolicy::On => Shadows::On,
+            ShadowPolicy::Auto if convex => Shadows::Off,
+            ShadowPolicy::Auto => Shadows::On,
+        }
+    }
+}
+
+/// Which BRDF produces the pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum GroundTruth {
+    /// The fitted 108-parameter DSBRDF (what the network's rendering layer can reproduce).
+    Dsbrdf,
+    /// The source BRDF (analytic or measured), as in the paper's renders.
+    Measured,
 }
 
 #[cfg(test)]

@@ -7,7 +7,7 @@
 //! same manifest gives the same labels on any machine and thread count.
 
 use super::catalogue::{MaterialItem, MaterialSource};
-use super::plan::GroundTruth;
+use super::manifest::GroundTruth;
 use anyhow::{Context, Result};
 use matedit_assets::materials::cache::FIT_VERSION;
 use matedit_assets::materials::fit::fit_dsbrdf;

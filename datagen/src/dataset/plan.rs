@@ -13,9 +13,10 @@
 //! catalogue without duplicates gets the same deal as before fingerprints existed.
 
 use super::catalogue::Catalogue;
-use super::manifest::{ManifestFile, MaterialsPerObject, RotationKind, SamplingMode, TargetPolicy};
+use super::manifest::{
+    GroundTruth, ManifestFile, MaterialsPerObject, RotationKind, SamplingMode, ShadowPolicy, TargetPolicy,
+};
 use crate::accel::Accel;
-use crate::render::Shadows;
 use matedit_assets::random::Draw;
 use matedit_contract::manifest::{ManifestError, Named};
 use matedit_physics::shading::Quality;
@@ -31,51 +32,6 @@ pub enum RotationMode {
     None,
     /// Drawn from a list.
     List(Vec<f64>),
-}
-
-impl Named for ShadowPolicy {
-    const NAMES: &'static [(&'static str, Self)] = &[
-        ("off", ShadowPolicy::Off),
-        ("on", ShadowPolicy::On),
-        ("auto", ShadowPolicy::Auto),
-    ];
-}
-
-impl Named for GroundTruth {
-    const NAMES: &'static [(&'static str, Self)] =
-        &[("dsbrdf", GroundTruth::Dsbrdf), ("measured", GroundTruth::Measured)];
-}
-
-/// Shadow policy of the manifest.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-pub enum ShadowPolicy {
-    /// Never trace shadow rays (the paper's rendering layer).
-    Off,
-    /// Always (except the analytic sphere).
-    On,
-    /// Only for meshes that can shadow themselves (not convex).
-    Auto,
-}
-
-impl ShadowPolicy {
-    /// Whether a shape with this convexity gets shadow rays.
-    pub fn for_shape(self, convex: bool) -> Shadows {
-        match self {
-            ShadowPolicy::Off => Shadows::Off,
-            ShadowPolicy::On => Shadows::On,
-            ShadowPolicy::Auto if convex => Shadows::Off,
-            ShadowPolicy::Auto => Shadows::On,
-        }
-    }
-}
-
-/// Which BRDF produces the pixels.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-pub enum GroundTruth {
-    /// The fitted 108-parameter DSBRDF (what the network's rendering layer can reproduce).
-    Dsbrdf,
-    /// The source BRDF (analytic or measured), as in the paper's renders.
-    Measured,
 }
 
 /// The settings every sample shares, validated.

@@ -1,9 +1,9 @@
 //! Samples stacked into channel-first batch buffers (the layout of `train::batch::HostBatch`).
 
 use super::sample::Sample;
-use super::stream::Skipped;
 use anyhow::{Result, bail};
 use matedit_physics::brdf::dsbrdf::PARAMS;
+use std::path::PathBuf;
 
 /// A batch of B samples, stacked channel-first. Field names and layouts match the trainer's
 /// `HostBatch`, so converting is a field-by-field move.
@@ -122,4 +122,17 @@ fn pad(out: &mut Vec<f32>, mats: &[[f32; PARAMS]], regions: usize) {
             out.extend_from_slice(last);
         }
     }
+}
+
+/// A sample left out under [`OnCorrupt::Skip`](super::OnCorrupt::Skip).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Skipped {
+    /// Sample id.
+    pub id: String,
+    /// Stream position where it was met.
+    pub position: u64,
+    /// The offending file.
+    pub file: PathBuf,
+    /// What is wrong with it.
+    pub reason: String,
 }

@@ -32,14 +32,13 @@
 //! order.
 
 use super::Dataset;
-use super::batch::Batch;
+use super::batch::{Batch, Skipped};
 use super::sample::{LoadError, Sample};
 use anyhow::{Context, Result, anyhow, bail};
 use rand_core::Rng;
 use rand_pcg::Pcg64;
 use rayon::prelude::*;
 use std::collections::HashMap;
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
@@ -130,19 +129,6 @@ impl LoaderConfig {
 
 fn default_workers() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get().min(4))
-}
-
-/// A sample left out under [`OnCorrupt::Skip`].
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Skipped {
-    /// Sample id.
-    pub id: String,
-    /// Stream position where it was met.
-    pub position: u64,
-    /// The offending file.
-    pub file: PathBuf,
-    /// What is wrong with it.
-    pub reason: String,
 }
 
 /// Domain-separated generator for one (seed, epoch, purpose): hashing keeps nearby seeds and

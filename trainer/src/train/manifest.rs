@@ -2,6 +2,7 @@
 //! Field reference: `manifests/README.md` (section "Training manifests"). Errors name the file,
 //! the line and the field, before any work starts.
 
+use super::perceptual::{DEFAULT_LAYERS, Perceptual};
 use super::step::{LossWeights, RenderWith, StageKind};
 use crate::data::OnCorrupt;
 use crate::model::network::NetConfig;
@@ -122,7 +123,7 @@ fn default_wl() -> Spanned<f64> {
     Spanned::new(0..0, 0.0)
 }
 fn default_layers() -> Spanned<Vec<Layer>> {
-    Spanned::new(0..0, super::perceptual::DEFAULT_LAYERS.to_vec())
+    Spanned::new(0..0, DEFAULT_LAYERS.to_vec())
 }
 
 impl Default for LossSection {
@@ -559,6 +560,21 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
 }
 
 impl TrainPlan {
+    /// The perceptual loss a training plan asks for: VGG16 where `[loss].vgg16` names weights,
+    /// the fallback otherwise.
+    pub fn perceptual(&self, device: &burn::tensor::Device) -> anyhow::Result<Perceptual> {
+        match (&self.vgg16, &self.manifest.loss.vgg16) {
+            (Some(w), _) => Perceptual::vgg16(w, self.manifest.loss.vgg16_layers.get_ref(), device),
+            (None, None) => Ok(Perceptual::Fallback {
+                why: "no VGG16 weights are configured ([loss].vgg16)",
+            }),
+            (None, Some(_)) => Ok(Perceptual::Fallback {
+                why: "[loss].vgg16 expands to no path (its variable is unset or empty; scripts/fetch_vgg16.sh \
+                      fetches ImageNet's weights)",
+            }),
+        }
+    }
+
     /// The dataset folder of stage `i`.
     pub fn stage_dataset(&self, i: usize) -> Result<PathBuf, ManifestError> {
         match &self.manifest.stages[i].get_ref().dataset {

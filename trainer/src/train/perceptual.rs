@@ -56,21 +56,6 @@ impl Perceptual {
         })
     }
 
-    /// The perceptual loss a training plan asks for: VGG16 where `[loss].vgg16` names weights,
-    /// the fallback otherwise.
-    pub fn of_plan(plan: &super::manifest::TrainPlan, device: &Device) -> Result<Self> {
-        match (&plan.vgg16, &plan.manifest.loss.vgg16) {
-            (Some(w), _) => Self::vgg16(w, plan.manifest.loss.vgg16_layers.get_ref(), device),
-            (None, None) => Ok(Self::Fallback {
-                why: "no VGG16 weights are configured ([loss].vgg16)",
-            }),
-            (None, Some(_)) => Ok(Self::Fallback {
-                why: "[loss].vgg16 expands to no path (its variable is unset or empty; scripts/fetch_vgg16.sh \
-                      fetches ImageNet's weights)",
-            }),
-        }
-    }
-
     /// What a checkpoint records of the loss: `None` for the fallback, `vgg16 blake3:HEX` for
     /// VGG16 (the same weights wherever they are).
     pub fn identity(&self) -> Option<String> {

@@ -11,7 +11,6 @@
 use super::batch::HostBatch;
 use super::checkpoint::{self, State};
 use super::manifest::{TrainPlan, check_device_name};
-use super::perceptual::Perceptual;
 use super::plot::MetricsLine;
 use super::step::{StepContext, StepKind, train_step};
 use crate::data::{Dataset, Epochs, Loader, LoaderConfig, OnCorrupt};
@@ -251,7 +250,7 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
     let latest = checkpoint::latest(out)?;
     let device = device_for(plan.device.name())?;
     check_reductions(plan, &device)?;
-    let perceptual = Perceptual::of_plan(plan, &device)?;
+    let perceptual = plan.perceptual(&device)?;
     // Where to start: a fresh run, or the latest checkpoint.
     let (mut net, mut start): (Net, Option<(State, PathBuf)>) = match (&latest, resume) {
         (Some(_), false) => bail!(

@@ -429,8 +429,3 @@ fn run(model: &Model, job: &Job) -> anyhow::Result<EditReport> {
         ),
     }
 }
-
-/// Paths of a job's inputs: `DIR/in/ROLE.EXT`.
-pub fn input_path(dir: &Path, role: &str, ext: &str) -> PathBuf {
-    dir.join("in").join(format!("{role}.{ext}"))
-}

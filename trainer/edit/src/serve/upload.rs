@@ -106,7 +106,7 @@ pub fn save(dir: &Path, role: &str, part: &Part, max_pixels: u64) -> Result<(Pat
             max_pixels as f64 / 1e6
         );
     }
-    let path = super::jobs::input_path(dir, role, ext);
+    let path = input_path(dir, role, ext);
     if let Some(parent) = path.parent() {
         std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
     }
@@ -151,4 +151,9 @@ pub fn check_material(spec: &str) -> Result<()> {
         "material “{}”: pick a library material (library:NAME) or a parametric one (lambert:R,G,B, ggx:ALPHA:F0, plastic:ALPHA:R,G,B); file specs are not accepted over the web",
         display_name(spec)
     )
+}
+
+/// Paths of a job's inputs: `DIR/in/ROLE.EXT`.
+fn input_path(dir: &Path, role: &str, ext: &str) -> PathBuf {
+    dir.join("in").join(format!("{role}.{ext}"))
 }
