@@ -2,7 +2,7 @@
 //! and DSBRDF readers, dataset manifests, and a dataset's index, records, plan and sample files
 //! (the properties and the mutations: `tests/common/fuzz.rs`). The trainer's readers
 //! (training manifests, the dataset as it loads it) are fuzzed in `tests/fuzz_trainer.rs`, the
-//! editor's (checkpoints, photos, masks) in `trainer/edit/tests/fuzz.rs`.
+//! editor's (checkpoints, photos, masks) in `edit/tests/fuzz.rs`.
 //!
 //! CI: `cargo test --release --test fuzz`. The long run: `MATEDIT_FUZZ_SCALE=K` (K times each reader's CI cases) (and
 //! `MATEDIT_FUZZ_SEED`), `scripts/fuzz_long.sh`.

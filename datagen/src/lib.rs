@@ -12,8 +12,8 @@
 //!
 //! The image formation itself (Eq. 2, BRDFs, environment maps) lives in `matedit-physics`;
 //! what a dataset is on disk (records, layout, checker, file formats, locks) in
-//! `matedit-contract` (`datagen/contract`); the procedural environment maps and the material
-//! library with its fits in `matedit-assets` (`datagen/assets`).
+//! `matedit-contract` (`contract`); the procedural environment maps and the material
+//! library with its fits in `matedit-assets` (`assets`).
 
 #![warn(missing_docs)]
 

@@ -1,5 +1,5 @@
 //! Property-based fuzzing of the project's readers (shared by `tests/fuzz.rs`, `tests/fuzz_trainer.rs`
-//! and `trainer/edit/tests/fuzz.rs`, which include this file by path).
+//! and `edit/tests/fuzz.rs`, which include this file by path).
 //!
 //! Every case takes a seed file (a real asset or one of the project's own outputs) and applies a
 //! list of mutations drawn by proptest: bit flips, overwritten bytes, interesting binary values

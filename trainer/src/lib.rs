@@ -17,7 +17,7 @@
 //!
 //! It depends on `matedit-physics` and `matedit-contract` only: the factory (meshes, BVHs) and
 //! the material library's fitting are not part of its build, not even of its tests'. Editing
-//! photos (`matedit`) is the crate `matedit-edit` (`trainer/edit/`) built on this one.
+//! photos (`matedit`) is the crate `matedit-edit` (`edit/`) built on this one.
 
 #![warn(missing_docs)]
 

@@ -1,5 +1,6 @@
-//! The rendering layer against closed forms and independent implementations: `datagen`'s exact
-//! `f64` renderer (values and finite differences) and Burn's autodiff of the tensor reference.
+//! The rendering layer against closed forms and independent implementations: the physics crate's
+//! exact `f64` shader, the one `datagen` renders with (values and finite differences), and Burn's
+//! autodiff of the tensor reference.
 
 use super::*;
 use burn::tensor::Device;

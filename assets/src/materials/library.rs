@@ -67,7 +67,7 @@ struct Metal {
     f0_rgb: [f64; 3],
 }
 
-const METALS_JSON: &str = include_str!("../../../../assets/materials/metals_f0.json");
+const METALS_JSON: &str = include_str!("../../materials/metals_f0.json");
 
 fn colours(list: &[(&str, [f64; 3])]) -> Vec<(String, [f64; 3])> {
     list.iter().map(|(n, c)| (n.to_string(), *c)).collect()

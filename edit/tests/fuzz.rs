@@ -6,7 +6,7 @@
 //! CI: `cargo test --release -p matedit-edit --test fuzz`. The long run:
 //! `MATEDIT_FUZZ_SCALE=K` (K times each reader's CI cases) (and `MATEDIT_FUZZ_SEED`), `scripts/fuzz_long.sh`.
 
-#[path = "../../../tests/common/fuzz.rs"]
+#[path = "../../tests/common/fuzz.rs"]
 mod fuzz;
 
 use fuzz::{Counting, Reader, Verdict, eval_assets, fuzz, radiance, seed_file};
