@@ -1,0 +1,76 @@
+//! Training manifests: parsing, defaults, refusals by file, line and field.
+
+use super::*;
+
+#[test]
+fn every_shipped_training_manifest_is_valid() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../manifests/train");
+    let mut n = 0;
+    for e in std::fs::read_dir(&dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "toml") {
+            // A finetuning manifest starts from another run's checkpoint, which a clean
+            // checkout does not have: everything else of it is checked.
+            let text = std::fs::read_to_string(&p).unwrap();
+            // A GPU manifest (gpu-check.toml) names a device this build may not have.
+            let text: String = text
+                .lines()
+                .filter(|l| !l.trim_start().starts_with("init_from"))
+                .map(
+                    |l| match l.trim_start().starts_with("device = \"wgpu\"") && !cfg!(feature = "wgpu") {
+                        true => "device = \"cpu\"\n".to_string(),
+                        false => format!("{l}\n"),
+                    },
+                )
+                .collect();
+            let plan = parse(&p, text).unwrap_or_else(|e| panic!("{e}"));
+            assert!(!plan.manifest.stages.is_empty());
+            n += 1;
+        }
+    }
+    assert!(n >= 3, "quickstart, paper and paper-tables");
+}
+
+#[test]
+fn learning_rates_step_at_their_first_step() {
+    let text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../manifests/train/paper.toml")).unwrap();
+    let plan = parse(Path::new("paper.toml"), text).unwrap();
+    let finetune = plan.manifest.stages[2].get_ref();
+    assert_eq!(
+        [0, 19999, 20000, 26999, 27000, 29999].map(|s| finetune.lr_at(s)),
+        [1e-4, 1e-4, 1e-6, 1e-6, 1e-8, 1e-8]
+    );
+}
+
+#[test]
+fn fields_outside_their_ranges_are_refused_naming_the_field() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../manifests/train/quickstart.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    for (from, to, needle) in [
+        ("normal = 1e4", "normal = 1e300", "loss.normal"),
+        ("ssim = 1e4", "ssim = -1.0", "loss.ssim"),
+        ("[0, 1e-3]", "[0, 1e300]", "learning_rate"),
+        ("[0, 1e-3]", "[0, 0.0]", "learning_rate"),
+        ("workers = 2", "workers = 100000", "data.workers"),
+        (
+            "shuffle_buffer = 64",
+            "shuffle_buffer = 10000000",
+            "data.shuffle_buffer",
+        ),
+    ] {
+        assert!(text.contains(from), "{from}");
+        let e = parse(&path, text.replacen(from, to, 1))
+            .err()
+            .unwrap_or_else(|| panic!("{to} accepted"));
+        let msg = e.to_string();
+        assert!(msg.contains(needle), "{to}: {msg}");
+        assert!(msg.len() < 400, "{to}: a long message: {msg}");
+    }
+    for (from, to) in [
+        ("workers = 2", "workers = 0"),
+        ("shuffle_buffer = 64", "shuffle_buffer = 0"),
+    ] {
+        assert!(parse(&path, text.replacen(from, to, 1)).is_ok(), "{to}");
+    }
+}
