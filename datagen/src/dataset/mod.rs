@@ -20,6 +20,7 @@
 pub mod bench;
 pub mod catalogue;
 pub mod content;
+pub mod deal;
 pub mod inspect;
 pub mod manifest;
 pub mod materials;
