@@ -191,7 +191,7 @@ fn labelled(arg: &str) -> (String, PathBuf) {
 /// Runs evaluation and writes `out` (JSON) and its `.md` tables; prints the tables.
 fn eval_to(checkpoints: &[PathBuf], opts: &EvalOptions, out: &std::path::Path) -> Result<()> {
     let report = evaluate(checkpoints, opts)?;
-    crate::eval::run::write_report(&report, out)?;
+    crate::eval::report::write_report(&report, out)?;
     let md = report.markdown();
     let md_path = out.with_extension("md");
     matedit_contract::io::write_atomically(&md_path, |p| Ok(std::fs::write(p, &md)?))?;

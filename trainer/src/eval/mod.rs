@@ -6,13 +6,17 @@
 //! * [`Metrics`]: their averages over a split, per named output (`I'`, `O'`), serialisable;
 //! * [`tables`]: Markdown tables shaped like the paper's Tables 1, 2 and 3.
 
+mod methods;
+pub mod report;
 pub mod run;
+mod score;
 pub mod sheet;
 pub mod tables;
 
 use crate::metrics;
 pub use metrics::{l2_tonemapped, material_l2, material_l2_normalised, normal_cosine, ssim};
-pub use run::{EvalOptions, EvalReport, evaluate};
+pub use report::EvalReport;
+pub use run::{EvalOptions, evaluate};
 pub use tables::{TableRow, pipeline_markdown, table1_markdown, table2_markdown, table3_markdown};
 
 use serde::{Deserialize, Serialize};

@@ -15,8 +15,11 @@
 //! `--lombardi` recovers m*, L* per sample given the true n (`crate::baseline::lombardi`). All
 //! images are scored on the ground-truth object mask against I or O.
 
-use super::{I_PRIME, Metrics, O_PRIME, Pair, Sample, TableRow};
-use crate::baseline::lombardi::{self, LombardiConfig, ReflectancePrior};
+use super::methods::{encoder_decoder_batch, eq6_batch, lombardi_batch};
+use super::report::{CheckpointEval, EvalReport, LombardiEval};
+use super::score::score_batch;
+use super::{I_PRIME, Metrics, O_PRIME};
+use crate::baseline::lombardi::{LombardiConfig, ReflectancePrior};
 use crate::data::{Dataset, Loader, LoaderConfig};
 use crate::render::op::host;
 use crate::render::{Batch, RenderingLayer};
@@ -25,7 +28,6 @@ use crate::train::checkpoint;
 use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
 use matedit_physics::brdf::dsbrdf::PARAMS;
-use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -56,69 +58,6 @@ pub struct EvalOptions {
     /// Row labels of the checkpoints, in order (default, or where empty: each checkpoint's
     /// stage name), e.g. "Baseline 2" and "ours" for Table 3.
     pub names: Vec<String>,
-}
-
-/// One checkpoint's scores.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct CheckpointEval {
-    /// Row label (the checkpoint's stage name).
-    pub name: String,
-    /// The checkpoint folder.
-    pub checkpoint: String,
-    /// n', m', L' all predicted: I', O', normal cosine, material L2.
-    pub network: Metrics,
-    /// R(n, m', L) against I, and the material L2 (Table 1).
-    pub material_protocol: Metrics,
-    /// R(n', m, L) against I, and the normal cosine (Table 2).
-    pub normal_protocol: Metrics,
-    /// O' = R(n', m̄, L') against O (trivial baseline).
-    pub mean_material: Metrics,
-    /// n*, m*, L* after the post-optimisation (Eq. 6) from n', m', L': I*, O*, normal cosine,
-    /// material L2 (`--eq6`).
-    #[serde(default)]
-    pub eq6: Option<Metrics>,
-    /// Eq. 6's energy at the prediction and at the end, summed over the samples, and its seconds.
-    #[serde(default)]
-    pub eq6_energy: Option<[f64; 3]>,
-}
-
-/// `METRICS.json`.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct EvalReport {
-    /// Dataset folder.
-    pub dataset: String,
-    /// Scored split.
-    pub split: String,
-    /// Shape categories scored (empty: all).
-    #[serde(default)]
-    pub categories: Vec<String>,
-    /// Samples scored.
-    pub samples: u64,
-    /// Material ids averaged into m̄.
-    pub mean_material_of: Vec<String>,
-    /// O' = I against O (trivial baseline, no network).
-    pub copy_input: Metrics,
-    /// Per checkpoint, in the order given.
-    pub checkpoints: Vec<CheckpointEval>,
-    /// The Lombardi-style optimiser given the true normals: I* = R(n, m*, L*) against I,
-    /// O' = R(n, m_t, L*) against O, m* against m (`--lombardi`).
-    #[serde(default)]
-    pub lombardi: Option<LombardiEval>,
-}
-
-/// The Lombardi-style baseline's scores and what produced them.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct LombardiEval {
-    /// Its settings.
-    pub config: Option<LombardiConfig>,
-    /// Training materials its reflectance prior was fitted to.
-    pub prior_materials: usize,
-    /// The scores.
-    pub metrics: Metrics,
-    /// Its energy at the uninformed start and at the end, summed over the samples.
-    pub energy: [f64; 2],
-    /// Seconds, summed over the samples.
-    pub seconds: f64,
 }
 
 /// The mean of normalised materials (`training_materials` never returns none).
@@ -409,55 +348,6 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
     Ok(report)
 }
 
-/// Eq. 6 on every sample of a batch from the predictions `n_p`, `m_p`, `l_p` (also its priors):
-/// the optimised n*, m*, L* in the batch layouts, and [E at the prediction, E at the end,
-/// seconds] summed over the samples.
-fn eq6_batch(
-    layer: &RenderingLayer,
-    hb: &HostBatch,
-    n_p: &[f32],
-    m_p: &[f32],
-    l_p: &[f32],
-    cfg: &crate::post_optimisation::Eq6Config,
-) -> Result<(crate::post_optimisation::Point, [f64; 3])> {
-    use crate::post_optimisation::{Point, Priors, Problem, post_optimise};
-    let (p, t, r) = (hb.size * hb.size, 6 * hb.env_height * hb.env_height, hb.regions);
-    let mut out = Point {
-        normals: Vec::with_capacity(n_p.len()),
-        materials: Vec::with_capacity(m_p.len()),
-        env: Vec::with_capacity(l_p.len()),
-    };
-    let mut energy = [0.0; 3];
-    for k in 0..hb.batch {
-        let t0 = std::time::Instant::now();
-        let start = Point {
-            normals: n_p[k * 3 * p..(k + 1) * 3 * p].to_vec(),
-            materials: m_p[k * r * PARAMS..(k + 1) * r * PARAMS].to_vec(),
-            env: l_p[k * t..(k + 1) * t].to_vec(),
-        };
-        let problem = Problem {
-            layer,
-            size: hb.size,
-            regions: r,
-            image: &hb.input[k * 3 * p..(k + 1) * 3 * p],
-            region_map: &hb.region_map[k * p..(k + 1) * p],
-            normals: &start.normals,
-            env: &start.env,
-            a: cfg.a,
-            b: cfg.b,
-            priors: Priors::NONE,
-        };
-        let res = post_optimise(&problem, start.clone(), cfg)?;
-        energy[0] += res.start.total;
-        energy[1] += res.end.total;
-        energy[2] += t0.elapsed().as_secs_f64();
-        out.normals.extend(res.point.normals);
-        out.materials.extend(res.point.materials);
-        out.env.extend(res.point.env);
-    }
-    Ok((out, energy))
-}
-
 /// Where the methods sheet of a contact sheet at `sheet` goes: `NAME-methods.png` beside it.
 pub fn methods_sheet_path(sheet: &Path) -> PathBuf {
     let stem = sheet
@@ -465,97 +355,6 @@ pub fn methods_sheet_path(sheet: &Path) -> PathBuf {
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
     sheet.with_file_name(format!("{stem}-methods.png"))
-}
-
-/// Baseline 1 on a batch: its O' = D(f_o, E(m_t)) against O and f_m against m (the full
-/// pipeline's row), and R(n, f_m, L) against I (Table 1's protocol). It predicts no normals
-/// and no light, so Table 2 and the mean-material baseline have no entry for it.
-fn encoder_decoder_batch(
-    ed: &crate::model::encoder_decoder::EncoderDecoder,
-    layer: &RenderingLayer,
-    hb: &HostBatch,
-    tb: crate::train::batch::TensorBatch,
-    row: &mut CheckpointEval,
-) -> Result<Vec<f32>> {
-    if hb.regions != 1 {
-        bail!(
-            "Baseline 1 edits single-material objects; samples {:?} have {} regions",
-            hb.ids,
-            hb.regions
-        );
-    }
-    let m_t = tb.target_materials.reshape([hb.batch, PARAMS]);
-    let (m_p, o_p) = ed.edit(tb.input, tb.mask, m_t);
-    let (m_p, o_p) = (host(&m_p), host(&o_p));
-    let i_given_n_l = layer.forward(&Batch {
-        batch: hb.batch,
-        size: (hb.size, hb.size),
-        regions: 1,
-        normals: &hb.normals,
-        region_map: &hb.region_map,
-        materials: &m_p,
-        env: &hb.env,
-    })?;
-    row.network
-        .merge(&score_batch(hb, &[(O_PRIME, &o_p, &hb.target)], None, Some(&m_p)));
-    row.material_protocol.merge(&score_batch(
-        hb,
-        &[(I_PRIME, &i_given_n_l, &hb.input)],
-        None,
-        Some(&m_p),
-    ));
-    Ok(o_p)
-}
-
-/// The Lombardi-style optimiser on every sample of a batch, scored into `row`; its O'.
-fn lombardi_batch(
-    layer: &RenderingLayer,
-    hb: &HostBatch,
-    prior: &ReflectancePrior,
-    cfg: &LombardiConfig,
-    row: &mut LombardiEval,
-) -> Result<Vec<f32>> {
-    let (p, r) = (hb.size * hb.size, hb.regions);
-    let (mut i_s, mut o_s, mut m_s) = (Vec::new(), Vec::new(), Vec::new());
-    for k in 0..hb.batch {
-        let t0 = std::time::Instant::now();
-        let px = k * 3 * p..(k + 1) * 3 * p;
-        let normals = &hb.normals[px.clone()];
-        let region_map = &hb.region_map[k * p..(k + 1) * p];
-        let o = lombardi::Observed {
-            size: hb.size,
-            regions: r,
-            image: &hb.input[px.clone()],
-            region_map,
-            normals,
-        };
-        let res = lombardi::recover(layer, &o, prior, cfg)?;
-        let target = &hb.target_materials[k * r * PARAMS..(k + 1) * r * PARAMS];
-        let one = |m: &[f32], env: &[f32]| {
-            layer.forward(&Batch {
-                batch: 1,
-                size: (hb.size, hb.size),
-                regions: r,
-                normals,
-                region_map,
-                materials: m,
-                env,
-            })
-        };
-        i_s.extend(one(&res.point.materials, &res.point.env)?);
-        o_s.extend(one(target, &res.point.env)?);
-        m_s.extend_from_slice(&res.point.materials);
-        row.energy[0] += res.start.total;
-        row.energy[1] += res.end.total;
-        row.seconds += t0.elapsed().as_secs_f64();
-    }
-    row.metrics.merge(&score_batch(
-        hb,
-        &[(I_PRIME, &i_s, &hb.input), (O_PRIME, &o_s, &hb.target)],
-        None,
-        Some(&m_s),
-    ));
-    Ok(o_s)
 }
 
 /// Keeps the first `keep` samples of a batch.
@@ -574,143 +373,4 @@ fn truncate(hb: &mut HostBatch, keep: usize) {
     hb.env.truncate(keep * 3 * t);
     hb.materials.truncate(keep * r * PARAMS);
     hb.target_materials.truncate(keep * r * PARAMS);
-}
-
-/// Scores the images of a batch (`(name, prediction, truth)`, all `[B, 3, S, S]`) and, when
-/// given, predicted normals `[B, 3, S, S]` and materials `[B, R, 108]` (regions present only:
-/// padded slots repeat the last material).
-fn score_batch(
-    hb: &HostBatch,
-    images: &[(&str, &[f32], &[f32])],
-    normals: Option<&[f32]>,
-    materials: Option<&[f32]>,
-) -> Metrics {
-    let (s, r) = (hb.size, hb.regions);
-    let p = s * s;
-    let mut m = Metrics::default();
-    for i in 0..hb.batch {
-        let px = i * 3 * p..(i + 1) * 3 * p;
-        let images: Vec<(&str, Pair)> = images
-            .iter()
-            .map(|(name, a, b)| {
-                let pair = Pair {
-                    pred: &a[px.clone()],
-                    truth: &b[px.clone()],
-                };
-                (*name, pair)
-            })
-            .collect();
-        let normals = normals.map(|n| Pair {
-            pred: &n[px.clone()],
-            truth: &hb.normals[px.clone()],
-        });
-        let regions = &hb.region_map[i * p..(i + 1) * p];
-        let mats: Vec<Pair> = materials.map_or_else(Vec::new, |q| {
-            (0..r)
-                .filter(|&k| regions.iter().any(|&v| v as usize == k + 1))
-                .map(|k| {
-                    let o = (i * r + k) * PARAMS;
-                    Pair {
-                        pred: &q[o..o + PARAMS],
-                        truth: &hb.materials[o..o + PARAMS],
-                    }
-                })
-                .collect()
-        });
-        m.add(&Sample {
-            h: s,
-            w: s,
-            mask: &hb.mask[i * p..(i + 1) * p],
-            images,
-            normals,
-            materials: mats,
-        });
-    }
-    m
-}
-
-impl EvalReport {
-    /// The Markdown report: Tables 1–3 and the full pipeline.
-    pub fn markdown(&self) -> String {
-        let rows = |f: &dyn Fn(&CheckpointEval) -> Metrics| -> Vec<TableRow> {
-            self.checkpoints
-                .iter()
-                .map(|c| TableRow {
-                    name: c.name.clone(),
-                    metrics: f(c),
-                })
-                .collect()
-        };
-        let mut t3 = vec![TableRow {
-            name: "O' = I".into(),
-            metrics: self.copy_input.clone(),
-        }];
-        // The last checkpoint that predicts n' and L' (Baseline 1 predicts neither).
-        if let Some(last) = self.checkpoints.iter().rev().find(|c| c.mean_material.samples > 0) {
-            t3.push(TableRow {
-                name: format!("mean material (n', L' of {})", last.name),
-                metrics: last.mean_material.clone(),
-            });
-        }
-        if let Some(l) = &self.lombardi {
-            t3.push(TableRow {
-                name: "Lombardi (true n)".into(),
-                metrics: l.metrics.clone(),
-            });
-        }
-        for c in &self.checkpoints {
-            t3.push(TableRow {
-                name: c.name.clone(),
-                metrics: c.network.clone(),
-            });
-            if let Some(m) = &c.eq6 {
-                t3.push(TableRow {
-                    name: format!("{} + Eq. 6", c.name),
-                    metrics: m.clone(),
-                });
-            }
-        }
-        let of = if self.categories.is_empty() {
-            String::new()
-        } else {
-            format!(", categories {}", self.categories.join(", "))
-        };
-        let mut out = format!(
-            "Evaluation of {} on split {}{of} ({} samples; L2 on tone-mapped [0, 255] images, SSIM 11×11 σ 1.5, \
-             object pixels only).\n\n",
-            self.dataset, self.split, self.samples
-        );
-        out += "Table 1 (material module, given ground-truth normals and illumination):\n\n";
-        out += &super::table1_markdown(&rows(&|c| c.material_protocol.clone()));
-        out += "\nTable 2 (normal module, given ground-truth material and illumination):\n\n";
-        out += &super::table2_markdown(&rows(&|c| c.normal_protocol.clone()));
-        out += "\nTable 3 (material transfer, O' against O: R(n', m_t, L') for the networks of Fig. 2, R(n, m_t, L*) for \
-                Lombardi, the decoder's image for Baseline 1; trivial baselines first):\n\n";
-        out += &super::table3_markdown(&t3);
-        out += "\nFull pipeline (n', m', L' all predicted):\n\n";
-        out += &super::tables::pipeline_markdown(&rows(&|c| c.network.clone()));
-        out
-    }
-
-    /// Whether `name`'s O' beats the trivial baselines on L2 (lower) and SSIM (higher): both, or
-    /// O' = I alone for a method that predicts no n' and L' to edit with the mean material
-    /// (Baseline 1).
-    pub fn beats_baselines(&self, name: &str) -> Option<bool> {
-        let c = self.checkpoints.iter().find(|c| c.name == name)?;
-        let (l2, ssim) = (c.network.image_l2(O_PRIME)?, c.network.image_ssim(O_PRIME)?);
-        let mut baselines = vec![&self.copy_input];
-        if c.mean_material.samples > 0 {
-            baselines.push(&c.mean_material);
-        }
-        Some(
-            baselines.iter().all(|b| {
-                b.image_l2(O_PRIME).is_some_and(|v| l2 < v) && b.image_ssim(O_PRIME).is_some_and(|v| ssim > v)
-            }),
-        )
-    }
-}
-
-/// Writes `report` as JSON to `path`, atomically.
-pub fn write_report(report: &EvalReport, path: &Path) -> Result<()> {
-    matedit_contract::io::write_atomically(path, |p| Ok(std::fs::write(p, serde_json::to_string_pretty(report)?)?))
 }
