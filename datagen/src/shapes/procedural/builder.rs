@@ -110,13 +110,19 @@ impl Builder {
     /// A rod from `a` to `b` of radius `r` with rounded ends (a capsule's profile, flattened so
     /// its ends read as cut).
     pub fn rod(&mut self, a: Vec3, b: Vec3, r: f32, region: u32) {
-        let len = (b - a).length().max(1e-6);
-        let cap = (r / len).min(0.5);
+        let cap = (r / (b - a).length().max(1e-6)).min(0.5);
+        self.tapered_rod(a, b, r, 1.0, cap, (16, 24), region);
+    }
+
+    /// A rod from `a` (radius `taper`·`r`) to `b` (radius `r`) whose ends round off over the
+    /// fraction `cap` of its length, flattened so that they read as cut: legs, columns, spokes.
+    #[allow(clippy::too_many_arguments)]
+    pub fn tapered_rod(&mut self, a: Vec3, b: Vec3, r: f32, taper: f32, cap: f32, grid: Grid, region: u32) {
         let radius = move |t: f32| {
             let edge = (t / cap).min((1.0 - t) / cap).min(1.0);
-            r * (1.0 - (1.0 - edge).powi(4)).max(0.0).powf(0.25)
+            r * (taper + (1.0 - taper) * t) * (1.0 - (1.0 - edge).powi(4)).max(0.0).powf(0.25)
         };
-        self.lathe(a, b, &radius, (16, 24), region);
+        self.lathe(a, b, &radius, grid, region);
     }
 
     /// Triangle ranges of the parts, in the order added (each part is closed).

@@ -153,11 +153,7 @@ pub(super) fn build(b: &mut Builder, r: &mut Draw) {
     // Windows are whole quads of the loft's grid, judged at the quad's centre, so their edges
     // follow the sections instead of zig-zagging across triangles.
     let region = |_: Vec3, _: Vec3, uv: Vec2| {
-        let c = body(uv.x, uv.y);
-        let h = 1e-3;
-        let n = (body(uv.x + h, uv.y) - body(uv.x - h, uv.y))
-            .cross(body(uv.x, uv.y + h) - body(uv.x, uv.y - h))
-            .normalize_or_zero();
+        let (c, n) = (body(uv.x, uv.y), surface::normal(&body, uv.x, uv.y));
         // The loft's parametrisation faces its normals inwards or outwards; the side windows
         // only need |n.z| and the screens |n.x|, so the sign does not matter.
         let in_cabin = c.y > belt + 0.04 && c.y < top.at(c.x) - 0.035 && c.x > glass_back && c.x < glass_front;

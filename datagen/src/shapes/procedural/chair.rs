@@ -78,11 +78,7 @@ pub(super) fn build(b: &mut Builder, r: &mut Draw) {
             let top = Vec3::new(sx * (w / 2.0 - inset), h + t * 0.3, sz * (d / 2.0 - inset));
             let foot = Vec3::new(top.x + sx * splay, 0.0, top.z + sz * splay);
             // Tapered towards the floor, flat-ended.
-            let radius = move |s: f32| {
-                let edge = (s / 0.04).min((1.0 - s) / 0.04).min(1.0);
-                lr * (taper + (1.0 - taper) * s) * (1.0 - (1.0 - edge).powi(4)).max(0.0).powf(0.25)
-            };
-            b.lathe(foot, top, &radius, (16, 24), FRAME);
+            b.tapered_rod(foot, top, lr, taper, 0.04, (16, 24), FRAME);
         }
         if r.chance(0.4) {
             let y = h * r.uniform(0.2, 0.4) as f32;

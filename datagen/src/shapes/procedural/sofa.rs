@@ -119,14 +119,12 @@ pub(super) fn build(b: &mut Builder, r: &mut Draw) {
         for (sx, sz) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
             let x = sx * (width / 2.0 - 0.08);
             let z = sz * (depth / 2.0 - 0.08);
-            let radius = move |s: f32| {
-                let edge = (s / 0.08).min((1.0 - s) / 0.08).min(1.0);
-                lr * (taper + (1.0 - taper) * s) * (1.0 - (1.0 - edge).powi(4)).max(0.0).powf(0.25)
-            };
-            b.lathe(
+            b.tapered_rod(
                 Vec3::new(x, 0.0, z),
                 Vec3::new(x, leg_h + 0.02, z),
-                &radius,
+                lr,
+                taper,
+                0.08,
                 (16, 16),
                 FRAME,
             );

@@ -28,12 +28,7 @@ pub struct Patch {
 /// the orientation is chosen so that the enclosed volume is positive (outwards).
 pub fn sample(topology: Topology, segments: usize, rings: usize, f: &dyn Fn(f32, f32) -> Vec3) -> Patch {
     let (su, sv) = (segments.max(3), rings.max(2));
-    let h = 1e-3_f32;
-    let normal_at = |u: f32, v: f32| {
-        let du = f(u + h, v) - f(u - h, v);
-        let dv = f(u, v + h) - f(u, v - h);
-        du.cross(dv).normalize_or_zero()
-    };
+    let normal_at = |u: f32, v: f32| normal(f, u, v);
     let mut positions = Vec::new();
     let mut normals = Vec::new();
     let mut triangles = Vec::new();
@@ -146,6 +141,15 @@ impl Patch {
         }
         self
     }
+}
+
+/// The unit normal of the patch `f` at (u, v), from central differences; its sign follows the
+/// parametrisation (see [`sample`] for outwards).
+pub fn normal(f: &dyn Fn(f32, f32) -> Vec3, u: f32, v: f32) -> Vec3 {
+    let h = 1e-3_f32;
+    let du = f(u + h, v) - f(u - h, v);
+    let dv = f(u, v + h) - f(u, v - h);
+    du.cross(dv).normalize_or_zero()
 }
 
 /// sgn(c)·|c|^e: the superquadric's signed power.
