@@ -3,7 +3,7 @@
 # one shared output directory; a dependent job joins the index and verifies.
 #
 # One command submits both (prints the two job ids):
-#   scripts/datagen_slurm_submit.sh manifests/paper-pretrain.toml /shared/out/paper-pretrain 32
+#   scripts/datagen_slurm_submit.sh manifests/datasets/paper-pretrain.toml /shared/out/paper-pretrain 32
 # or by hand:
 #   jid=$(sbatch --parsable --array=0-31 scripts/datagen_slurm.sh M OUT)
 #   sbatch --dependency=afterany:$jid --wrap "target/release/datagen join OUT && target/release/datagen verify OUT"

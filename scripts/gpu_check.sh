@@ -171,7 +171,7 @@ run_check() {
 
   # A 256² dataset: the 252 samples of bench-256 (tiny: the same plan at 32²).
   local dm=$work/dataset.toml
-  sed -e "s/^resolution = 256 /resolution = $size /" manifests/bench-256.toml >"$dm"
+  sed -e "s/^resolution = 256 /resolution = $size /" manifests/datasets/bench-256.toml >"$dm"
   step datagen "${GPU_CHECK_DATAGEN_S:-90}" "$bin/datagen" run "$dm" --out "$work/data"
 
   # The GPU layer, the loss and three training steps against the CPU device, on this device: the

@@ -723,6 +723,68 @@ def cmd_perspective(args):
           f"(mean |layer − truth| / mean truth on the object, chrome, true normals and light)")
 
 
+LIGHT_VARIANTS = {
+    "light_blocks.exr": "the true light averaged over 8x8-texel blocks (8x16 values: the key light's direction, "
+                        "no detail)",
+    "light_rows.exr": "the true light averaged over each row (elevation kept, azimuth lost)",
+    "light_sh2.exr": "the true light projected on real spherical harmonics of order <= 2 (9 per channel), "
+                     "negatives clamped",
+    "light_background.exr": "the photo's own background, averaged per row of the map along a 40 deg pinhole's "
+                            "directions, the nearest seen row above and below (no oracle)",
+}
+
+
+def srgb_decode(c):
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def sh2_basis(d):
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    return np.stack([0.282095 * np.ones_like(x), 0.488603 * y, 0.488603 * z, 0.488603 * x,
+                     1.092548 * x * y, 1.092548 * y * z, 0.315392 * (3 * z * z - 1), 1.092548 * x * z,
+                     0.546274 * (x * x - y * y)], -1)
+
+
+def cmd_lights(args):
+    """Writes variants of each scene's light next to `light.exr` (LIGHT_VARIANTS), so that `score`
+    can measure which of the light's features an edit needs: `--light {scene}/light_blocks.exr`."""
+    mi = mitsuba()
+    out = Path(args.out)
+    records = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]
+    h, w = 64, 128
+    theta, phi = np.meshgrid(np.pi * (np.arange(h) + 0.5) / h, 2 * np.pi * (np.arange(w) + 0.5) / w, indexing="ij")
+    dirs = np.stack([np.sin(theta) * np.sin(phi), np.cos(theta), -np.sin(theta) * np.cos(phi)], -1)
+    band = np.pi * np.arange(h + 1) / h
+    dw = ((2 * np.pi / w) * (np.cos(band[:-1]) - np.cos(band[1:])))[:, None] * np.ones((1, w))
+    basis = sh2_basis(dirs)
+    for rec in records:
+        d = out / rec["name"]
+        light = np.array(mi.Bitmap(str(d / "light.exr")), dtype=np.float64)[..., :3]
+        blocks = light.reshape(h // 8, 8, w // 8, 8, 3).mean(axis=(1, 3)).repeat(8, 0).repeat(8, 1)
+        rows = np.repeat(light.mean(axis=1, keepdims=True), w, 1)
+        sh = np.maximum(np.einsum("hwk,kc->hwc", basis, np.einsum("hwk,hwc,hw->kc", basis, light, dw)), 0.0)
+        photo = srgb_decode(rgb8(d / "photo.png") / 255.0)
+        py, px = np.mgrid[0:photo.shape[0], 0:photo.shape[1]] + 0.5
+        t = np.tan(np.radians(40.0) / 2)
+        ray = np.stack([(2 * px / photo.shape[1] - 1) * t, -(2 * py / photo.shape[0] - 1) * t * photo.shape[0]
+                        / photo.shape[1], -np.ones_like(px)], -1)
+        ray /= np.linalg.norm(ray, axis=-1, keepdims=True)
+        seen = (rgb8(d / "mask.png")[..., 0] == 0) & (photo.max(-1) < srgb_decode(254 / 255))
+        row = np.clip((np.arccos(np.clip(ray[..., 1], -1, 1)) / np.pi * h).astype(int), 0, h - 1)[seen]
+        sums = np.zeros((h, 3))
+        np.add.at(sums, row, photo[seen])
+        count = np.bincount(row, minlength=h)
+        have = np.flatnonzero(count > 20)
+        background = np.zeros((h, w, 3))
+        if len(have):
+            nearest = have[np.abs(have[None, :] - np.arange(h)[:, None]).argmin(1)]
+            background[:] = (sums[nearest] / count[nearest][:, None])[:, None, :]
+        for name, array in [("light_blocks.exr", blocks), ("light_rows.exr", rows), ("light_sh2.exr", sh),
+                            ("light_background.exr", background)]:
+            write_exr(mi, d / name, array)
+        print(f"{rec['name']}: {', '.join(LIGHT_VARIANTS)}", flush=True)
+
+
 def cmd_score(args):
     out = Path(args.out)
     scenes = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]  # None: all
@@ -821,6 +883,7 @@ def main():
     sub.add_parser("all", parents=[common, render, score], help="render, then score")
     sub.add_parser("perspective", parents=[common, render],
                    help="the layer with true normals and light, orthographic against per-pixel views")
+    sub.add_parser("lights", parents=[common], help="variants of each scene's true light (what an edit needs of it)")
     args = parser.parse_args()
     if args.command in ("render", "all"):
         cmd_render(args)
@@ -828,6 +891,8 @@ def main():
         cmd_score(args)
     if args.command == "perspective":
         cmd_perspective(args)
+    if args.command == "lights":
+        cmd_lights(args)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The main job on the embedded default data: the whole small pipeline of the paper.
-#   1. `datagen plan`    counts per split, disk and time estimate (manifests/quickstart.toml:
+#   1. `datagen plan`    counts per split, disk and time estimate (manifests/datasets/quickstart.toml:
 #                        procedural cars, chairs, sofas and monitors, library materials,
 #                        procedural skies, studios and rooms);
 #   2. `datagen run`     renders the train and test splits into out/quickstart/ (resumable:
@@ -21,7 +21,7 @@ cd "$(dirname "$0")/.."
 cargo build --release --workspace --quiet
 dg=target/release/datagen
 tr=target/release/trainer
-manifest=manifests/quickstart.toml
+manifest=manifests/datasets/quickstart.toml
 out=out/quickstart
 "$dg" plan "$manifest"
 "$dg" run "$manifest" --out "$out"

@@ -7,7 +7,7 @@
 #   Baseline 2    three networks trained with L2 losses only: the main job's pretrain stage;
 #   ours          the main job's network after joint training through the rendering layer;
 #   each network of Fig. 2 also after the post-optimisation of Eq. 6 ("+ Eq. 6").
-# Then the multi-material row (Sec. 4.4): two-region chairs (manifests/quickstart-multimaterial.toml),
+# Then the multi-material row (Sec. 4.4): two-region chairs (manifests/datasets/quickstart-multimaterial.toml),
 # the network finetuned on them (manifests/train/quickstart-multimaterial.toml), per-region edits
 # scored on their test split before and after the finetuning.
 # Steps: the README's main job (scripts/quickstart.sh: rendering and training, resumed or skipped
@@ -28,7 +28,7 @@ mkdir -p out/table3
   --checkpoint "ours=out/train/quickstart/checkpoints/joint" \
   --eq6 --lombardi "$@" --out out/table3/eval.json
 dg=target/release/datagen
-"$dg" run manifests/quickstart-multimaterial.toml --out out/quickstart-multimaterial
+"$dg" run manifests/datasets/quickstart-multimaterial.toml --out out/quickstart-multimaterial
 "$dg" verify out/quickstart-multimaterial
 "$tr" run manifests/train/quickstart-multimaterial.toml --out out/train/quickstart-multimaterial --resume
 "$tr" eval --data out/quickstart-multimaterial --split test \

@@ -334,9 +334,9 @@ fn neural_brdfs() {
 fn dataset_manifests() {
     let mut seeds = Vec::new();
     for rel in [
-        "manifests/quickstart.toml",
-        "manifests/bench-256.toml",
-        "manifests/bench.toml",
+        "manifests/datasets/quickstart.toml",
+        "manifests/datasets/bench-256.toml",
+        "manifests/datasets/bench.toml",
     ] {
         seeds.extend(seed_file(&repo(rel)));
     }
@@ -370,7 +370,7 @@ fn read_manifest(p: &Path) -> Result<Verdict, String> {
 /// catalogue reserve that many shapes and panic ("capacity overflow"); environments likewise.
 #[test]
 fn regression_manifest_counts_beyond_reason() {
-    let quickstart = std::fs::read_to_string(repo("manifests/quickstart.toml")).unwrap();
+    let quickstart = std::fs::read_to_string(repo("manifests/datasets/quickstart.toml")).unwrap();
     let first_count = quickstart.find("count = ").unwrap();
     let line_end = first_count + quickstart[first_count..].find('\n').unwrap();
     for replacement in [
@@ -452,7 +452,7 @@ fn dataset_sample_files() {
 /// overflowed the 2 MB stack of the thread that parsed it.
 #[test]
 fn regression_manifest_nested_beyond_the_stack() {
-    let bench = std::fs::read_to_string(repo("manifests/bench-256.toml")).unwrap();
+    let bench = std::fs::read_to_string(repo("manifests/datasets/bench-256.toml")).unwrap();
     let text = bench + &"\n[[splits]]\nname = \"test\"\nshapes = { car = 1, chamaterials = 6\n".repeat(1900);
     assert!(!fuzz::regression(&manifest_reader(Vec::new()), text.as_bytes()));
 }

@@ -674,7 +674,7 @@ fn environment_ids_place_maps_and_keep_the_split_by_content() {
 #[test]
 fn the_quickstart_deal_is_unchanged_by_content_groups() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let l = load(&root.join("manifests/quickstart.toml")).unwrap();
+    let l = load(&root.join("manifests/datasets/quickstart.toml")).unwrap();
     assert!(l.plan.catalogue.merges.is_empty(), "{:?}", l.plan.catalogue.merges);
     let cat = &l.plan.catalogue;
     let got: BTreeMap<&str, (Vec<&str>, Vec<&str>)> = l

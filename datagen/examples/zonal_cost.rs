@@ -1,4 +1,4 @@
-//! Per-image cost of the `zonal` path on the library materials `manifests/bench-256.toml` deals
+//! Per-image cost of the `zonal` path on the library materials `manifests/datasets/bench-256.toml` deals
 //! (plastic, rubber, fabric, wood, car paint): the environment's spectra and the shading of a 256²
 //! sphere, under 16 sunny procedural maps (4 skies × 4 turns, so suns in front, beside and behind),
 //! three rounds; prints the median and mean of each.

@@ -8,6 +8,30 @@
 //! Accuracy (tested against `f64` std): `exp` and `ln` within 3 ulp on their whole domains,
 //! `expm1` within 4e-7 relative.
 
+/// ln 2 split for Cody–Waite range reduction: `LN2_HI` has few enough bits that k·`LN2_HI` is
+/// exact for every k of the domain, `LN2_LO` the rest.
+pub const LN2_HI: f32 = 0.693_359_4;
+/// See [`LN2_HI`].
+pub const LN2_LO: f32 = -2.121_944_4e-4;
+
+/// Minimax polynomial for (e^r − 1 − r) / r² on [−ln2/2, ln2/2] (Cephes expf), highest degree
+/// first. The SIMD kernel of the rendering layer evaluates the same coefficients.
+pub const EXP_POLY: [f32; 6] = [1.987_569_1e-4, 1.398_199_9e-3, 8.333_452e-3, 4.166_579_6e-2, 1.666_666_5e-1, 0.5];
+
+/// Polynomial for (ln(1 + m) − m + m²/2) / m³ on [√½ − 1, √2 − 1] (Cephes logf), highest
+/// degree first.
+pub const LN_POLY: [f32; 9] = [
+    7.037_683_6e-2,
+    -1.151_461e-1,
+    1.167_699_9e-1,
+    -1.242_014_1e-1,
+    1.424_932_3e-1,
+    -1.666_805_8e-1,
+    2.000_071_4e-1,
+    -2.499_999_4e-1,
+    3.333_333e-1,
+];
+
 /// `e^x` for `f32`, saturating: below −87.3 it returns 0, above 88.7 it returns `f32::MAX`
 /// (never `inf`, so one huge lobe cannot poison a whole pixel sum with Inf·0 = NaN).
 /// NaN input gives NaN.
@@ -16,8 +40,6 @@ pub fn exp(x: f32) -> f32 {
     // Cody–Waite range reduction: x = k ln2 + r, |r| ≤ ln2/2, with k = round(x log2 e) taken by
     // the 1.5·2^23 trick (pure float adds, so it vectorises without SSE4.1's roundps).
     const LOG2E: f32 = std::f32::consts::LOG2_E;
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
     const MAGIC: f32 = 12_582_912.0;
     let xc = x.clamp(-87.3, 88.7);
     let kbig = xc * LOG2E + MAGIC;
@@ -25,12 +47,10 @@ pub fn exp(x: f32) -> f32 {
     let ki = kbig.to_bits() as i32 - 0x4B40_0000;
     let r = (xc - k * LN2_HI) - k * LN2_LO;
     // Minimax polynomial for e^r on [−ln2/2, ln2/2] (Cephes expf).
-    let mut p = 1.987_569_1e-4_f32;
-    p = p * r + 1.398_199_9e-3;
-    p = p * r + 8.333_452e-3;
-    p = p * r + 4.166_579_6e-2;
-    p = p * r + 1.666_666_5e-1;
-    p = p * r + 0.5;
+    let mut p = EXP_POLY[0];
+    for c in &EXP_POLY[1..] {
+        p = p * r + c;
+    }
     let er = (p * r) * r + r + 1.0;
     // 2^k through the exponent bits; k ∈ [−126, 128], so split in two to stay normal.
     let k1 = ki >> 1;
@@ -61,17 +81,12 @@ pub fn ln(x: f32) -> f32 {
     let m = if low { m + m - 1.0 } else { m - 1.0 };
     // Cephes logf polynomial on [√½−1, √2−1].
     let z = m * m;
-    let mut p = 7.037_683_6e-2_f32;
-    p = p * m - 1.151_461e-1;
-    p = p * m + 1.167_699_9e-1;
-    p = p * m - 1.242_014_1e-1;
-    p = p * m + 1.424_932_3e-1;
-    p = p * m - 1.666_805_8e-1;
-    p = p * m + 2.000_071_4e-1;
-    p = p * m - 2.499_999_4e-1;
-    p = p * m + 3.333_333e-1;
+    let mut p = LN_POLY[0];
+    for c in &LN_POLY[1..] {
+        p = p * m + c;
+    }
     let ef = e as f32;
-    let y = m * z * p - 2.121_944_4e-4 * ef - 0.5 * z + m + 0.693_359_4 * ef;
+    let y = m * z * p + LN2_LO * ef - 0.5 * z + m + LN2_HI * ef;
     // Independent selects rather than an if/else chain, which would compile to jumps.
     let y = if x == f32::INFINITY { x } else { y };
     let y = if tiny { -103.3 } else { y };

@@ -191,25 +191,46 @@ pub fn check_exr_size(path: &Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
+/// Every channel of an EXR layer as `f32`, keyed by name.
+pub type ExrChannels = BTreeMap<String, Vec<f32>>;
+
 /// Reads every channel of the first layer as `f32`, keyed by name, with the image size.
-pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, Vec<f32>>)> {
+pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, ExrChannels)> {
     // One read of the file serves the size check and the decoding.
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
     check_exr_size(path, &bytes)?;
-    let image = read()
+    decode_exr_channels(&bytes, true).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+/// Decodes every channel of the first layer of an EXR file in memory as `f32`: (width, height,
+/// channels), each channel checked to hold width × height samples. `parallel: false` decodes on
+/// the calling thread (for callers that decode many files in parallel themselves: exr's own
+/// pool per file would only add thread start-ups).
+pub fn decode_exr_channels(bytes: &[u8], parallel: bool) -> std::result::Result<(usize, usize, ExrChannels), String> {
+    let reader = read()
         .no_deep_data()
         .largest_resolution_level()
         .all_channels()
         .first_valid_layer()
-        .all_attributes()
-        .from_buffered(std::io::Cursor::new(bytes))
-        .with_context(|| format!("{}: cannot decode the EXR (truncated or corrupt?)", path.display()))?;
+        .all_attributes();
+    let cursor = std::io::Cursor::new(bytes);
+    let image = if parallel {
+        reader.from_buffered(cursor)
+    } else {
+        reader.non_parallel().from_buffered(cursor)
+    }
+    .map_err(|e| format!("cannot decode the EXR (truncated or corrupt?): {e}"))?;
     let size = image.layer_data.size;
+    let (w, h) = (size.width(), size.height());
     let mut out = BTreeMap::new();
     for ch in &image.layer_data.channel_data.list {
-        out.insert(ch.name.to_string(), ch.sample_data.values_as_f32().collect());
+        let v: Vec<f32> = ch.sample_data.values_as_f32().collect();
+        if v.len() != w * h {
+            return Err(format!("channel {}: {} samples for {w}×{h}", ch.name, v.len()));
+        }
+        out.insert(ch.name.to_string(), v);
     }
-    Ok((size.width(), size.height(), out))
+    Ok((w, h, out))
 }
 
 #[cfg(test)]

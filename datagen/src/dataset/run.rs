@@ -33,7 +33,7 @@ pub fn load(path: &Path) -> Result<Loaded> {
     Ok(Loaded { file, plan })
 }
 
-/// Encoded bytes of the sample EXR per image pixel: `datagen run manifests/bench-256.toml`
+/// Encoded bytes of the sample EXR per image pixel: `datagen run manifests/datasets/bench-256.toml`
 /// writes 379,608 bytes per 256² sample in all (docs/PERFORMANCE.md), 5.2 per pixel once the
 /// environment EXR and the records below are taken off. Estimates only.
 pub const BYTES_PER_PIXEL_ESTIMATE: f64 = 5.2;
@@ -45,7 +45,7 @@ pub const ENV_BYTES_PER_TEXEL_ESTIMATE: f64 = 4.0;
 pub const RECORD_BYTES_ESTIMATE: f64 = 1_700.0;
 /// Estimated seconds per sample on the reference machine (2 cores, both busy), DSBRDF ground
 /// truth, no shadows: a fixed part plus a part per image pixel, from the measurements in
-/// `docs/PERFORMANCE.md` (`zonal`: `datagen run` of `manifests/bench-256.toml` and of the 64²
+/// `docs/PERFORMANCE.md` (`zonal`: `datagen run` of `manifests/datasets/bench-256.toml` and of the 64²
 /// quickstart; the others: `datagen bench` at 256², all of whose cost grows with the pixels).
 /// Estimates only: shapes, materials and maps change it.
 pub fn seconds_per_sample(quality: Quality, pixels: f64) -> f64 {

@@ -8,7 +8,6 @@
 
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use matedit_physics::shading::shading_normal;
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// A sample file that could not be used: which file and why.
@@ -96,33 +95,12 @@ pub(crate) struct ImagePixels {
 }
 
 /// Channels of an EXR layer by name.
-type Channels = BTreeMap<String, Vec<f32>>;
+type Channels = matedit_contract::io::ExrChannels;
 
-/// The first layer of an EXR file in memory: (width, height, channels).
+/// The first layer of an EXR file in memory: (width, height, channels). Samples are decoded in
+/// parallel one level up, so each file is decoded on its caller's thread.
 fn read_layer(bytes: &[u8]) -> Result<(usize, usize, Channels), String> {
-    use exr::prelude::*;
-    // Samples are decoded in parallel one level up; exr's own pool per file would only add
-    // thread start-ups.
-    let image = read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .non_parallel()
-        .from_buffered(std::io::Cursor::new(bytes))
-        .map_err(|e| format!("not a readable EXR file (truncated or corrupt?): {e}"))?;
-    let size = image.layer_data.size;
-    let (w, h) = (size.width(), size.height());
-    let mut out = BTreeMap::new();
-    for ch in &image.layer_data.channel_data.list {
-        let v: Vec<f32> = ch.sample_data.values_as_f32().collect();
-        if v.len() != w * h {
-            return Err(format!("channel {}: {} samples for {w}×{h}", ch.name, v.len()));
-        }
-        out.insert(ch.name.to_string(), v);
-    }
-    Ok((w, h, out))
+    matedit_contract::io::decode_exr_channels(bytes, false)
 }
 
 /// Takes a channel out of `ch`, replacing non-finite values by 0.

@@ -8,11 +8,13 @@
 //! operation is one instruction.
 //!
 //! The transcendental functions follow `matedit_physics::fastmath` (same reductions, same
-//! polynomials, `ln(0)` is −103.3), with the polynomial steps as multiply–adds, and `exp` is
+//! polynomials, read from its constants; `ln(0)` is −103.3), with the polynomial steps as multiply–adds, and `exp` is
 //! restricted to the kernel's arguments (finite, at most 88). On [`Avx2`] these are fused (one
 //! rounding), so the two implementations agree to rounding, not bit for bit; each is
 //! deterministic on its own, and the layer picks one per CPU, so results depend neither on the
 //! thread count nor on timing.
+
+use matedit_physics::fastmath::{EXP_POLY, LN_POLY, LN2_HI, LN2_LO};
 
 /// Eight `f32` lanes.
 pub(crate) trait F8: Copy {
@@ -301,18 +303,14 @@ mod avx2 {
 #[inline(always)]
 pub(crate) fn exp<V: F8>(x: V) -> V {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
     let xc = x.max(V::splat(-87.3));
     let k = xc.mul(V::splat(LOG2E)).add(V::splat(0.5)).floor();
     let r = k.mul_add(V::splat(-LN2_HI), xc);
     let r = k.mul_add(V::splat(-LN2_LO), r);
     let r2 = r.mul(r);
     let r4 = r2.mul(r2);
-    let p = pair(1.987_569_1e-4, 1.398_199_9e-3, r).mul_add(
-        r4,
-        pair(8.333_452e-3, 4.166_579_6e-2, r).mul_add(r2, pair(1.666_666_5e-1, 0.5, r)),
-    );
+    let c = EXP_POLY;
+    let p = pair(c[0], c[1], r).mul_add(r4, pair(c[2], c[3], r).mul_add(r2, pair(c[4], c[5], r)));
     // k ∈ [−126, 127]: 2^k is one normal number.
     let y = p.mul_add(r2, r.add(V::splat(1.0))).mul(V::pow2i(k));
     V::select(x.lt(V::splat(-87.3)), V::splat(0.0), y)
@@ -338,14 +336,15 @@ pub(crate) fn ln<V: F8>(x: V) -> V {
     let z = m.mul(m);
     // Estrin's scheme, as in `exp`.
     let z4 = z.mul(z);
-    let f0 = pair(-1.666_805_8e-1, 2.000_071_4e-1, m).mul_add(z, pair(-2.499_999_4e-1, 3.333_333e-1, m));
-    let f1 = pair(-1.151_461e-1, 1.167_699_9e-1, m).mul_add(z, pair(-1.242_014_1e-1, 1.424_932_3e-1, m));
-    let p = V::splat(7.037_683_6e-2).mul(z4).mul_add(z4, f1.mul_add(z4, f0));
+    let c = LN_POLY;
+    let f0 = pair(c[5], c[6], m).mul_add(z, pair(c[7], c[8], m));
+    let f1 = pair(c[1], c[2], m).mul_add(z, pair(c[3], c[4], m));
+    let p = V::splat(c[0]).mul(z4).mul_add(z4, f1.mul_add(z4, f0));
     let y = m.mul(z).mul(p);
-    let y = e.mul_add(V::splat(-2.121_944_4e-4), y);
+    let y = e.mul_add(V::splat(LN2_LO), y);
     let y = z.mul_add(V::splat(-0.5), y);
     let y = y.add(m);
-    let y = e.mul_add(V::splat(0.693_359_4), y);
+    let y = e.mul_add(V::splat(LN2_HI), y);
     V::select(tiny, V::splat(-103.3), y)
 }
 
