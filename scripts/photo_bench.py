@@ -533,7 +533,7 @@ def cmd_render(args):
 # Scoring
 
 DEFAULT_METHODS = ["render=--composite render", "ratio=--composite ratio", "detail=--composite detail",
-                   "detail+eq6=--composite detail --optimize"]
+                   "detail+eq6=--composite detail --eq6"]
 
 
 def rgb8(path):

@@ -39,87 +39,15 @@ import time
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
 
-DATASET = """
-[dataset]
-name = "k8s-data"
-seed = 11
-output = "unused"
-shard_size = 4
-
-[render]
-resolution = 16
-env_resolution = "4x8"
-quality = "fast"
-
-[views]
-azimuths = 6
-elevation_deg = 20.0
-per_combination = 2
-
-[[shapes]]
-source = "procedural"
-category = "car"
-count = 3
-
-[[materials]]
-source = "library"
-families = ["rubber", "plastic"]
-
-[[environments]]
-source = "procedural"
-family = "sunsky"
-count = 1
-
-[[splits]]
-name = "train"
-shapes = { car = 2 }
-materials = 3
-
-[[splits]]
-name = "test"
-shapes = { car = 1 }
-materials = 2
-"""
+FIXTURES = REPO / "tests" / "fixtures" / "manifests"
+DATASET = (FIXTURES / "jobs-dataset.toml").read_text().replace("shard_size = 3", "shard_size = 4")
 
 # The Indexed Job's dataset: two shards per index and slow enough samples (64², 16×32 light)
 # that a pod can be killed between its shards.
 INDEXED = DATASET.replace("shard_size = 4", "shard_size = 2").replace(
     "resolution = 16", "resolution = 64").replace('env_resolution = "4x8"', 'env_resolution = "16x32"')
 
-TRAINING = """
-[run]
-name = "k8s-train"
-seed = 4
-output = "unused"
-
-[model]
-input_size = 16
-env_height = 4
-widths = {{ base_channels = 4, max_channels = 16, hidden = 32, normal_channels = 8 }}
-
-[data]
-dataset = "{dataset}"
-workers = 1
-
-[[stages]]
-name = "pretrain"
-kind = "pretrain"
-steps = 150
-batch_size = 4
-learning_rate = [[0, 1e-3]]
-checkpoint_every = 50
-
-[[stages]]
-name = "joint"
-kind = "joint"
-steps = 150
-batch_size = 4
-learning_rate = [[0, 1e-4]]
-checkpoint_every = 50
-
-[eval]
-split = "test"
-"""
+TRAINING = (FIXTURES / "jobs-training.toml").read_text()
 
 
 def fail(msg):
@@ -211,7 +139,7 @@ def training_job(job, trainer, root):
     volume.mkdir()
     image_manifest = command[2]
     manifest = root / "train.toml"
-    manifest.write_text(TRAINING.format(dataset=root / "data"))
+    manifest.write_text(TRAINING.replace("@DATASET@", str(root / "data")))
     paths = [(image_manifest, str(manifest)), (mount["mountPath"], str(volume))]
     argv = [str(trainer)] + [mapped(a, paths) for a in command[1:]]
     out = pathlib.Path(argv[argv.index("--out") + 1])

@@ -89,47 +89,7 @@ sinfo -h -o %T | grep -qE '^(idle|mixed)' || fail "the node never became idle: $
 echo "test_slurm: one-node Slurm up ($host, $(nproc) CPUs)" >&2
 
 # --- a small dataset, rendered once in one process -------------------------------------------------
-cat > "$root/data.toml" <<'TOML'
-[dataset]
-name = "slurm-test"
-seed = 11
-output = "unused"
-shard_size = 3
-
-[render]
-resolution = 16
-env_resolution = "4x8"
-quality = "fast"
-
-[views]
-azimuths = 6
-elevation_deg = 20.0
-per_combination = 2
-
-[[shapes]]
-source = "procedural"
-category = "car"
-count = 3
-
-[[materials]]
-source = "library"
-families = ["rubber", "plastic"]
-
-[[environments]]
-source = "procedural"
-family = "sunsky"
-count = 1
-
-[[splits]]
-name = "train"
-shapes = { car = 2 }
-materials = 3
-
-[[splits]]
-name = "test"
-shapes = { car = 1 }
-materials = 2
-TOML
+cp "$repo/tests/fixtures/manifests/jobs-dataset.toml" "$root/data.toml"
 "$dg" run "$root/data.toml" --out "$root/ref" >"$root/ref.log" 2>&1 || fail "single-process run ($root/ref.log)"
 
 # Every file of a dataset but logs and locks, with its hash.
@@ -226,40 +186,7 @@ wait_job "$jid"
 grep -q "WORKERS=N" "$root"/refused/logs/*.log || fail "a one-task array without WORKERS was not refused"
 
 # --- preemptible training -------------------------------------------------------------------------
-cat > "$root/train.toml" <<TOML
-[run]
-name = "slurm-train"
-seed = 4
-output = "unused"
-
-[model]
-input_size = 16
-env_height = 4
-widths = { base_channels = 4, max_channels = 16, hidden = 32, normal_channels = 8 }
-
-[data]
-dataset = "$root/ref"
-workers = 1
-
-[[stages]]
-name = "pretrain"
-kind = "pretrain"
-steps = 150
-batch_size = 4
-learning_rate = [[0, 1e-3]]
-checkpoint_every = 50
-
-[[stages]]
-name = "joint"
-kind = "joint"
-steps = 150
-batch_size = 4
-learning_rate = [[0, 1e-4]]
-checkpoint_every = 50
-
-[eval]
-split = "test"
-TOML
+sed "s#@DATASET@#$root/ref#" "$repo/tests/fixtures/manifests/jobs-training.toml" > "$root/train.toml"
 "$tr" run "$root/train.toml" --out "$root/train-ref" --quiet >"$root/train-ref.log" 2>&1 || fail "uninterrupted training ($root/train-ref.log)"
 for at in 7 180; do
   out=$root/train-$at

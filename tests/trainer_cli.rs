@@ -80,55 +80,7 @@ fn main() -> ExitCode {
     libtest_mimic::run(&args, trials).exit_code()
 }
 
-const DATASET: &str = r#"
-[dataset]
-name = "trainer-cli"
-seed = 9
-output = "unused"
-shard_size = 4
-
-[render]
-resolution = 16
-env_resolution = "4x8"
-quality = "fast"
-
-[views]
-azimuths = 6
-elevation_deg = 20.0
-per_combination = 2
-
-[multi_material]
-mode = "per_region"
-
-[[shapes]]
-source = "procedural"
-category = "car"
-count = 3
-
-[[shapes]]
-source = "folder"
-category = "monitor"
-path = "objs"
-
-[[materials]]
-source = "dsbrdf"
-path = "mats"
-
-[[environments]]
-source = "procedural"
-family = "sunsky"
-count = 1
-
-[[splits]]
-name = "train"
-shapes = { car = 2, monitor = 1 }
-materials = 3
-
-[[splits]]
-name = "test"
-shapes = { car = 1 }
-materials = 2
-"#;
+const DATASET: &str = include_str!("../tests/fixtures/manifests/trainer-cli.toml");
 
 /// A training manifest over `dataset`: two stages with frequent checkpoints.
 fn training_manifest(dataset: &Path) -> String {

@@ -10,55 +10,7 @@ use matedit_trainer::data::*;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
-const MANIFEST: &str = r#"
-[dataset]
-name = "loader"
-seed = 5
-output = "unused"
-shard_size = 4
-
-[render]
-resolution = 16
-env_resolution = "4x8"
-quality = "fast"
-
-[views]
-azimuths = 4
-elevation_deg = 20.0
-per_combination = 2
-
-[multi_material]
-mode = "per_region"
-
-[[shapes]]
-source = "procedural"
-category = "car"
-count = 2
-
-[[shapes]]
-source = "folder"
-category = "monitor"
-path = "objs"
-
-[[materials]]
-source = "dsbrdf"
-path = "mats"
-
-[[environments]]
-source = "procedural"
-family = "overcast"
-count = 1
-
-[[splits]]
-name = "train"
-shapes = { car = 1, monitor = 1 }
-materials = 3
-
-[[splits]]
-name = "test"
-shapes = { car = 1 }
-materials = 2
-"#;
+const MANIFEST: &str = include_str!("../tests/fixtures/manifests/loader.toml");
 
 fn root() -> PathBuf {
     std::env::temp_dir().join(format!("matedit-trainer-data-{}", std::process::id()))

@@ -342,7 +342,11 @@ mod tests {
 
     #[test]
     fn nesting_is_counted_outside_strings_and_comments() {
-        for dir in ["manifests/datasets", "manifests/train", "manifests/datasets/experiments"] {
+        for dir in [
+            "manifests/datasets",
+            "manifests/train",
+            "manifests/datasets/experiments",
+        ] {
             for e in std::fs::read_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(dir)).unwrap() {
                 let p = e.unwrap().path();
                 if p.extension().is_some_and(|x| x == "toml") {

@@ -20,55 +20,7 @@ fn scratch(name: &str) -> PathBuf {
 /// Two shapes × two materials × three environments × two views per split. The index lists
 /// environments innermost (after shape and material), and 24 train samples over 4 rows put
 /// every 6th sample on the sheet: all with the first environment.
-const MANIFEST: &str = r#"
-[dataset]
-name = "t"
-seed = 5
-output = "unused"
-shard_size = 8
-
-[render]
-resolution = 16
-env_resolution = "8x16"
-quality = "fast"
-
-[views]
-azimuths = 8
-elevation_deg = 25.0
-per_combination = 2
-
-[multi_material]
-mode = "per_region"
-
-[[shapes]]
-source = "procedural"
-category = "car"
-count = 3
-
-[[shapes]]
-source = "procedural"
-category = "chair"
-count = 3
-
-[[materials]]
-source = "library"
-families = ["fabric", "rubber", "plastic"]
-
-[[environments]]
-source = "procedural"
-family = "overcast"
-count = 3
-
-[[splits]]
-name = "train"
-shapes = { car = 1, chair = 1 }
-materials = 2
-
-[[splits]]
-name = "test"
-shapes = { car = 1, chair = 1 }
-materials = 2
-"#;
+const MANIFEST: &str = include_str!("../../tests/fixtures/manifests/inspect.toml");
 
 fn dataset(dir: &Path) -> Vec<SampleRecord> {
     let manifest = dir.join("m.toml");

@@ -32,7 +32,7 @@ enum Command {
   matedit edit --model M --image car.out.png --material 1=library:oak --material 2=library:rubber-black \\
       --regions parts.png --out out/edit-parts/
   matedit edit --model M --image car.jpg --mask car-mask.png --relight sunset.hdr --out out/relit/
-  matedit edit ... --optimize          # refine with Eq. 6 first (a = 1, b = 0.1: see --eq6-b)
+  matedit edit ... --eq6               # refine with Eq. 6 first (a = 1, b = 0.1: see --eq6-b)
 
 Outputs (written only when every input is good): edited.png/.exr at the photo's resolution,
 I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and report.json.")]
@@ -76,8 +76,9 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// How the render goes back into the photo.
         #[arg(long, value_enum, default_value_t = Composite::default())]
         composite: Composite,
-        /// Refine n', m', L' with the paper's post-optimisation (Eq. 6) first.
-        #[arg(long)]
+        /// Refine n', m', L' with the paper's post-optimisation (Eq. 6) first; `--optimize` is the
+        /// same flag (its earlier name).
+        #[arg(long = "eq6", visible_alias = "optimize")]
         optimize: bool,
         /// Eq. 6's weight a of the normal prior (0–1e6).
         #[arg(long, default_value_t = Eq6Config::default().a, value_parser = finite_in(0.0, 1e6), allow_negative_numbers = true)]

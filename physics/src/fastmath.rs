@@ -16,7 +16,14 @@ pub const LN2_LO: f32 = -2.121_944_4e-4;
 
 /// Minimax polynomial for (e^r − 1 − r) / r² on [−ln2/2, ln2/2] (Cephes expf), highest degree
 /// first. The SIMD kernel of the rendering layer evaluates the same coefficients.
-pub const EXP_POLY: [f32; 6] = [1.987_569_1e-4, 1.398_199_9e-3, 8.333_452e-3, 4.166_579_6e-2, 1.666_666_5e-1, 0.5];
+pub const EXP_POLY: [f32; 6] = [
+    1.987_569_1e-4,
+    1.398_199_9e-3,
+    8.333_452e-3,
+    4.166_579_6e-2,
+    1.666_666_5e-1,
+    0.5,
+];
 
 /// Polynomial for (ln(1 + m) − m + m²/2) / m³ on [√½ − 1, √2 − 1] (Cephes logf), highest
 /// degree first.

@@ -687,40 +687,7 @@ pub fn dataset() -> &'static Path {
         let _ = std::fs::remove_dir_all(&root);
         let materials = [[0.8, 0.2, 0.1], [0.1, 0.5, 0.7], [0.4, 0.4, 0.4], [0.9, 0.9, 0.2]]
             .map(matedit_physics::brdf::Dsbrdf::near_lambertian);
-        let manifest = r#"
-[dataset]
-name = "fuzz"
-seed = 3
-output = "unused"
-shard_size = 2
-[render]
-resolution = 16
-env_resolution = "4x8"
-quality = "fast"
-[views]
-azimuths = 4
-elevation_deg = 20.0
-per_combination = 1
-[[shapes]]
-source = "procedural"
-category = "car"
-count = 2
-[[materials]]
-source = "dsbrdf"
-path = "mats"
-[[environments]]
-source = "procedural"
-family = "overcast"
-count = 1
-[[splits]]
-name = "train"
-shapes = { car = 1 }
-materials = 2
-[[splits]]
-name = "test"
-shapes = { car = 1 }
-materials = 2
-"#;
+        let manifest = include_str!("../fixtures/manifests/fuzz.toml");
         let sources = matedit_fixtures::Sources {
             manifest,
             materials: &materials,

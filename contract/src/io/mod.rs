@@ -7,7 +7,8 @@ mod png;
 pub mod text;
 
 pub use exr_io::{
-    ExrChannels, check_exr_size, decode_exr_channels, encode_env_exr, encode_exr_channels, read_exr_channels, write_env_exr, write_exr_channels,
+    ExrChannels, check_exr_size, decode_exr_channels, encode_env_exr, encode_exr_channels, read_exr_channels,
+    write_env_exr, write_exr_channels,
 };
 pub use png::{
     SheetLabels, contact_sheet, normal_to_u8, write_contact_sheet, write_labelled_contact_sheet, write_png_preview,
