@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The long fuzz run of every reader (tests/common/fuzz.rs): SCALE times each reader's CI cases
+# The long fuzz run of every reader (tests/common/fuzz/): SCALE times each reader's CI cases
 # (default 100: 30,000 for most readers, 2,400 for the 33 MB MERL tables) from RNG seed SEED
 # (default: a new one each run), the three harnesses (tests/fuzz.rs, tests/fuzz_trainer.rs, edit/tests/fuzz.rs), one line per reader ("fuzz NAME: N cases (A
 # accepted, R refused) in S s, seed SEED") appended to LOG.

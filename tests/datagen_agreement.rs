@@ -157,7 +157,8 @@ fn ground_truth_n_m_l_reproduce_datagens_exact_images() {
 /// true, and the priors) the energy and the material's error both fall.
 #[test]
 fn eq6_on_datagen_samples_stays_at_the_truth_and_returns_from_a_perturbed_material() {
-    use matedit_trainer::post_optimisation::{Eq6Config, Point, Priors, Problem, post_optimise};
+    use matedit_trainer::model::prediction::Prediction;
+    use matedit_trainer::post_optimisation::{Eq6Config, Problem, post_optimise};
     let (root, out) = make_dataset("eq6");
     let ds = Arc::new(Dataset::open(&out).unwrap());
     let layer = RenderingLayer::new(64);
@@ -170,24 +171,22 @@ fn eq6_on_datagen_samples_stays_at_the_truth_and_returns_from_a_perturbed_materi
         ..Eq6Config::default()
     };
     for k in 0..b.batch {
-        let truth = Point {
+        let truth = Prediction {
             normals: b.normals[k * 3 * p..(k + 1) * 3 * p].to_vec(),
             materials: b.materials[k * r * 108..(k + 1) * r * 108].to_vec(),
             env: b.env[k * t..(k + 1) * t].to_vec(),
         };
         let image = &b.input[k * 3 * p..(k + 1) * 3 * p];
-        let problem = Problem {
-            layer: &layer,
-            size: b.size,
-            regions: r,
+        let problem = Problem::eq6(
+            &layer,
+            b.size,
+            r,
             image,
-            region_map: &b.region_map[k * p..(k + 1) * p],
-            normals: &truth.normals,
-            env: &truth.env,
-            a: 1.0,
-            b: 10.0,
-            priors: Priors::NONE,
-        };
+            &b.region_map[k * p..(k + 1) * p],
+            &truth,
+            1.0,
+            10.0,
+        );
         let norm: f64 = image.iter().map(|v| (*v as f64).powi(2)).sum();
         let at_truth = post_optimise(&problem, truth.clone(), &cfg).unwrap();
         // datagen's exact renderer and the layer agree to 1e-3 relative RMSE (above): E ≤ 1e-6 ‖I‖².

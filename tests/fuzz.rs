@@ -1,13 +1,13 @@
 //! No input can crash the factory's readers: property-based fuzzing of the OBJ, HDR, EXR, MERL
 //! and DSBRDF readers, dataset manifests, and a dataset's index, records, plan and sample files
-//! (the properties and the mutations: `tests/common/fuzz.rs`). The trainer's readers
+//! (the properties and the mutations: `tests/common/fuzz/`). The trainer's readers
 //! (training manifests, the dataset as it loads it) are fuzzed in `tests/fuzz_trainer.rs`, the
 //! editor's (checkpoints, photos, masks) in `edit/tests/fuzz.rs`.
 //!
 //! CI: `cargo test --release --test fuzz`. The long run: `MATEDIT_FUZZ_SCALE=K` (K times each reader's CI cases) (and
 //! `MATEDIT_FUZZ_SEED`), `scripts/fuzz_long.sh`.
 
-#[path = "common/fuzz.rs"]
+#[path = "common/fuzz/mod.rs"]
 mod fuzz;
 
 use fuzz::{Counting, Reader, Verdict, copy_tree, dataset, eval_assets, fuzz, radiance, seed_file};

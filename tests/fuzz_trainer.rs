@@ -1,12 +1,12 @@
 //! No input can crash the trainer's readers: property-based fuzzing of training manifests,
 //! checkpoints (state and weights) and a dataset as the trainer loads it (the properties and the
-//! mutations: `tests/common/fuzz.rs`). Photos, masks and region labels are fuzzed with the
+//! mutations: `tests/common/fuzz/`). Photos, masks and region labels are fuzzed with the
 //! editor that reads them (`edit/tests/fuzz.rs`).
 //!
 //! CI: `cargo test --release --test fuzz_trainer`. The long run:
 //! `MATEDIT_FUZZ_SCALE=K` (K times each reader's CI cases) (and `MATEDIT_FUZZ_SEED`), `scripts/fuzz_long.sh`.
 
-#[path = "common/fuzz.rs"]
+#[path = "common/fuzz/mod.rs"]
 mod fuzz;
 
 use burn::optim::AdamConfig;

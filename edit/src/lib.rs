@@ -38,6 +38,7 @@ use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
 use matedit_physics::brdf::Dsbrdf;
 use matedit_trainer::model::network::Net;
+use matedit_trainer::model::prediction::Prediction;
 use matedit_trainer::post_optimisation;
 use matedit_trainer::post_optimisation::progress::{Progress, enter};
 use matedit_trainer::render::{Batch, RenderingLayer};
@@ -222,7 +223,7 @@ pub struct Understood {
     /// The network input.
     pub prep: Prepared,
     /// n*, m*, L* (the network's, or after Eq. 6) at the network's resolution.
-    pub point: post_optimisation::Point,
+    pub point: Prediction,
     /// The object at the photo's resolution and n* there.
     pub detail: detail::Detail,
     /// Eq. 6, when asked for.
@@ -320,7 +321,7 @@ pub fn understand(
     .with_context(|| path.display().to_string())?;
     enter(w, "network")?;
     let t = Instant::now();
-    let mut x = network_prediction(&model.net, model.state.net.env_height, &prep)?;
+    let mut x = network_prediction(&model.net, &prep)?;
     if let Some(l) = &light.given {
         x.env = light_at_photo_level(&model.layer, &prep, &x, l)?;
     }
@@ -345,23 +346,21 @@ pub fn understand(
             // where the weights were chosen for S², so the light prior's weight grows with them
             // (the same balance per unit of the object's area).
             let area = (fine.size * fine.size) as f64 / (prep.size * prep.size) as f64;
-            let prior = post_optimisation::Point {
+            let prior = Prediction {
                 normals: detail.normals.clone(),
                 materials: x.materials.clone(),
                 env: x.env.clone(),
             };
-            let problem = post_optimisation::Problem {
-                layer: &model.layer,
-                size: fine.size,
-                regions: fine.regions,
-                image: &fine.input,
-                region_map: &fine.region_map,
-                normals: &prior.normals,
-                env: &prior.env,
-                a: cfg.a,
-                b: cfg.b * area,
-                priors: post_optimisation::Priors::NONE,
-            };
+            let problem = post_optimisation::Problem::eq6(
+                &model.layer,
+                fine.size,
+                fine.regions,
+                &fine.input,
+                &fine.region_map,
+                &prior,
+                cfg.a,
+                cfg.b * area,
+            );
             let r = post_optimisation::post_optimise_watched(&problem, prior.clone(), cfg, watcher)?;
             x.normals = detail::downsample_normals(&detail.prep, &r.point.normals, &prep, &x.normals);
             x.materials = r.point.materials;
@@ -422,12 +421,7 @@ pub fn understand(
 
 /// A given illumination `l` (`[3, He, 2He]`) at the level that explains the photo best: the
 /// scale k minimising Σ (k·R(n', m', l) − I)² over the object (a map's exposure is arbitrary).
-pub fn light_at_photo_level(
-    layer: &RenderingLayer,
-    prep: &Prepared,
-    x: &post_optimisation::Point,
-    l: &[f32],
-) -> Result<Vec<f32>> {
+pub fn light_at_photo_level(layer: &RenderingLayer, prep: &Prepared, x: &Prediction, l: &[f32]) -> Result<Vec<f32>> {
     let s = prep.size;
     let rendered = layer.forward(&Batch {
         batch: 1,
@@ -491,7 +485,7 @@ fn finish(
         network_seconds,
     } = u;
     let relight_env = relight.as_ref().map(|(_, l)| l.as_slice());
-    let fine_point = post_optimisation::Point {
+    let fine_point = Prediction {
         normals: detail.normals,
         materials: point.materials.clone(),
         env: point.env.clone(),

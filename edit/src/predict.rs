@@ -2,14 +2,11 @@
 //! the rendering layer: I', O' with the target materials, and the relit image.
 
 use super::Prepared;
-use anyhow::{Context, Result};
+use anyhow::Result;
 use burn::tensor::Device;
-use matedit_physics::brdf::dsbrdf::PARAMS;
 use matedit_trainer::model::network::Net;
-use matedit_trainer::post_optimisation;
-use matedit_trainer::render::op::host;
+use matedit_trainer::model::prediction::Prediction;
 use matedit_trainer::render::{Batch, RenderingLayer};
-use matedit_trainer::train::batch::HostBatch;
 
 /// The network's predictions and the renders made from them, at the network's resolution.
 #[derive(Clone, Debug)]
@@ -31,43 +28,8 @@ pub struct Predicted {
 }
 
 /// n', m', L': the network's prediction for `prep` (normals zero off the object).
-pub fn network_prediction(net: &Net, env_height: usize, prep: &Prepared) -> Result<post_optimisation::Point> {
-    let device = Device::flex();
-    let (s, r) = (prep.size, prep.regions);
-    let hb = HostBatch {
-        batch: 1,
-        size: s,
-        regions: r,
-        env_height,
-        ids: vec!["photo".into()],
-        input: prep.input.clone(),
-        target: vec![0.0; 3 * s * s],
-        normals: vec![0.0; 3 * s * s],
-        mask: prep.mask.clone(),
-        region_map: prep.region_map.clone(),
-        env: vec![0.0; 6 * env_height * env_height],
-        materials: vec![0.0; r * PARAMS],
-        target_materials: vec![0.0; r * PARAMS],
-    };
-    let tb = hb.to_device(&device);
-    let p = net.predict(&tb.input, &tb.mask, &tb.region_masks, true);
-    let mut normals = host(&p.normals);
-    for k in 0..s * s {
-        if prep.mask[k] <= 0.0 {
-            for c in 0..3 {
-                normals[c * s * s + k] = 0.0;
-            }
-        }
-    }
-    Ok(post_optimisation::Point {
-        normals,
-        materials: host(&p.materials),
-        env: p
-            .env
-            .as_ref()
-            .map(host)
-            .context("the network predicted no illumination")?,
-    })
+pub fn network_prediction(net: &Net, prep: &Prepared) -> Result<Prediction> {
+    net.predict_photo(&prep.input, &prep.mask, &prep.region_map, prep.regions, &Device::flex())
 }
 
 /// Renders I' from `x`, O' with `targets` (normalised, `[R, 108]`) and the relit image with
@@ -76,7 +38,7 @@ pub fn network_prediction(net: &Net, env_height: usize, prep: &Prepared) -> Resu
 pub fn render_all(
     layer: &RenderingLayer,
     prep: &Prepared,
-    x: post_optimisation::Point,
+    x: Prediction,
     env_height: usize,
     targets: Option<&[f32]>,
     relight: Option<&[f32]>,

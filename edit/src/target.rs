@@ -3,12 +3,10 @@
 //! multi-material object, and another illumination.
 
 use anyhow::{Context, Result, bail};
-use matedit_assets::materials::{cache, fit, library};
+use matedit_assets::materials::cache;
+use matedit_physics::BrdfSpec;
 use matedit_physics::brdf::Dsbrdf;
-use matedit_physics::{BrdfModel, BrdfSpec};
-use std::collections::HashMap;
 use std::path::Path;
-use std::sync::{Mutex, OnceLock};
 
 /// A region's target as the report records it.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -45,34 +43,13 @@ pub fn parse_material_arg(s: &str) -> Result<(Option<u8>, String), String> {
     Ok((None, s.to_string()))
 }
 
-/// The DSBRDF of a spec, with how it was obtained.
+/// The DSBRDF of a spec, with how it was obtained (`matedit_assets::materials::cache::dsbrdf_of`
+/// with the library's cache folder).
 pub fn dsbrdf_of(spec: &str) -> Result<(Dsbrdf, String)> {
     let parsed: BrdfSpec = spec.parse().map_err(|e| anyhow::anyhow!("material {spec}: {e}"))?;
-    let name = match &parsed {
-        BrdfSpec::Library(n) | BrdfSpec::Fit(n) => Some(n.clone()),
-        _ => None,
-    };
-    if let Some(name) = name {
-        let m = library::find(&name).with_context(|| format!("material {spec}"))?;
-        if let Some(f) = cache::load_cached(&cache::default_dir(), &m) {
-            return Ok((f, "cached fit".into()));
-        }
-        // A long-lived process (`matedit serve`) fits each library material once.
-        static FITTED: OnceLock<Mutex<HashMap<String, Dsbrdf>>> = OnceLock::new();
-        let memo = FITTED.get_or_init(Default::default);
-        if let Some(f) = memo.lock().ok().and_then(|m| m.get(&name).cloned()) {
-            return Ok((f, "fitted earlier in this process".into()));
-        }
-        let (f, _) = fit::fit_dsbrdf(&m.spec.build().with_context(|| format!("material {spec}"))?);
-        if let Ok(mut memo) = memo.lock() {
-            memo.insert(name, f.clone());
-        }
-        return Ok((f, "fitted now".into()));
-    }
-    match parsed.build().with_context(|| format!("material {spec}"))? {
-        BrdfModel::Dsbrdf(d) => Ok((*d, "dsbrdf file".into())),
-        other => Ok((fit::fit_dsbrdf(&other).0, "fitted now".into())),
-    }
+    let (material, how) =
+        cache::dsbrdf_of(&parsed, &cache::default_dir()).with_context(|| format!("material {spec}"))?;
+    Ok((material, how.describe().into()))
 }
 
 /// One target per region 1..=`regions`; a region with no material is an error naming it.

@@ -1,12 +1,12 @@
 //! No input can crash the editor's readers: property-based fuzzing of photos, masks and region
-//! labels (the properties and the mutations: `tests/common/fuzz.rs` at the workspace root).
+//! labels (the properties and the mutations: `tests/common/fuzz/` at the workspace root).
 //! The checkpoints `matedit` loads are read by the trainer's reader, fuzzed in
 //! `tests/fuzz_trainer.rs`.
 //!
 //! CI: `cargo test --release -p matedit-edit --test fuzz`. The long run:
 //! `MATEDIT_FUZZ_SCALE=K` (K times each reader's CI cases) (and `MATEDIT_FUZZ_SEED`), `scripts/fuzz_long.sh`.
 
-#[path = "../../tests/common/fuzz.rs"]
+#[path = "../../tests/common/fuzz/mod.rs"]
 mod fuzz;
 
 use fuzz::{Counting, Reader, Verdict, eval_assets, fuzz, radiance, seed_file};

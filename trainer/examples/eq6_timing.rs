@@ -7,7 +7,8 @@
 //! COARSE is `Eq6Config::coarse_pixels` (default 2048; 0: the alternation on every pixel). Each run prints
 //! the seconds, E at the start and the end, and how far m* and L* are from the truth.
 use anyhow::{Result, bail};
-use matedit_trainer::post_optimisation::{Eq6Config, Point, Priors, Problem, post_optimise};
+use matedit_trainer::model::prediction::Prediction;
+use matedit_trainer::post_optimisation::{Eq6Config, Problem, post_optimise};
 use matedit_trainer::render::RenderingLayer;
 use matedit_trainer::train::synthetic::sphere_batch;
 use std::time::Instant;
@@ -28,7 +29,7 @@ fn main() -> Result<()> {
     let layer = RenderingLayer::new(64);
     for run in 0..runs {
         let hb = sphere_batch(1, size, 64, run as u64, &layer);
-        let truth = Point {
+        let truth = Prediction {
             normals: hb.normals.clone(),
             materials: hb.materials.clone(),
             env: hb.env.clone(),
@@ -38,18 +39,7 @@ fn main() -> Result<()> {
             *v = (*v + if k % 3 == 0 { 0.2 } else { -0.1 }).clamp(-0.95, 0.95);
         }
         start.env.iter_mut().for_each(|v| *v *= 0.8);
-        let problem = Problem {
-            layer: &layer,
-            size,
-            regions: 1,
-            image: &hb.input,
-            region_map: &hb.region_map,
-            normals: &start.normals,
-            env: &start.env,
-            a: cfg.a,
-            b: cfg.b,
-            priors: Priors::NONE,
-        };
+        let problem = Problem::eq6(&layer, size, 1, &hb.input, &hb.region_map, &start, cfg.a, cfg.b);
         let t = Instant::now();
         let r = post_optimise(&problem, start.clone(), &cfg)?;
         let secs = t.elapsed().as_secs_f64();

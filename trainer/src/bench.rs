@@ -13,11 +13,11 @@
 //! object pixels per image, the fraction shaded, the loss terms on.
 
 use crate::alloc::PeakAlloc;
+use crate::data;
 use crate::model::Widths;
 use crate::model::network::{Net, NetConfig};
 use crate::render::op::host;
 use crate::render::{Batch, RenderingLayer, reference};
-use crate::train::batch::HostBatch;
 use crate::train::manifest::TrainPlan;
 use crate::train::perceptual::Perceptual;
 use crate::train::step::StageKind;
@@ -178,7 +178,7 @@ pub struct Workload {
 }
 
 /// Object pixels per image and the fraction of them `net`'s normals shade on `hb`.
-pub fn shaded(net: &Net, hb: &HostBatch, device: &Device) -> (f64, f64) {
+pub fn shaded(net: &Net, hb: &data::Batch, device: &Device) -> (f64, f64) {
     let tb = hb.to_device(device);
     let n = host(&net.predict(&tb.input, &tb.mask, &tb.region_masks, false).normals);
     let p = hb.size * hb.size;
@@ -207,7 +207,7 @@ pub fn shaded(net: &Net, hb: &HostBatch, device: &Device) -> (f64, f64) {
 fn warm_up(
     mut net: Net,
     ctx: &StepContext,
-    mut next: impl FnMut() -> Result<HostBatch>,
+    mut next: impl FnMut() -> Result<data::Batch>,
 ) -> Result<(Net, usize, (f64, f64))> {
     let normals_only = LossWeights {
         normal: LossWeights::default().normal,
@@ -242,7 +242,7 @@ fn time_steps(
     kind: StepKind,
     ctx: &StepContext,
     steps: usize,
-    mut next: impl FnMut() -> Result<HostBatch>,
+    mut next: impl FnMut() -> Result<data::Batch>,
 ) -> Result<(f64, u64)> {
     let hb = next()?;
     net = train_step(net, optim, lr, &hb, kind, ctx)?.0;

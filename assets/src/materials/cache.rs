@@ -1,6 +1,8 @@
-//! Fitted library materials on disk: `NAME.dsbrdf.json` (the material) and `NAME.fit.json`
-//! (source, fingerprint, split and errors), refitted only when the source or the fitting
-//! method changes (the fingerprint).
+//! Fitted materials on disk and any spec as a DSBRDF. A stored fit is two files, `STEM.dsbrdf.json`
+//! (the material) and `STEM.fit.json` (a record with the source's fingerprint), written material
+//! first, record last; it is reused only while the fingerprint matches, so a changed source or
+//! fitting method refits. The library's cache (`out/materials`, [`fit_library`]) and a dataset's
+//! material table (`DIR/materials/`) are both stored this way ([`stored_fit`], [`store_fit`]).
 
 use super::fit::fit_and_report;
 use super::library::{LibraryMaterial, Split, library};
@@ -9,8 +11,9 @@ use matedit_contract::io::write_atomically;
 use matedit_physics::brdf::Dsbrdf;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
+use std::sync::{Mutex, OnceLock};
 
 /// Changes whenever the fitting method changes, invalidating every cached fit.
 pub const FIT_VERSION: &str = "dsbrdf-fit-1";
@@ -55,18 +58,43 @@ pub fn default_dir() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from("out/materials"))
 }
 
-fn read_record(dir: &Path, name: &str) -> Option<FitRecord> {
-    serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{name}.fit.json"))).ok()?).ok()
+/// A fit record that names the fingerprint of what it was fitted from.
+pub trait Fingerprinted: serde::de::DeserializeOwned {
+    /// The source's fingerprint when the fit was made.
+    fn fingerprint(&self) -> &str;
+}
+
+impl Fingerprinted for FitRecord {
+    fn fingerprint(&self) -> &str {
+        &self.fingerprint
+    }
+}
+
+/// The fit stored in `dir` as `STEM.dsbrdf.json` with its record `STEM.fit.json`, when both are
+/// readable and the record's fingerprint is `fingerprint`.
+pub fn stored_fit<R: Fingerprinted>(dir: &Path, stem: &str, fingerprint: &str) -> Option<(Dsbrdf, R)> {
+    let text = std::fs::read_to_string(dir.join(format!("{stem}.fit.json"))).ok()?;
+    let record: R = serde_json::from_str(&text).ok()?;
+    if record.fingerprint() != fingerprint {
+        return None;
+    }
+    let fit = Dsbrdf::load(&dir.join(format!("{stem}.dsbrdf.json"))).ok()?;
+    Some((fit, record))
+}
+
+/// Stores `fit` and its `record` in `dir` (see [`stored_fit`]): the material first, the record
+/// last, each atomically, so a record only ever exists next to a complete material.
+pub fn store_fit(dir: &Path, stem: &str, fit: &Dsbrdf, record: &impl Serialize) -> Result<()> {
+    write_atomically(&dir.join(format!("{stem}.dsbrdf.json")), |t| {
+        Ok(std::fs::write(t, fit.to_json())?)
+    })?;
+    let json = serde_json::to_string_pretty(record)?;
+    write_atomically(&dir.join(format!("{stem}.fit.json")), |t| Ok(std::fs::write(t, json)?))
 }
 
 /// The cached record and fit of `m`, if both are there and up to date.
 fn cached(dir: &Path, m: &LibraryMaterial) -> Option<(FitRecord, Dsbrdf)> {
-    let rec = read_record(dir, &m.name)?;
-    if rec.fingerprint != fingerprint(m) {
-        return None;
-    }
-    let fit = Dsbrdf::load(&dir.join(format!("{}.dsbrdf.json", m.name))).ok()?;
-    Some((rec, fit))
+    stored_fit::<FitRecord>(dir, &m.name, &fingerprint(m)).map(|(fit, rec)| (rec, fit))
 }
 
 /// The cached fit of `m` if it is up to date.
@@ -90,14 +118,7 @@ fn fit_one(dir: &Path, m: &LibraryMaterial) -> Result<(FitRecord, bool)> {
         brdf_log_rmse: report.brdf_log_rmse,
         rendered_rel_rmse: report.rendered.into_iter().collect(),
     };
-    // Material first, record last: a record only exists next to a complete material.
-    write_atomically(&dir.join(format!("{}.dsbrdf.json", m.name)), |t| {
-        Ok(std::fs::write(t, fit.to_json())?)
-    })?;
-    let json = serde_json::to_string_pretty(&rec)?;
-    write_atomically(&dir.join(format!("{}.fit.json", m.name)), |t| {
-        Ok(std::fs::write(t, json)?)
-    })?;
+    store_fit(dir, &m.name, &fit, &rec)?;
     Ok((rec, true))
 }
 
@@ -185,21 +206,66 @@ pub fn write_report(dir: &Path, records: &[FitRecord]) -> Result<PathBuf> {
     Ok(path)
 }
 
-/// Resolves any `--brdf` spec, including `library:NAME` and `fit:NAME` (from the cache in
-/// `dir` when up to date, otherwise fitted now without writing).
+/// Resolves any `--brdf` spec, including `library:NAME` (the analytic model) and `fit:NAME`
+/// (its DSBRDF fit, see [`dsbrdf_of`]).
 pub fn resolve(spec: &matedit_physics::BrdfSpec, dir: &Path) -> Result<matedit_physics::BrdfModel> {
     use matedit_physics::{BrdfModel, BrdfSpec};
     match spec {
         BrdfSpec::Library(name) => Ok(super::library::find(name)?.spec.build()?),
-        BrdfSpec::Fit(name) => {
-            let m = super::library::find(name)?;
-            let fit = match load_cached(dir, &m) {
-                Some(f) => f,
-                None => super::fit::fit_dsbrdf(&m.spec.build()?).0,
-            };
-            Ok(BrdfModel::Dsbrdf(Box::new(fit)))
-        }
+        BrdfSpec::Fit(_) => Ok(BrdfModel::Dsbrdf(Box::new(dsbrdf_of(spec, dir)?.0))),
         other => Ok(other.build()?),
+    }
+}
+
+/// How [`dsbrdf_of`] obtained a DSBRDF.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Obtained {
+    /// The spec is a DSBRDF file.
+    DsbrdfFile,
+    /// A library material's up-to-date fit in the cache folder.
+    CachedFit,
+    /// A library material fitted before by this process.
+    FittedEarlier,
+    /// Fitted now.
+    FittedNow,
+}
+
+impl Obtained {
+    /// The words a report uses.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Obtained::DsbrdfFile => "dsbrdf file",
+            Obtained::CachedFit => "cached fit",
+            Obtained::FittedEarlier => "fitted earlier in this process",
+            Obtained::FittedNow => "fitted now",
+        }
+    }
+}
+
+/// Any spec as a DSBRDF (what the rendering layer renders): a library material (`library:` or
+/// `fit:`) from its up-to-date fit in `dir`, else fitted once per process (a long-lived server
+/// fits each material once; nothing is written); a DSBRDF file as it is; any other spec fitted.
+pub fn dsbrdf_of(spec: &matedit_physics::BrdfSpec, dir: &Path) -> Result<(Dsbrdf, Obtained)> {
+    use matedit_physics::{BrdfModel, BrdfSpec};
+    if let BrdfSpec::Library(name) | BrdfSpec::Fit(name) = spec {
+        let m = super::library::find(name)?;
+        if let Some(f) = load_cached(dir, &m) {
+            return Ok((f, Obtained::CachedFit));
+        }
+        static FITTED: OnceLock<Mutex<HashMap<String, Dsbrdf>>> = OnceLock::new();
+        let memo = FITTED.get_or_init(Default::default);
+        if let Some(f) = memo.lock().ok().and_then(|m| m.get(name).cloned()) {
+            return Ok((f, Obtained::FittedEarlier));
+        }
+        let (f, _) = super::fit::fit_dsbrdf(&m.spec.build()?);
+        if let Ok(mut memo) = memo.lock() {
+            memo.insert(name.clone(), f.clone());
+        }
+        return Ok((f, Obtained::FittedNow));
+    }
+    match spec.build()? {
+        BrdfModel::Dsbrdf(d) => Ok((*d, Obtained::DsbrdfFile)),
+        other => Ok((super::fit::fit_dsbrdf(&other).0, Obtained::FittedNow)),
     }
 }
 
@@ -268,5 +334,26 @@ mod tests {
                 .to_string()
                 .contains("no such material")
         );
+        // Any spec as a DSBRDF, and how. The stored fit is `changed`'s, so `fit:rubber-red` above
+        // was fitted in this process, and is not fitted again; once the cache is up to date, its
+        // fit is the one given (fitting is deterministic: the same parameters).
+        let rubber: matedit_physics::BrdfSpec = "library:rubber-red".parse().unwrap();
+        let (earlier, how) = dsbrdf_of(&rubber, &dir).unwrap();
+        assert_eq!(how, Obtained::FittedEarlier);
+        assert!(fit_one(&dir, &m).unwrap().1, "refitted: the stored fit was another source's");
+        let (cached_fit, how) = dsbrdf_of(&rubber, &dir).unwrap();
+        assert_eq!(how, Obtained::CachedFit);
+        assert_eq!(cached_fit, Dsbrdf::load(&dir.join("rubber-red.dsbrdf.json")).unwrap());
+        assert_eq!(cached_fit, earlier);
+        let (fitted, how) = dsbrdf_of(&"lambert:0.2,0.5,0.1".parse().unwrap(), &dir).unwrap();
+        assert_eq!(how, Obtained::FittedNow);
+        let file = dir.join("own.dsbrdf.json");
+        std::fs::write(&file, fitted.to_json()).unwrap();
+        let spec = format!("dsbrdf:{}", file.display()).parse().unwrap();
+        assert_eq!(dsbrdf_of(&spec, &dir).unwrap(), (fitted, Obtained::DsbrdfFile));
+        // A record whose fingerprint does not match, or whose material is missing, is no fit.
+        assert!(stored_fit::<FitRecord>(&dir, "rubber-red", "another source").is_none());
+        std::fs::remove_file(dir.join("rubber-red.dsbrdf.json")).unwrap();
+        assert!(stored_fit::<FitRecord>(&dir, "rubber-red", &fingerprint(&m)).is_none());
     }
 }

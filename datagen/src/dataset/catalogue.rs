@@ -162,124 +162,123 @@ fn dedup<T>(
     Ok(())
 }
 
-/// Resolves an entry's `path`: `Ok(Some)` when it exists, `Ok(None)` when it is missing and
-/// `if_missing` allows a substitute, an error otherwise.
-fn existing_path(
-    mf: &ManifestFile,
-    span: std::ops::Range<usize>,
-    field: &str,
-    path: Option<&String>,
-    if_missing: Option<&Spanned<Choice<IfMissing>>>,
-    substitute: IfMissing,
-) -> Result<Option<PathBuf>, ManifestError> {
-    let Some(written) = path else {
-        return Err(mf.invalid(span, &format!("{field}.path"), "this source needs a path"));
-    };
-    let allowed = match if_missing {
-        None => false,
-        Some(value) => match mf.choice(value, &format!("{field}.if_missing"))? {
-            IfMissing::Error => false,
-            v if v == substitute => true,
-            other => {
-                return Err(mf.invalid(
-                    value.span(),
-                    &format!("{field}.if_missing"),
-                    format!("{:?}: expected \"error\" or \"{}\"", other.name(), substitute.name()),
-                ));
-            }
-        },
-    };
-    let resolved = match mf.resolve_path(written) {
-        Ok(p) if p.exists() => return Ok(Some(p)),
-        Ok(p) => format!("{} does not exist", p.display()),
-        Err(e) => e,
-    };
-    if allowed {
-        Ok(None)
-    } else {
-        Err(mf.invalid(
-            span,
-            &format!("{field}.path"),
-            format!(
-                "{resolved} (set if_missing = \"{}\" to use the embedded defaults instead)",
-                substitute.name()
-            ),
-        ))
-    }
-}
-
-fn not_for(
-    mf: &ManifestFile,
-    span: &std::ops::Range<usize>,
-    field: &str,
-    source: &str,
-    present: &[(&str, bool)],
-) -> Result<(), ManifestError> {
-    for (name, set) in present {
-        if *set {
-            return Err(mf.invalid(
-                span.clone(),
-                &format!("{field}.{name}"),
-                format!("not used by source = \"{source}\""),
-            ));
-        }
-    }
-    Ok(())
-}
-
-/// `value`, or an error at `span` naming `FIELD.NAME` with `message` (why it is required).
-fn required<'a, T>(
-    mf: &ManifestFile,
-    span: &std::ops::Range<usize>,
-    field: &str,
-    name: &str,
-    value: Option<&'a T>,
-    message: &str,
-) -> Result<&'a T, ManifestError> {
-    value.ok_or_else(|| mf.invalid(span.clone(), &format!("{field}.{name}"), message))
-}
-
 /// The most procedural shapes or environments one manifest entry may generate: far beyond any
 /// dataset's need (the paper's has 520 shapes), and small enough that a mistyped count is an
 /// error rather than an attempt to allocate the machine's memory.
 pub const MAX_GENERATED: usize = 1_000_000;
 
-/// A `count`-like field of generated items, starting at seed `first`: 1..=[`MAX_GENERATED`], and
-/// the seeds must not run past 2⁶⁴.
-fn generated_count(
-    mf: &ManifestFile,
-    span: &std::ops::Range<usize>,
-    field: &str,
-    name: &str,
-    value: Option<&usize>,
-    first: u64,
-    message: &str,
-) -> Result<usize, ManifestError> {
-    let n = *required(mf, span, field, name, value, message)?;
-    if n == 0 || n > MAX_GENERATED {
-        return Err(mf.invalid(
-            span.clone(),
-            &format!("{field}.{name}"),
-            format!("{n}: must be 1 to {MAX_GENERATED}"),
-        ));
-    }
-    if first.checked_add(n as u64).is_none() {
-        return Err(mf.invalid(
-            span.clone(),
-            &format!("{field}.first_seed"),
-            format!("{first} + {n} seeds run past 2^64"),
-        ));
-    }
-    Ok(n)
+/// One source entry of the manifest being resolved: its text's span and its field name
+/// (`shapes[2]`), so that every error names the entry's file, line and field.
+struct Entry<'m> {
+    mf: &'m ManifestFile,
+    span: std::ops::Range<usize>,
+    field: String,
 }
 
-fn category(
-    mf: &ManifestFile,
-    span: std::ops::Range<usize>,
-    field: &str,
-    name: &str,
-) -> Result<Category, ManifestError> {
-    name.parse::<Category>().map_err(|e| mf.invalid(span, field, e))
+impl Entry<'_> {
+    /// An error at the entry naming `FIELD.NAME`.
+    fn invalid(&self, name: &str, message: impl Into<String>) -> ManifestError {
+        self.mf
+            .invalid(self.span.clone(), &format!("{}.{name}", self.field), message)
+    }
+
+    /// An error at the entry naming `FIELD` itself.
+    fn invalid_entry(&self, message: impl Into<String>) -> ManifestError {
+        self.mf.invalid(self.span.clone(), &self.field, message)
+    }
+
+    /// Refuses the first of `present`'s fields that is set: `source` does not use it.
+    fn not_for(&self, source: &str, present: &[(&str, bool)]) -> Result<(), ManifestError> {
+        match present.iter().find(|(_, set)| *set) {
+            Some((name, _)) => Err(self.invalid(name, format!("not used by source = \"{source}\""))),
+            None => Ok(()),
+        }
+    }
+
+    /// `value`, or an error naming `FIELD.NAME` with `message` (why it is required).
+    fn required<'a, T>(&self, name: &str, value: Option<&'a T>, message: &str) -> Result<&'a T, ManifestError> {
+        value.ok_or_else(|| self.invalid(name, message))
+    }
+
+    /// A `count`-like field of generated items, starting at seed `first`: 1..=[`MAX_GENERATED`],
+    /// and the seeds must not run past 2⁶⁴.
+    fn generated_count(
+        &self,
+        name: &str,
+        value: Option<&usize>,
+        first: u64,
+        message: &str,
+    ) -> Result<usize, ManifestError> {
+        let n = *self.required(name, value, message)?;
+        if n == 0 || n > MAX_GENERATED {
+            return Err(self.invalid(name, format!("{n}: must be 1 to {MAX_GENERATED}")));
+        }
+        if first.checked_add(n as u64).is_none() {
+            return Err(self.invalid("first_seed", format!("{first} + {n} seeds run past 2^64")));
+        }
+        Ok(n)
+    }
+
+    /// The category called `name`, written in the entry's field `NAME`.
+    fn category(&self, field: &str, name: &str) -> Result<Category, ManifestError> {
+        name.parse::<Category>().map_err(|e| {
+            self.mf
+                .invalid(self.span.clone(), &format!("{}.{field}", self.field), e)
+        })
+    }
+
+    /// Resolves the entry's `path`: `Ok(Some)` when it exists, `Ok(None)` when it is missing and
+    /// `if_missing` allows `substitute`, an error otherwise.
+    fn existing_path(
+        &self,
+        path: Option<&String>,
+        if_missing: Option<&Spanned<Choice<IfMissing>>>,
+        substitute: IfMissing,
+    ) -> Result<Option<PathBuf>, ManifestError> {
+        let Some(written) = path else {
+            return Err(self.invalid("path", "this source needs a path"));
+        };
+        let allowed = match if_missing {
+            None => false,
+            Some(value) => match self.mf.choice(value, &format!("{}.if_missing", self.field))? {
+                IfMissing::Error => false,
+                v if v == substitute => true,
+                other => {
+                    return Err(self.mf.invalid(
+                        value.span(),
+                        &format!("{}.if_missing", self.field),
+                        format!("{:?}: expected \"error\" or \"{}\"", other.name(), substitute.name()),
+                    ));
+                }
+            },
+        };
+        let resolved = match self.mf.resolve_path(written) {
+            Ok(p) if p.exists() => return Ok(Some(p)),
+            Ok(p) => format!("{} does not exist", p.display()),
+            Err(e) => e,
+        };
+        if allowed {
+            Ok(None)
+        } else {
+            Err(self.invalid(
+                "path",
+                format!(
+                    "{resolved} (set if_missing = \"{}\" to use the embedded defaults instead)",
+                    substitute.name()
+                ),
+            ))
+        }
+    }
+
+    /// The files of `dir` ending in `suffix` (an unreadable folder is an error at `path`).
+    fn files_with(&self, dir: &Path, suffix: &str) -> Result<Vec<PathBuf>, ManifestError> {
+        files_with(dir, suffix).map_err(|e| self.invalid("path", format!("{}: {e}", dir.display())))
+    }
+
+    /// The entry's `fallback_count` once its path is missing and a substitute is allowed.
+    fn fallback_count(&self, value: Option<&usize>) -> Result<usize, ManifestError> {
+        self.generated_count("fallback_count", value, 0, "required with if_missing = \"procedural\"")
+    }
 }
 
 fn shapes_of(
@@ -288,11 +287,14 @@ fn shapes_of(
     i: usize,
     entry: &Spanned<ShapeSourceToml>,
 ) -> Result<(), ManifestError> {
-    let span = entry.span();
     let s = entry.get_ref();
-    let field = format!("shapes[{i}]");
+    let e = Entry {
+        mf,
+        span: entry.span(),
+        field: format!("shapes[{i}]"),
+    };
     let up = match &s.up {
-        Some(u) => mf.choice(u, &format!("{field}.up"))?,
+        Some(u) => mf.choice(u, &format!("{}.up", e.field))?,
         None => UpAxis::PosY,
     };
     let procedural = |cat: &mut Catalogue, c: Category, first: u64, count: usize| {
@@ -309,14 +311,10 @@ fn shapes_of(
             });
         }
     };
-    let kind = mf.choice(&s.source, &format!("{field}.source"))?;
-    let source = kind.name();
+    let kind = mf.choice(&s.source, &format!("{}.source", e.field))?;
     match kind {
         ShapeSource::Procedural => {
-            not_for(
-                mf,
-                &span,
-                &field,
+            e.not_for(
                 "procedural",
                 &[
                     ("path", s.path.is_some()),
@@ -325,63 +323,49 @@ fn shapes_of(
                     ("fallback_count", s.fallback_count.is_some()),
                 ],
             )?;
-            let name = required(mf, &span, &field, "category", s.category.as_ref(), "required")?;
-            let c = category(mf, span.clone(), &format!("{field}.category"), name)?;
+            let c = e.category("category", e.required("category", s.category.as_ref(), "required")?)?;
             let first = s.first_seed.unwrap_or(0);
-            let count = generated_count(mf, &span, &field, "count", s.count.as_ref(), first, "required")?;
+            let count = e.generated_count("count", s.count.as_ref(), first, "required")?;
             procedural(cat, c, first, count);
         }
         ShapeSource::Folder | ShapeSource::Shapenet => {
-            not_for(
-                mf,
-                &span,
-                &field,
-                source,
+            e.not_for(
+                kind.name(),
                 &[("count", s.count.is_some()), ("first_seed", s.first_seed.is_some())],
             )?;
             let cats: Vec<Category> = if kind == ShapeSource::Folder {
-                not_for(mf, &span, &field, "folder", &[("categories", s.categories.is_some())])?;
-                let name = required(
-                    mf,
-                    &span,
-                    &field,
+                e.not_for("folder", &[("categories", s.categories.is_some())])?;
+                let name = e.required(
                     "category",
                     s.category.as_ref(),
                     "required: the split counts shapes per category",
                 )?;
-                vec![category(mf, span.clone(), &format!("{field}.category"), name)?]
+                vec![e.category("category", name)?]
             } else {
-                not_for(mf, &span, &field, "shapenet", &[("category", s.category.is_some())])?;
+                e.not_for("shapenet", &[("category", s.category.is_some())])?;
                 match &s.categories {
                     Some(list) => list
                         .iter()
-                        .map(|n| category(mf, span.clone(), &format!("{field}.categories"), n))
+                        .map(|n| e.category("categories", n))
                         .collect::<Result<_, _>>()?,
                     None => Category::ALL.to_vec(),
                 }
             };
-            match existing_path(
-                mf,
-                span.clone(),
-                &field,
-                s.path.as_ref(),
-                s.if_missing.as_ref(),
-                IfMissing::Procedural,
-            )? {
+            match e.existing_path(s.path.as_ref(), s.if_missing.as_ref(), IfMissing::Procedural)? {
                 Some(path) => {
                     let found = if kind == ShapeSource::Folder {
                         sources::folder(&path, Some(cats[0]))
                     } else {
                         sources::shapenet(&path, &cats)
                     }
-                    .map_err(|e| mf.invalid(span.clone(), &format!("{field}.path"), format!("{e:#}")))?;
-                    for e in found {
-                        let category = e.category.map(|c| c.name()).unwrap_or("uncategorised");
+                    .map_err(|err| e.invalid("path", format!("{err:#}")))?;
+                    for f in found {
+                        let category = f.category.map(|c| c.name()).unwrap_or("uncategorised");
                         cat.shapes.push(ShapeItem {
-                            group: e.id.clone(),
-                            id: e.id,
+                            group: f.id.clone(),
+                            id: f.id,
                             category: category.into(),
-                            spec: e.spec,
+                            spec: f.spec,
                             up,
                             fingerprint: String::new(),
                             entry: i,
@@ -390,20 +374,13 @@ fn shapes_of(
                     }
                 }
                 None => {
-                    let n = generated_count(
-                        mf,
-                        &span,
-                        &field,
-                        "fallback_count",
-                        s.fallback_count.as_ref(),
-                        0,
-                        "required with if_missing = \"procedural\"",
-                    )?;
+                    let n = e.fallback_count(s.fallback_count.as_ref())?;
                     for c in &cats {
                         procedural(cat, *c, 0, n);
                     }
                     cat.substitutions.push(format!(
-                        "{field}: {} is missing; using {n} procedural shapes per category ({})",
+                        "{}: {} is missing; using {n} procedural shapes per category ({})",
+                        e.field,
                         s.path.as_deref().unwrap_or(""),
                         cats.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ")
                     ));
@@ -493,30 +470,25 @@ fn materials_of(
     i: usize,
     entry: &Spanned<MaterialSourceToml>,
 ) -> Result<(), ManifestError> {
-    let span = entry.span();
     let s = entry.get_ref();
-    let field = format!("materials[{i}]");
-    let kind = mf.choice(&s.source, &format!("{field}.source"))?;
-    let source = kind.name();
+    let e = Entry {
+        mf,
+        span: entry.span(),
+        field: format!("materials[{i}]"),
+    };
+    let kind = mf.choice(&s.source, &format!("{}.source", e.field))?;
     match kind {
         MaterialSourceName::Library => {
-            not_for(
-                mf,
-                &span,
-                &field,
+            e.not_for(
                 "library",
                 &[("path", s.path.is_some()), ("if_missing", s.if_missing.is_some())],
             )?;
-            let items = library_items(s.names.as_ref(), s.families.as_ref())
-                .map_err(|e| mf.invalid(span.clone(), &format!("{field}.names"), e))?;
+            let items = library_items(s.names.as_ref(), s.families.as_ref()).map_err(|err| e.invalid("names", err))?;
             cat.materials.extend(items);
         }
         MaterialSourceName::Dsbrdf | MaterialSourceName::Merl | MaterialSourceName::Nbrdf => {
-            not_for(
-                mf,
-                &span,
-                &field,
-                source,
+            e.not_for(
+                kind.name(),
                 &[("names", s.names.is_some()), ("families", s.families.is_some())],
             )?;
             let suffix = match kind {
@@ -524,28 +496,11 @@ fn materials_of(
                 MaterialSourceName::Nbrdf => ".nbrdf.json",
                 _ => ".binary",
             };
-            match existing_path(
-                mf,
-                span.clone(),
-                &field,
-                s.path.as_ref(),
-                s.if_missing.as_ref(),
-                IfMissing::Library,
-            )? {
+            match e.existing_path(s.path.as_ref(), s.if_missing.as_ref(), IfMissing::Library)? {
                 Some(path) => {
-                    let files = files_with(&path, suffix).map_err(|e| {
-                        mf.invalid(
-                            span.clone(),
-                            &format!("{field}.path"),
-                            format!("{}: {e}", path.display()),
-                        )
-                    })?;
+                    let files = e.files_with(&path, suffix)?;
                     if files.is_empty() {
-                        return Err(mf.invalid(
-                            span,
-                            &format!("{field}.path"),
-                            format!("{} holds no *{suffix} file", path.display()),
-                        ));
+                        return Err(e.invalid("path", format!("{} holds no *{suffix} file", path.display())));
                     }
                     for f in files {
                         let name = stem(&f, suffix);
@@ -572,9 +527,10 @@ fn materials_of(
                     }
                 }
                 None => {
-                    let items = library_items(None, None).map_err(|e| mf.invalid(span.clone(), &field, e))?;
+                    let items = library_items(None, None).map_err(|err| e.invalid_entry(err))?;
                     cat.substitutions.push(format!(
-                        "{field}: {} is missing; using the {} library materials",
+                        "{}: {} is missing; using the {} library materials",
+                        e.field,
                         s.path.as_deref().unwrap_or(""),
                         items.len()
                     ));
@@ -620,17 +576,16 @@ fn envs_of(
     i: usize,
     entry: &Spanned<EnvSourceToml>,
 ) -> Result<(), ManifestError> {
-    let span = entry.span();
     let s = entry.get_ref();
-    let field = format!("environments[{i}]");
-    let kind = mf.choice(&s.source, &format!("{field}.source"))?;
-    let source = kind.name();
+    let e = Entry {
+        mf,
+        span: entry.span(),
+        field: format!("environments[{i}]"),
+    };
+    let kind = mf.choice(&s.source, &format!("{}.source", e.field))?;
     match kind {
         EnvSource::Procedural => {
-            not_for(
-                mf,
-                &span,
-                &field,
+            e.not_for(
                 "procedural",
                 &[
                     ("path", s.path.is_some()),
@@ -638,64 +593,42 @@ fn envs_of(
                     ("fallback_count", s.fallback_count.is_some()),
                 ],
             )?;
-            let family = required(mf, &span, &field, "family", s.family.as_ref(), "required")?;
+            let family = e.required("family", s.family.as_ref(), "required")?;
             let first = s.first_seed.unwrap_or(0);
-            let count = generated_count(mf, &span, &field, "count", s.count.as_ref(), first, "required")?;
-            let items = procedural_envs(family, first, count)
-                .map_err(|e| mf.invalid(span.clone(), &format!("{field}.family"), e))?;
+            let count = e.generated_count("count", s.count.as_ref(), first, "required")?;
+            let items = procedural_envs(family, first, count).map_err(|err| e.invalid("family", err))?;
             cat.envs.extend(items);
         }
         EnvSource::File | EnvSource::Folder => {
-            not_for(
-                mf,
-                &span,
-                &field,
-                source,
+            e.not_for(
+                kind.name(),
                 &[
                     ("family", s.family.is_some()),
                     ("count", s.count.is_some()),
                     ("first_seed", s.first_seed.is_some()),
                 ],
             )?;
-            match existing_path(
-                mf,
-                span.clone(),
-                &field,
-                s.path.as_ref(),
-                s.if_missing.as_ref(),
-                IfMissing::Procedural,
-            )? {
+            match e.existing_path(s.path.as_ref(), s.if_missing.as_ref(), IfMissing::Procedural)? {
                 Some(path) => {
                     let mut files = Vec::new();
                     if path.is_file() {
                         files.push(path.clone());
                     } else {
                         for ext in [".hdr", ".exr"] {
-                            files.extend(files_with(&path, ext).map_err(|e| {
-                                mf.invalid(
-                                    span.clone(),
-                                    &format!("{field}.path"),
-                                    format!("{}: {e}", path.display()),
-                                )
-                            })?);
+                            files.extend(e.files_with(&path, ext)?);
                         }
                     }
                     if files.is_empty() {
-                        return Err(mf.invalid(
-                            span,
-                            &format!("{field}.path"),
-                            format!("{} holds no .hdr or .exr file", path.display()),
-                        ));
+                        return Err(e.invalid("path", format!("{} holds no .hdr or .exr file", path.display())));
                     }
                     for f in files {
                         let ext_ok = f
                             .extension()
-                            .and_then(|e| e.to_str())
-                            .is_some_and(|e| e.eq_ignore_ascii_case("hdr") || e.eq_ignore_ascii_case("exr"));
+                            .and_then(|x| x.to_str())
+                            .is_some_and(|x| x.eq_ignore_ascii_case("hdr") || x.eq_ignore_ascii_case("exr"));
                         if !ext_ok {
-                            return Err(mf.invalid(
-                                span,
-                                &format!("{field}.path"),
+                            return Err(e.invalid(
+                                "path",
                                 format!("{}: environment maps must be .hdr or .exr", f.display()),
                             ));
                         }
@@ -703,9 +636,10 @@ fn envs_of(
                             .file_name()
                             .map(|n| n.to_string_lossy().into_owned())
                             .unwrap_or_default();
-                        let spec = f.to_str().map(str::to_string).ok_or_else(|| {
-                            mf.invalid(span.clone(), &format!("{field}.path"), "path is not valid UTF-8")
-                        })?;
+                        let spec = f
+                            .to_str()
+                            .map(str::to_string)
+                            .ok_or_else(|| e.invalid("path", "path is not valid UTF-8"))?;
                         let id = format!("file:{name}");
                         cat.envs.push(EnvItem {
                             group: id.clone(),
@@ -717,18 +651,11 @@ fn envs_of(
                     }
                 }
                 None => {
-                    let n = generated_count(
-                        mf,
-                        &span,
-                        &field,
-                        "fallback_count",
-                        s.fallback_count.as_ref(),
-                        0,
-                        "required with if_missing = \"procedural\"",
-                    )?;
-                    let items = procedural_envs("all", 0, n).map_err(|e| mf.invalid(span.clone(), &field, e))?;
+                    let n = e.fallback_count(s.fallback_count.as_ref())?;
+                    let items = procedural_envs("all", 0, n).map_err(|err| e.invalid_entry(err))?;
                     cat.substitutions.push(format!(
-                        "{field}: {} is missing; using {} procedural environments",
+                        "{}: {} is missing; using {} procedural environments",
+                        e.field,
                         s.path.as_deref().unwrap_or(""),
                         items.len()
                     ));

@@ -27,7 +27,7 @@
 //!   than [`NEAR_DUPLICATE_L1`] in L1 (total variation, 0 to 2) are near-duplicates. Random
 //!   vertex jitter of 0.1 % of the radius moves the descriptor by at most 0.006 (0.3 %: 0.03) on
 //!   the procedural shapes; the closest two of 100 procedural shapes of one category are 0.067
-//!   apart (monitors; cars 0.12, sofas 0.14, chairs 0.21; `tests/split_content.rs`). Merging two
+//!   apart (monitors; cars 0.12, sofas 0.14, chairs 0.21; `tests/split_content/`). Merging two
 //!   genuinely different but very similar shapes costs the deal one choice, never a leak.
 //! * **Materials**: library materials from their analytic parameters (model and f64 bits),
 //!   DSBRDF files from their 108 parameters (f64 bits, so formatting and key order do not matter),

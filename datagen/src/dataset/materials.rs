@@ -2,16 +2,15 @@
 //! labels m and m_t) and as the BRDF that renders it (the ground truth the manifest chose).
 //!
 //! Fits are stored in `DIR/materials/` (`ID.dsbrdf.json` plus `ID.fit.json` with the source
-//! fingerprint), so a resumed or repeated run fits nothing twice, and the dataset carries its
+//! fingerprint, the assets' stored-fit format), so a resumed or repeated run fits nothing twice, and the dataset carries its
 //! own labels. Fitting is deterministic (sequential Levenberg–Marquardt per material), so the
 //! same manifest gives the same labels on any machine and thread count.
 
 use super::catalogue::{MaterialItem, MaterialSource};
 use super::manifest::GroundTruth;
 use anyhow::{Context, Result};
-use matedit_assets::materials::cache::FIT_VERSION;
+use matedit_assets::materials::cache::{FIT_VERSION, Fingerprinted, store_fit, stored_fit};
 use matedit_assets::materials::fit::fit_dsbrdf;
-use matedit_contract::io::write_atomically;
 use matedit_physics::BrdfModel;
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::brdf::{MerlBrdf, NeuralBrdf};
@@ -41,6 +40,12 @@ struct FitStamp {
     id: String,
     fingerprint: String,
     brdf_log_rmse: f64,
+}
+
+impl Fingerprinted for FitStamp {
+    fn fingerprint(&self) -> &str {
+        &self.fingerprint
+    }
 }
 
 /// File-name form of an id (`library:gold-brushed` → `library_gold-brushed`).
@@ -89,26 +94,14 @@ pub fn peek_render(dir: &Path, item: &MaterialItem, truth: GroundTruth) -> Optio
     if truth == GroundTruth::Measured || matches!(item.source, MaterialSource::Dsbrdf(_)) {
         return source_model(item).ok();
     }
-    let stem = file_stem(&item.id);
-    let stamp: FitStamp =
-        serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{stem}.fit.json"))).ok()?).ok()?;
-    if stamp.fingerprint != fingerprint(item) {
-        return None;
-    }
-    let m = Dsbrdf::load(&dir.join(format!("{stem}.dsbrdf.json"))).ok()?;
+    let (m, _) = stored_fit::<FitStamp>(dir, &file_stem(&item.id), &fingerprint(item))?;
     Some(BrdfModel::Dsbrdf(Box::new(m)))
 }
 
 fn prepare(dir: &Path, item: &MaterialItem, truth: GroundTruth) -> Result<MaterialEntry> {
     let stem = file_stem(&item.id);
-    let mat_path = dir.join(format!("{stem}.dsbrdf.json"));
-    let stamp_path = dir.join(format!("{stem}.fit.json"));
     let fp = fingerprint(item);
-    let cached = std::fs::read_to_string(&stamp_path)
-        .ok()
-        .and_then(|t| serde_json::from_str::<FitStamp>(&t).ok())
-        .filter(|s| s.fingerprint == fp)
-        .and_then(|s| Dsbrdf::load(&mat_path).ok().map(|m| (m, s.brdf_log_rmse)));
+    let cached = stored_fit::<FitStamp>(dir, &stem, &fp).map(|(m, s)| (m, s.brdf_log_rmse));
     let source = source_model(item)?;
     let (dsbrdf, err) = match cached {
         Some(c) => c,
@@ -117,14 +110,12 @@ fn prepare(dir: &Path, item: &MaterialItem, truth: GroundTruth) -> Result<Materi
                 (MaterialSource::Dsbrdf(_), BrdfModel::Dsbrdf(m)) => ((**m).clone(), 0.0),
                 _ => fit_dsbrdf(&source),
             };
-            write_atomically(&mat_path, |t| Ok(std::fs::write(t, m.to_json())?))?;
             let stamp = FitStamp {
                 id: item.id.clone(),
                 fingerprint: fp,
                 brdf_log_rmse: err,
             };
-            let json = serde_json::to_string_pretty(&stamp)?;
-            write_atomically(&stamp_path, |t| Ok(std::fs::write(t, json)?))?;
+            store_fit(dir, &stem, &m, &stamp)?;
             (m, err)
         }
     };

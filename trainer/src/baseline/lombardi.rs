@@ -30,9 +30,8 @@
 //! * **Choice (solver).** The original alternates reflectance and illumination updates; here
 //!   L-BFGS on m* then on L* (the machinery of Eq. 6, [`alternate`]) for `rounds` rounds.
 
-use crate::post_optimisation::{
-    Eq6Config, LightPrior, MaterialPrior, Optimised, Point, Priors, Problem, Property, alternate,
-};
+use crate::model::prediction::Prediction;
+use crate::post_optimisation::{Eq6Config, LightPrior, MaterialPrior, Optimised, Priors, Problem, Property, alternate};
 use crate::render::{Batch, RenderingLayer};
 use anyhow::{Result, bail};
 use matedit_physics::brdf::dsbrdf::PARAMS;
@@ -160,7 +159,7 @@ pub struct Observed<'a> {
 }
 
 /// The uninformed start: μ in every region and the constant light c·1 that best explains I.
-pub fn uninformed_start(layer: &RenderingLayer, o: &Observed, prior: &ReflectancePrior) -> Result<Point> {
+pub fn uninformed_start(layer: &RenderingLayer, o: &Observed, prior: &ReflectancePrior) -> Result<Prediction> {
     let he = layer.texels().height();
     let texels = 6 * he * he;
     let materials: Vec<f32> = (0..o.regions)
@@ -192,7 +191,7 @@ pub fn uninformed_start(layer: &RenderingLayer, o: &Observed, prior: &Reflectanc
     } else {
         1.0
     };
-    Ok(Point {
+    Ok(Prediction {
         normals: o.normals.to_vec(),
         materials,
         env: vec![c as f32; texels],
@@ -408,7 +407,7 @@ mod tests {
                 }),
             },
         };
-        let base = Point {
+        let base = Prediction {
             normals: hb.normals.clone(),
             materials: hb.materials.clone(),
             env: hb.env.clone(),

@@ -1,12 +1,12 @@
-//! Samples stacked into channel-first batch buffers (the layout of `train::batch::HostBatch`).
+//! Samples stacked into channel-first batch buffers: Fig. 2's tuple for B samples in host memory,
+//! what training, evaluation and the benchmarks take (`train::batch` puts it on a device).
 
 use super::sample::Sample;
 use anyhow::{Result, bail};
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use std::path::PathBuf;
 
-/// A batch of B samples, stacked channel-first. Field names and layouts match the trainer's
-/// `HostBatch`, so converting is a field-by-field move.
+/// A batch of B samples, stacked channel-first.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Batch {
     /// Samples B.

@@ -5,9 +5,9 @@ use super::report::{CheckpointEval, LombardiEval};
 use super::score::score_batch;
 use super::{I_PRIME, O_PRIME};
 use crate::baseline::lombardi::{self, LombardiConfig, ReflectancePrior};
+use crate::data;
 use crate::render::op::host;
 use crate::render::{Batch, RenderingLayer};
-use crate::train::batch::HostBatch;
 use anyhow::{Result, bail};
 use matedit_physics::brdf::dsbrdf::PARAMS;
 
@@ -16,15 +16,16 @@ use matedit_physics::brdf::dsbrdf::PARAMS;
 /// seconds] summed over the samples.
 pub(super) fn eq6_batch(
     layer: &RenderingLayer,
-    hb: &HostBatch,
+    hb: &data::Batch,
     n_p: &[f32],
     m_p: &[f32],
     l_p: &[f32],
     cfg: &crate::post_optimisation::Eq6Config,
-) -> Result<(crate::post_optimisation::Point, [f64; 3])> {
-    use crate::post_optimisation::{Point, Priors, Problem, post_optimise};
+) -> Result<(crate::model::prediction::Prediction, [f64; 3])> {
+    use crate::model::prediction::Prediction;
+    use crate::post_optimisation::{Problem, post_optimise};
     let (p, t, r) = (hb.size * hb.size, 6 * hb.env_height * hb.env_height, hb.regions);
-    let mut out = Point {
+    let mut out = Prediction {
         normals: Vec::with_capacity(n_p.len()),
         materials: Vec::with_capacity(m_p.len()),
         env: Vec::with_capacity(l_p.len()),
@@ -32,23 +33,21 @@ pub(super) fn eq6_batch(
     let mut energy = [0.0; 3];
     for k in 0..hb.batch {
         let t0 = std::time::Instant::now();
-        let start = Point {
+        let start = Prediction {
             normals: n_p[k * 3 * p..(k + 1) * 3 * p].to_vec(),
             materials: m_p[k * r * PARAMS..(k + 1) * r * PARAMS].to_vec(),
             env: l_p[k * t..(k + 1) * t].to_vec(),
         };
-        let problem = Problem {
+        let problem = Problem::eq6(
             layer,
-            size: hb.size,
-            regions: r,
-            image: &hb.input[k * 3 * p..(k + 1) * 3 * p],
-            region_map: &hb.region_map[k * p..(k + 1) * p],
-            normals: &start.normals,
-            env: &start.env,
-            a: cfg.a,
-            b: cfg.b,
-            priors: Priors::NONE,
-        };
+            hb.size,
+            r,
+            &hb.input[k * 3 * p..(k + 1) * 3 * p],
+            &hb.region_map[k * p..(k + 1) * p],
+            &start,
+            cfg.a,
+            cfg.b,
+        );
         let res = post_optimise(&problem, start.clone(), cfg)?;
         energy[0] += res.start.total;
         energy[1] += res.end.total;
@@ -66,7 +65,7 @@ pub(super) fn eq6_batch(
 pub(super) fn encoder_decoder_batch(
     ed: &crate::model::encoder_decoder::EncoderDecoder,
     layer: &RenderingLayer,
-    hb: &HostBatch,
+    hb: &data::Batch,
     tb: crate::train::batch::TensorBatch,
     row: &mut CheckpointEval,
 ) -> Result<Vec<f32>> {
@@ -103,7 +102,7 @@ pub(super) fn encoder_decoder_batch(
 /// The Lombardi-style optimiser on every sample of a batch, scored into `row`; its O'.
 pub(super) fn lombardi_batch(
     layer: &RenderingLayer,
-    hb: &HostBatch,
+    hb: &data::Batch,
     prior: &ReflectancePrior,
     cfg: &LombardiConfig,
     row: &mut LombardiEval,

@@ -20,10 +20,10 @@ use super::report::{CheckpointEval, EvalReport, LombardiEval};
 use super::score::score_batch;
 use super::{I_PRIME, Metrics, O_PRIME};
 use crate::baseline::lombardi::{LombardiConfig, ReflectancePrior};
+use crate::data;
 use crate::data::{Dataset, Loader, LoaderConfig};
 use crate::render::op::host;
 use crate::render::{Batch, RenderingLayer};
-use crate::train::batch::HostBatch;
 use crate::train::checkpoint;
 use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
@@ -203,7 +203,7 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
         if seen >= limit {
             break;
         }
-        let mut hb = HostBatch::from(batch?);
+        let mut hb = batch?;
         let keep = (limit - seen).min(hb.batch);
         truncate(&mut hb, keep);
         for (_, state) in &nets {
@@ -358,13 +358,15 @@ pub fn methods_sheet_path(sheet: &Path) -> PathBuf {
 }
 
 /// Keeps the first `keep` samples of a batch.
-fn truncate(hb: &mut HostBatch, keep: usize) {
+fn truncate(hb: &mut data::Batch, keep: usize) {
     if keep >= hb.batch {
         return;
     }
     let (p, t, r) = (hb.size * hb.size, 2 * hb.env_height * hb.env_height, hb.regions);
     hb.batch = keep;
     hb.ids.truncate(keep);
+    hb.positions.truncate(keep);
+    hb.region_counts.truncate(keep);
     for v in [&mut hb.input, &mut hb.target, &mut hb.normals] {
         v.truncate(keep * 3 * p);
     }

@@ -2,14 +2,14 @@
 //! predicted normals and materials where given.
 
 use super::{Metrics, Pair, Sample};
-use crate::train::batch::HostBatch;
+use crate::data;
 use matedit_physics::brdf::dsbrdf::PARAMS;
 
 /// Scores the images of a batch (`(name, prediction, truth)`, all `[B, 3, S, S]`) and, when
 /// given, predicted normals `[B, 3, S, S]` and materials `[B, R, 108]` (regions present only:
 /// padded slots repeat the last material).
 pub(super) fn score_batch(
-    hb: &HostBatch,
+    hb: &data::Batch,
     images: &[(&str, &[f32], &[f32])],
     normals: Option<&[f32]>,
     materials: Option<&[f32]>,

@@ -21,6 +21,7 @@ pub mod illumination;
 pub mod material;
 pub mod network;
 pub mod normal;
+pub mod prediction;
 pub mod vgg16;
 
 use burn::config::Config;

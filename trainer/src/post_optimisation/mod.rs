@@ -27,6 +27,7 @@ pub use parametrised::Parametrised;
 use parametrised::{Lent, Recorder};
 pub use priors::{LightPrior, MaterialPrior, Priors};
 
+use crate::model::prediction::Prediction;
 use crate::render::{Batch, RenderingLayer, Wanted};
 use anyhow::{Result, anyhow};
 use argmin::core::Executor;
@@ -169,19 +170,38 @@ pub struct Problem<'a> {
     pub priors: Priors<'a>,
 }
 
-/// A point: n*, m*, L* in the layer's layouts.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Point {
-    /// `[3, S, S]`.
-    pub normals: Vec<f32>,
-    /// `[R, 108]`.
-    pub materials: Vec<f32>,
-    /// `[3, He, 2He]`.
-    pub env: Vec<f32>,
+impl<'a> Problem<'a> {
+    /// Eq. 6 as the paper states it, around the network's `prediction` of `image` (`[3, S, S]`,
+    /// with its `[S, S]` region map): the image term, the normal prior towards n' with weight
+    /// `a`, the light prior towards L' with weight `b`, no other prior.
+    #[allow(clippy::too_many_arguments)]
+    pub fn eq6(
+        layer: &'a RenderingLayer,
+        size: usize,
+        regions: usize,
+        image: &'a [f32],
+        region_map: &'a [u8],
+        prediction: &'a Prediction,
+        a: f64,
+        b: f64,
+    ) -> Self {
+        Self {
+            layer,
+            size,
+            regions,
+            image,
+            region_map,
+            normals: &prediction.normals,
+            env: &prediction.env,
+            a,
+            b,
+            priors: Priors::NONE,
+        }
+    }
 }
 
 /// ∂E/∂(n*, m*, L*).
-pub struct PointGradient {
+pub struct PredictionGradient {
     /// `[3, S, S]`.
     pub normals: Vec<f64>,
     /// `[R, 108]`.
@@ -201,7 +221,7 @@ impl Problem<'_> {
         self.region_map[k] > 0 && (0..3).all(|c| self.image[c * p + k].is_finite())
     }
 
-    fn batch<'b>(&'b self, x: &'b Point) -> Batch<'b> {
+    fn batch<'b>(&'b self, x: &'b Prediction) -> Batch<'b> {
         Batch {
             batch: 1,
             size: (self.size, self.size),
@@ -214,12 +234,12 @@ impl Problem<'_> {
     }
 
     /// E at `x`, and its gradient when `grad`.
-    pub fn energy(&self, x: &Point, grad: bool) -> Result<(Energy, Option<PointGradient>)> {
+    pub fn energy(&self, x: &Prediction, grad: bool) -> Result<(Energy, Option<PredictionGradient>)> {
         self.energy_wanted(x, grad.then_some(Wanted::ALL))
     }
 
     /// E at `x`, and the parts of its gradient `want` names (the others zero).
-    pub fn energy_wanted(&self, x: &Point, want: Option<Wanted>) -> Result<(Energy, Option<PointGradient>)> {
+    pub fn energy_wanted(&self, x: &Prediction, want: Option<Wanted>) -> Result<(Energy, Option<PredictionGradient>)> {
         let p = self.pixels();
         let rendered = self.layer.forward(&self.batch(x))?;
         let mut upstream = vec![0.0_f32; 3 * p];
@@ -282,7 +302,7 @@ impl Problem<'_> {
         }
         Ok((
             e,
-            Some(PointGradient {
+            Some(PredictionGradient {
                 normals: gn,
                 materials: gm,
                 env: gl,
@@ -294,7 +314,7 @@ impl Problem<'_> {
 /// The result of [`post_optimise`].
 pub struct Optimised {
     /// The final n*, m*, L*.
-    pub point: Point,
+    pub point: Prediction,
     /// E at the start (the network's prediction).
     pub start: Energy,
     /// E at the end.
@@ -308,7 +328,7 @@ pub struct Optimised {
 }
 
 /// Eq. 6 from `start` (the network's prediction, whose n' and L' are also `problem`'s priors).
-pub fn post_optimise(problem: &Problem, start: Point, cfg: &Eq6Config) -> Result<Optimised> {
+pub fn post_optimise(problem: &Problem, start: Prediction, cfg: &Eq6Config) -> Result<Optimised> {
     post_optimise_watched(problem, start, cfg, None)
 }
 
@@ -316,7 +336,7 @@ pub fn post_optimise(problem: &Problem, start: Point, cfg: &Eq6Config) -> Result
 /// [`Cancelled`] when it cancels.
 pub fn post_optimise_watched(
     problem: &Problem,
-    start: Point,
+    start: Prediction,
     cfg: &Eq6Config,
     watcher: Option<&Arc<Progress>>,
 ) -> Result<Optimised> {
@@ -344,7 +364,7 @@ pub const ORDER: [Property; 3] = [Property::Light, Property::Material, Property:
 /// evaluations), the whole image's with the two or three it needs here.
 pub fn coarse_to_fine(
     problem: &Problem,
-    start: Point,
+    start: Prediction,
     cfg: &Eq6Config,
     stride: usize,
     watcher: Option<&Arc<Progress>>,
@@ -386,7 +406,7 @@ pub fn coarse_to_fine(
         b: scaled(problem.b),
         priors,
     };
-    let coarse_start = Point {
+    let coarse_start = Prediction {
         normals: sub(&start.normals, 3),
         materials: start.materials.clone(),
         env: start.env.clone(),
@@ -436,7 +456,7 @@ pub fn coarse_to_fine(
     let mut evaluations = r.evaluations + 1;
     for normals in [normals, best.0.normals.clone()] {
         evaluations += 1;
-        let candidate = Point {
+        let candidate = Prediction {
             normals,
             materials: r.point.materials.clone(),
             env: r.point.env.clone(),
@@ -476,7 +496,7 @@ pub fn coarse_to_fine(
 /// by L-BFGS, for `cfg.rounds` rounds; `watcher` sees every iteration's energy and may cancel.
 pub fn alternate(
     problem: &Problem,
-    start: Point,
+    start: Prediction,
     cfg: &Eq6Config,
     properties: &[Property],
     watcher: Option<&Arc<Progress>>,
@@ -488,7 +508,7 @@ pub fn alternate(
 /// and the watcher's energies are multiplied by stride², the whole image's units.
 fn alternate_on_subset(
     problem: &Problem,
-    start: Point,
+    start: Prediction,
     cfg: &Eq6Config,
     properties: &[Property],
     watcher: Option<&Arc<Progress>>,

@@ -3,7 +3,8 @@
 //! budget and the adaptors argmin runs.
 
 use super::progress::{Cancelled, Progress};
-use super::{Energy, Point, Problem, Property};
+use super::{Energy, Problem, Property};
+use crate::model::prediction::Prediction;
 use crate::render::Wanted;
 use anyhow::{Result, anyhow};
 use argmin::core::observers::Observe;
@@ -24,7 +25,7 @@ pub struct Parametrised<'a> {
     pub(super) problem: &'a Problem<'a>,
     property: Property,
     /// The point, of which `property` is replaced.
-    base: Point,
+    base: Prediction,
     /// (param, energy, gradient) of the last evaluation: L-BFGS asks for cost and gradient
     /// separately, one forward and backward gives both.
     cache: RefCell<Option<Evaluated>>,
@@ -44,7 +45,7 @@ struct OutOfBudget;
 
 impl<'a> Parametrised<'a> {
     /// Parameters of `property` at `x`.
-    pub fn new(problem: &'a Problem<'a>, property: Property, x: Point) -> Self {
+    pub fn new(problem: &'a Problem<'a>, property: Property, x: Prediction) -> Self {
         Self {
             problem,
             property,
@@ -71,7 +72,7 @@ impl<'a> Parametrised<'a> {
     }
 
     /// The point at parameters `q`.
-    pub fn point(&self, q: &[f64]) -> Point {
+    pub fn point(&self, q: &[f64]) -> Prediction {
         let mut x = self.base.clone();
         match self.property {
             Property::Normals => {

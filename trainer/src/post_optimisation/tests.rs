@@ -41,7 +41,7 @@ struct Scene {
     layer: RenderingLayer,
     image: Vec<f32>,
     region_map: Vec<u8>,
-    truth: Point,
+    truth: Prediction,
     size: usize,
 }
 
@@ -56,7 +56,7 @@ fn sphere_scene(size: usize, seed: u64) -> Scene {
     Scene {
         image: hb.input.clone(),
         region_map: hb.region_map.clone(),
-        truth: Point {
+        truth: Prediction {
             normals: hb.normals.clone(),
             materials: hb.materials.clone(),
             env: hb.env.clone(),
@@ -66,7 +66,7 @@ fn sphere_scene(size: usize, seed: u64) -> Scene {
     }
 }
 
-fn problem<'a>(s: &'a Scene, image: &'a [f32], prior: &'a Point) -> Problem<'a> {
+fn problem<'a>(s: &'a Scene, image: &'a [f32], prior: &'a Prediction) -> Problem<'a> {
     Problem {
         layer: &s.layer,
         size: s.size,
@@ -137,7 +137,7 @@ fn an_l_bfgs_run_stops_at_its_evaluation_budget_and_keeps_its_lowest_point() {
 }
 
 /// A sphere of `size`² under a small sky, its material, light and normals perturbed.
-fn perturbed(size: usize, seed: u64) -> (Scene, Point) {
+fn perturbed(size: usize, seed: u64) -> (Scene, Prediction) {
     let s = sphere_scene(size, seed);
     let mut start = s.truth.clone();
     for (k, v) in start.materials.iter_mut().enumerate() {
@@ -363,7 +363,7 @@ fn eq6_stays_at_the_truth_and_moves_back_towards_it_from_a_perturbed_material() 
             .sqrt()
     };
     // The rendered image, not the 108 parameters, is what Eq. 6 sees; its error falls.
-    let img = |x: &Point| pr.energy(x, false).unwrap().0.image;
+    let img = |x: &Prediction| pr.energy(x, false).unwrap().0.image;
     assert!(img(&r.point) < 0.5 * img(&start));
     assert!(
         err(&r.point.materials) <= err(&start.materials),

@@ -1,38 +1,10 @@
-//! A training batch in host memory and on a Burn device.
+//! A training batch on a Burn device. The batch in host memory is the data pipeline's
+//! [`Batch`](crate::data::Batch) (Fig. 2's tuple I, O, n, mask, regions, m, m_t, L, stacked).
 
+use crate::data::Batch;
+use crate::model::prediction::region_masks;
 use burn::tensor::{Device, Tensor, TensorData};
 use matedit_physics::brdf::dsbrdf::PARAMS;
-
-/// One batch of training tuples (Fig. 2: I, O, n, mask, regions, m, m_t, L), channel-first.
-#[derive(Clone, Debug, Default)]
-pub struct HostBatch {
-    /// Samples.
-    pub batch: usize,
-    /// Image side.
-    pub size: usize,
-    /// Material regions per sample (padded to the batch's largest).
-    pub regions: usize,
-    /// Environment height.
-    pub env_height: usize,
-    /// Sample ids.
-    pub ids: Vec<String>,
-    /// Input images I `[B, 3, S, S]`.
-    pub input: Vec<f32>,
-    /// Target images O `[B, 3, S, S]`.
-    pub target: Vec<f32>,
-    /// Unit camera-space normals `[B, 3, S, S]`.
-    pub normals: Vec<f32>,
-    /// Object mask `[B, S, S]`.
-    pub mask: Vec<f32>,
-    /// Region map `[B, S, S]`, 0 = background, r = material r − 1.
-    pub region_map: Vec<u8>,
-    /// Camera-space environment `[B, 3, He, 2He]`.
-    pub env: Vec<f32>,
-    /// Normalised materials m `[B, R, 108]`.
-    pub materials: Vec<f32>,
-    /// Normalised target materials m_t `[B, R, 108]`.
-    pub target_materials: Vec<f32>,
-}
 
 /// The batch as tensors on a device (none of them tracked).
 pub struct TensorBatch {
@@ -54,7 +26,7 @@ pub struct TensorBatch {
     pub target_materials: Tensor<3>,
 }
 
-impl HostBatch {
+impl Batch {
     /// Uploads the batch.
     pub fn to_device(&self, device: &Device) -> TensorBatch {
         let (b, s, r, he) = (self.batch, self.size, self.regions, self.env_height);
@@ -62,16 +34,7 @@ impl HostBatch {
             Tensor::<4>::from_data(TensorData::new(v.to_vec(), [b, c, h, w]), device)
         };
         let t3 = |v: &[f32]| Tensor::<3>::from_data(TensorData::new(v.to_vec(), [b, r, PARAMS]), device);
-        let p = s * s;
-        let mut rm = vec![0.0f32; b * r * p];
-        for i in 0..b {
-            for k in 0..p {
-                let reg = self.region_map[i * p + k] as usize;
-                if reg > 0 && reg <= r {
-                    rm[(i * r + reg - 1) * p + k] = 1.0;
-                }
-            }
-        }
+        let rm = region_masks(&self.region_map, b, r, s * s);
         TensorBatch {
             input: t4(&self.input, 3, s, s),
             target: t4(&self.target, 3, s, s),
@@ -81,26 +44,6 @@ impl HostBatch {
             env: t4(&self.env, 3, he, 2 * he),
             materials: t3(&self.materials),
             target_materials: t3(&self.target_materials),
-        }
-    }
-}
-
-impl From<crate::data::Batch> for HostBatch {
-    fn from(b: crate::data::Batch) -> Self {
-        Self {
-            batch: b.batch,
-            size: b.size,
-            regions: b.regions,
-            env_height: b.env_height,
-            ids: b.ids,
-            input: b.input,
-            target: b.target,
-            normals: b.normals,
-            mask: b.mask,
-            region_map: b.region_map,
-            env: b.env,
-            materials: b.materials,
-            target_materials: b.target_materials,
         }
     }
 }

@@ -8,11 +8,11 @@
 //! had, and writes the same `metrics.jsonl` (wall-clock times live in `log.jsonl`, not in the
 //! metrics).
 
-use super::batch::HostBatch;
 use super::checkpoint::{self, State};
 use super::manifest::{TrainPlan, check_device_name};
 use super::plot::MetricsLine;
 use super::step::{StepContext, StepKind, train_step};
+use crate::data;
 use crate::data::{Dataset, Epochs, Loader, LoaderConfig, OnCorrupt};
 use crate::model::network::Net;
 use crate::render::RenderingLayer;
@@ -30,7 +30,7 @@ use std::sync::{Arc, OnceLock};
 /// A stream of training batches that can be positioned (for resume).
 pub trait BatchSource {
     /// The next batch.
-    fn next_batch(&mut self) -> Result<super::batch::HostBatch>;
+    fn next_batch(&mut self) -> Result<data::Batch>;
     /// Position of the next sample in the stream.
     fn position(&self) -> u64;
 }
@@ -117,7 +117,7 @@ impl DatasetStream {
 }
 
 impl BatchSource for DatasetStream {
-    fn next_batch(&mut self) -> Result<HostBatch> {
+    fn next_batch(&mut self) -> Result<data::Batch> {
         let b = self.loader.next_batch().context("the training stream ended")??;
         for s in &self.loader.skipped()[self.reported..] {
             eprintln!(
@@ -128,7 +128,7 @@ impl BatchSource for DatasetStream {
             );
         }
         self.reported = self.loader.skipped().len();
-        Ok(HostBatch::from(b))
+        Ok(b)
     }
 
     fn position(&self) -> u64 {

@@ -2,9 +2,10 @@
 //! predict n', m', L'; re-render I' = R(n', m', L') and O' = R(n', m_t, L'); minimise
 //! l = w_n·l_normal + w_m·l_material + w_p·l_perceptual (Eq. 5).
 
-use super::batch::{HostBatch, TensorBatch};
+use super::batch::TensorBatch;
 use super::loss::{illumination_loss, material_loss, normal_loss, ssim_loss};
 use super::perceptual::Perceptual;
+use crate::data;
 use crate::model::network::Net;
 use crate::render::RenderingLayer;
 use crate::render::op::{Rendered, host};
@@ -203,7 +204,7 @@ pub fn train_step(
     net: Net,
     optim: &mut ModuleOptimizer,
     lr: f64,
-    host_batch: &HostBatch,
+    host_batch: &data::Batch,
     step: StepKind,
     ctx: &StepContext,
 ) -> Result<(Net, Losses)> {
@@ -384,7 +385,7 @@ fn encoder_decoder_step(
     net: Net,
     optim: &mut ModuleOptimizer,
     lr: f64,
-    host_batch: &HostBatch,
+    host_batch: &data::Batch,
     ctx: &StepContext,
 ) -> Result<(Net, Losses)> {
     let w = ctx.weights;

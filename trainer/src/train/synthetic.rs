@@ -1,7 +1,7 @@
 //! Synthetic batches for benchmarks and tests: spheres of random materials under random skies,
 //! rendered by the rendering layer itself (so I and O are consistent with n, m, L).
 
-use super::batch::HostBatch;
+use crate::data;
 use crate::render::{Batch, RenderingLayer};
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use matedit_physics::camera::unit_sphere_normals;
@@ -9,19 +9,19 @@ use rand_core::Rng;
 use rand_pcg::Pcg64Mcg;
 
 /// A batch of `batch` unit spheres at `size`² with `env_height` environments, seeded.
-pub fn sphere_batch(batch: usize, size: usize, env_height: usize, seed: u64, layer: &RenderingLayer) -> HostBatch {
+pub fn sphere_batch(batch: usize, size: usize, env_height: usize, seed: u64, layer: &RenderingLayer) -> data::Batch {
     let mut rng = Pcg64Mcg::new(0x5eed_0000_0000_0000_u128 | seed as u128);
     let mut u = || (rng.next_u32() >> 8) as f32 / (1u32 << 24) as f32;
     let (n, mask) = unit_sphere_normals(size);
     let p = size * size;
     let t = 2 * env_height * env_height;
-    let mut hb = HostBatch {
+    let mut hb = data::Batch {
         batch,
         size,
         regions: 1,
         env_height,
         ids: (0..batch).map(|i| format!("synthetic-{seed}-{i}")).collect(),
-        ..HostBatch::default()
+        ..data::Batch::default()
     };
     let axes: [Vec<_>; 3] = std::array::from_fn(|a| n.iter().take(p).map(|v| v[a]).collect());
     for _ in 0..batch {

@@ -1,9 +1,9 @@
 //! Training steps on synthetic batches: finite, decreasing on a fixed batch, reproducible.
 
-use super::batch::HostBatch;
 use super::perceptual::Perceptual;
 use super::step::{LossWeights, RenderWith, Source, StageKind, StepContext, StepKind, train_step};
 use super::synthetic::sphere_batch;
+use crate::data;
 use crate::model::Widths;
 use crate::model::network::{Net, NetConfig};
 use crate::render::RenderingLayer;
@@ -23,7 +23,7 @@ fn run(kind: StepKind, steps: usize, seed: u64) -> Vec<f64> {
 
 /// A small network seeded with `seed` (callers hold `SEEDED`), its rendering layer and one fixed
 /// batch of 16² spheres under 8×16 maps.
-fn fixture(seed: u64, widths: Widths) -> (Device, RenderingLayer, Net, HostBatch) {
+fn fixture(seed: u64, widths: Widths) -> (Device, RenderingLayer, Net, data::Batch) {
     let device = Device::flex().autodiff();
     device.seed(seed);
     let layer = RenderingLayer::new(8);
@@ -149,7 +149,7 @@ fn module_outputs_have_the_papers_shapes_and_ranges() {
     let layer = RenderingLayer::new(he);
     let cfg = NetConfig::new(s, Widths::new(4, 16, 32, 8)).with_env_height(he);
     let net = cfg.init(&device);
-    let mut hb: HostBatch = sphere_batch(b, s, he, 5, &layer);
+    let mut hb: data::Batch = sphere_batch(b, s, he, 5, &layer);
     // Two regions: the left half of each sphere is material 1, the right half material 2.
     hb.regions = 2;
     for (i, r) in hb.region_map.iter_mut().enumerate() {
