@@ -24,6 +24,7 @@ pub mod detail;
 pub mod output;
 pub mod photo;
 pub mod predict;
+pub mod progress;
 pub use photo::{Prepared, prepare, prepare_framed};
 pub use predict::{Predicted, network_prediction, render_all};
 pub mod serve;
@@ -40,10 +41,10 @@ use matedit_physics::brdf::Dsbrdf;
 use matedit_trainer::model::network::Net;
 use matedit_trainer::model::prediction::Prediction;
 use matedit_trainer::post_optimisation;
-use matedit_trainer::post_optimisation::progress::{Progress, enter};
 use matedit_trainer::render::{Batch, RenderingLayer};
 use matedit_trainer::train::checkpoint;
 use photo::{Framing, Photo, TRAINING_MEAN_LUMINANCE};
+use progress::{Progress, enter};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
@@ -361,7 +362,8 @@ pub fn understand(
                 cfg.a,
                 cfg.b * area,
             );
-            let r = post_optimisation::post_optimise_watched(&problem, prior.clone(), cfg, watcher)?;
+            let watcher = watcher.map(|w| Arc::clone(w) as Arc<dyn post_optimisation::watcher::Watcher>);
+            let r = post_optimisation::post_optimise_watched(&problem, prior.clone(), cfg, watcher.as_ref())?;
             x.normals = detail::downsample_normals(&detail.prep, &r.point.normals, &prep, &x.normals);
             x.materials = r.point.materials;
             x.env = r.point.env;

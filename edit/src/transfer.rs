@@ -2,11 +2,11 @@
 //! another photo's object, under that photo's light, through the same steps as [`crate::edit`].
 
 use super::{Composite, EditReport, LightOptions, Model, Understood, finish, output, read_photo, target, understand};
+use crate::progress::{Progress, enter};
 use anyhow::{Context, Result};
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use matedit_trainer::post_optimisation;
-use matedit_trainer::post_optimisation::progress::{Progress, enter};
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;

@@ -340,7 +340,10 @@ mod tests {
         let rubber: matedit_physics::BrdfSpec = "library:rubber-red".parse().unwrap();
         let (earlier, how) = dsbrdf_of(&rubber, &dir).unwrap();
         assert_eq!(how, Obtained::FittedEarlier);
-        assert!(fit_one(&dir, &m).unwrap().1, "refitted: the stored fit was another source's");
+        assert!(
+            fit_one(&dir, &m).unwrap().1,
+            "refitted: the stored fit was another source's"
+        );
         let (cached_fit, how) = dsbrdf_of(&rubber, &dir).unwrap();
         assert_eq!(how, Obtained::CachedFit);
         assert_eq!(cached_fit, Dsbrdf::load(&dir.join("rubber-red.dsbrdf.json")).unwrap());

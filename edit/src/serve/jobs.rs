@@ -3,9 +3,10 @@
 //! every job did, kept for the last few so their files can be downloaded.
 
 use super::upload::name_uploads;
+use crate::progress::Progress;
 use crate::{Composite, EditReport, EditRequest, Model, edit_with, transfer_with};
 use matedit_trainer::post_optimisation::Eq6Config;
-use matedit_trainer::post_optimisation::progress::{Cancelled, Progress};
+use matedit_trainer::post_optimisation::watcher::{Cancelled, Watcher as _};
 use serde_json::{Value, json};
 use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};

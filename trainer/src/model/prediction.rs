@@ -129,9 +129,9 @@ mod tests {
             (x.normals.len(), x.materials.len(), x.env.len()),
             (3 * p, 2 * PARAMS, 3 * 8 * 16)
         );
-        for k in 0..p {
+        for (k, &on) in mask.iter().enumerate() {
             let n: f32 = (0..3).map(|c| x.normals[c * p + k].powi(2)).sum::<f32>().sqrt();
-            if mask[k] > 0.0 {
+            if on > 0.0 {
                 assert!((n - 1.0).abs() < 1e-4, "pixel {k}: |n| = {n}");
             } else {
                 assert_eq!(n, 0.0, "pixel {k} is off the object");

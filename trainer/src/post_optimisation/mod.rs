@@ -19,9 +19,9 @@
 
 mod parametrised;
 mod priors;
-pub mod progress;
 #[cfg(test)]
 mod tests;
+pub mod watcher;
 
 pub use parametrised::Parametrised;
 use parametrised::{Lent, Recorder};
@@ -34,8 +34,8 @@ use argmin::core::Executor;
 use argmin::core::observers::ObserverMode;
 use argmin::solver::linesearch::MoreThuenteLineSearch;
 use argmin::solver::quasinewton::LBFGS;
-use progress::{Cancelled, Progress};
 use std::sync::{Arc, Mutex};
+use watcher::{Cancelled, Watcher};
 
 /// Forward and backward passes one L-BFGS iteration may take on average before its run is cut
 /// short (typical runs take two).
@@ -338,7 +338,7 @@ pub fn post_optimise_watched(
     problem: &Problem,
     start: Prediction,
     cfg: &Eq6Config,
-    watcher: Option<&Arc<Progress>>,
+    watcher: Option<&Arc<dyn Watcher>>,
 ) -> Result<Optimised> {
     let object = (0..problem.pixels()).filter(|&k| problem.on(k)).count();
     match cfg.stride(object) {
@@ -367,7 +367,7 @@ pub fn coarse_to_fine(
     start: Prediction,
     cfg: &Eq6Config,
     stride: usize,
-    watcher: Option<&Arc<Progress>>,
+    watcher: Option<&Arc<dyn Watcher>>,
 ) -> Result<Optimised> {
     let (s, k) = (problem.size, stride.max(1));
     let c = s.div_ceil(k);
@@ -499,7 +499,7 @@ pub fn alternate(
     start: Prediction,
     cfg: &Eq6Config,
     properties: &[Property],
-    watcher: Option<&Arc<Progress>>,
+    watcher: Option<&Arc<dyn Watcher>>,
 ) -> Result<Optimised> {
     alternate_on_subset(problem, start, cfg, properties, watcher, 1)
 }
@@ -511,7 +511,7 @@ fn alternate_on_subset(
     start: Prediction,
     cfg: &Eq6Config,
     properties: &[Property],
-    watcher: Option<&Arc<Progress>>,
+    watcher: Option<&Arc<dyn Watcher>>,
     stride: usize,
 ) -> Result<Optimised> {
     let scale = (stride * stride) as f64;

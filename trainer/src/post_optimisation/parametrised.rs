@@ -2,7 +2,7 @@
 //! material tanh(u), a texel exp(w)), with the cached forward and backward pass, the evaluation
 //! budget and the adaptors argmin runs.
 
-use super::progress::{Cancelled, Progress};
+use super::watcher::{Cancelled, Watcher};
 use super::{Energy, Problem, Property};
 use crate::model::prediction::Prediction;
 use crate::render::Wanted;
@@ -172,7 +172,7 @@ impl<'a> Parametrised<'a> {
 /// maps the best parameters back to a point).
 /// A parametrised problem lent to argmin, with the watcher whose cancel stops it before the next
 /// evaluation (an L-BFGS iteration may evaluate several times).
-pub(super) struct Lent<'p, 'a>(pub(super) &'p Parametrised<'a>, pub(super) Option<&'p Arc<Progress>>);
+pub(super) struct Lent<'p, 'a>(pub(super) &'p Parametrised<'a>, pub(super) Option<&'p Arc<dyn Watcher>>);
 
 impl Lent<'_, '_> {
     fn check(&self) -> Result<(), argmin::core::Error> {
@@ -214,7 +214,7 @@ impl Gradient for Lent<'_, '_> {
 /// energy the property's run started from) and stops the run once the watcher cancels.
 pub(super) struct Recorder {
     pub(super) log: Arc<Mutex<Vec<(u64, f64)>>>,
-    pub(super) watcher: Option<Arc<Progress>>,
+    pub(super) watcher: Option<Arc<dyn Watcher>>,
     pub(super) floor: f64,
     /// What the watcher's energies are multiplied by (k² on a coarse problem).
     pub(super) scale: f64,

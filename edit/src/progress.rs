@@ -1,15 +1,11 @@
-//! Watching and stopping a running post-optimisation (Eq. 6) and the edit around it
-//! (`matedit-edit`): the phase, Eq. 6's energy after every L-BFGS iteration as it happens, and a
-//! cancel flag checked between phases and before every evaluation. `matedit edit` and `trainer
-//! eval --eq6` pass none; `matedit serve` shows it live and cancels through it.
+//! Watching and stopping a running edit (`matedit serve`): the phase it is in, Eq. 6's energy
+//! after every L-BFGS iteration as it happens (Eq. 6 reports to it as its
+//! [`Watcher`]), and a cancel flag checked between phases and, inside Eq. 6, before every
+//! evaluation. `matedit edit` passes none.
 
+use matedit_trainer::post_optimisation::watcher::{Cancelled, Watcher};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
-
-/// The error an edit stops with once [`Progress::cancel`] was called.
-#[derive(Debug, thiserror::Error)]
-#[error("cancelled")]
-pub struct Cancelled;
 
 /// Shared between the thread that edits and those that watch it.
 #[derive(Debug, Default)]
@@ -21,7 +17,7 @@ pub struct Progress {
 /// What a watcher sees.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Snapshot {
-    /// The phase running now (the editor's: "reading", "network", "eq6", "render", "write").
+    /// The phase running now ("reading", "network", "eq6", "render", "write").
     pub phase: &'static str,
     /// Eq. 6's energy: at the network's prediction, then after every L-BFGS iteration.
     pub energies: Vec<f64>,
@@ -31,11 +27,6 @@ impl Progress {
     /// Asks the edit to stop at its next check.
     pub fn cancel(&self) {
         self.cancelled.store(true, Ordering::SeqCst);
-    }
-
-    /// Whether [`cancel`](Self::cancel) was called.
-    pub fn is_cancelled(&self) -> bool {
-        self.cancelled.load(Ordering::SeqCst)
     }
 
     /// Enters `phase`, or stops with [`Cancelled`].
@@ -49,16 +40,21 @@ impl Progress {
         Ok(())
     }
 
-    /// Records Eq. 6's energy after an iteration.
-    pub fn energy(&self, e: f64) {
+    /// A copy of the state.
+    pub fn snapshot(&self) -> Snapshot {
+        self.state.lock().map(|s| s.clone()).unwrap_or_default()
+    }
+}
+
+impl Watcher for Progress {
+    fn energy(&self, e: f64) {
         if let Ok(mut s) = self.state.lock() {
             s.energies.push(e);
         }
     }
 
-    /// A copy of the state.
-    pub fn snapshot(&self) -> Snapshot {
-        self.state.lock().map(|s| s.clone()).unwrap_or_default()
+    fn is_cancelled(&self) -> bool {
+        self.cancelled.load(Ordering::SeqCst)
     }
 }
 
