@@ -636,3 +636,44 @@ fn a_missing_folder_with_if_missing_procedural_is_replaced_and_noted() {
         3
     );
 }
+
+/// Every dataset manifest the repository ships (`manifests/datasets/`, its experiments too)
+/// resolves and plans on a clean checkout, or refuses naming the environment variable it needs
+/// (real data that only exists outside the repository); none plans zero samples.
+#[test]
+fn every_shipped_dataset_manifest_plans_or_names_the_variable_it_needs() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("manifests/datasets");
+    let mut files = Vec::new();
+    for dir in [root.clone(), root.join("experiments")] {
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.extension().is_some_and(|x| x == "toml") {
+                files.push(p);
+            }
+        }
+    }
+    files.sort();
+    assert!(files.len() >= 12, "{files:?}");
+    let mut planned = 0;
+    for f in &files {
+        match load(f) {
+            Ok(l) => {
+                let samples: usize = matedit_datagen::dataset::run::describe(&l)
+                    .lines()
+                    .find_map(|line| line.strip_prefix("total: ")?.split(' ').next()?.parse().ok())
+                    .unwrap_or(0);
+                assert!(samples > 0, "{} plans no samples", f.display());
+                planned += 1;
+            }
+            Err(e) => {
+                let msg = format!("{e:#}");
+                assert!(
+                    msg.contains("environment variable") && msg.contains("is not set") && msg.contains(".toml:"),
+                    "{}: {msg}",
+                    f.display()
+                );
+            }
+        }
+    }
+    assert!(planned >= 10, "only {planned} of {} planned", files.len());
+}
