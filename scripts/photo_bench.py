@@ -408,6 +408,21 @@ def srgb8(linear):
     return np.round(x * 255).astype(np.uint8)
 
 
+def srgb_decode(c):
+    """Linear values of sRGB-encoded ones in [0, 1] (the inverse of srgb8's curve)."""
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def texel_grid(h=64, w=128):
+    """The directions of a `[h, w]` map's texel centres (docs/CONVENTIONS.md: +z towards the camera,
+    y up) and each texel's solid angle, both `[h, w, ...]`."""
+    theta, phi = np.meshgrid(np.pi * (np.arange(h) + 0.5) / h, 2 * np.pi * (np.arange(w) + 0.5) / w, indexing="ij")
+    dirs = np.stack([np.sin(theta) * np.sin(phi), np.cos(theta), -np.sin(theta) * np.cos(phi)], -1)
+    band = np.pi * np.arange(h + 1) / h
+    dw = np.repeat(((2 * np.pi / w) * (np.cos(band[:-1]) - np.cos(band[1:])))[:, None], w, 1)
+    return dirs, dw
+
+
 def write_atomic(path, writer):
     path = Path(path)
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
@@ -685,11 +700,8 @@ def cmd_perspective(args):
     out = Path(args.out)
     records = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]
     plans = {p["name"]: p for p in scene_plans(len(records), Path(args.assets), None)}
-    h, w = 64, 128
-    theta, phi = np.meshgrid(np.pi * (np.arange(h) + 0.5) / h, 2 * np.pi * (np.arange(w) + 0.5) / w, indexing="ij")
-    dirs = np.stack([np.sin(theta) * np.sin(phi), np.cos(theta), -np.sin(theta) * np.cos(phi)], -1).reshape(-1, 3)
-    band = np.pi * np.arange(h + 1) / h
-    dw = np.repeat((2 * np.pi / w) * (np.cos(band[:-1]) - np.cos(band[1:])), w)
+    dirs, dw = texel_grid()
+    dirs, dw = dirs.reshape(-1, 3), dw.reshape(-1)
     rows = []
     for rec in records:
         plan = plans[rec["name"]]
@@ -734,10 +746,6 @@ LIGHT_VARIANTS = {
 }
 
 
-def srgb_decode(c):
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
 def sh2_basis(d):
     x, y, z = d[..., 0], d[..., 1], d[..., 2]
     return np.stack([0.282095 * np.ones_like(x), 0.488603 * y, 0.488603 * z, 0.488603 * x,
@@ -751,11 +759,8 @@ def cmd_lights(args):
     mi = mitsuba()
     out = Path(args.out)
     records = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]
-    h, w = 64, 128
-    theta, phi = np.meshgrid(np.pi * (np.arange(h) + 0.5) / h, 2 * np.pi * (np.arange(w) + 0.5) / w, indexing="ij")
-    dirs = np.stack([np.sin(theta) * np.sin(phi), np.cos(theta), -np.sin(theta) * np.cos(phi)], -1)
-    band = np.pi * np.arange(h + 1) / h
-    dw = ((2 * np.pi / w) * (np.cos(band[:-1]) - np.cos(band[1:])))[:, None] * np.ones((1, w))
+    dirs, dw = texel_grid()
+    h, w = dw.shape
     basis = sh2_basis(dirs)
     for rec in records:
         d = out / rec["name"]

@@ -3,6 +3,7 @@
 //! reader of `index.jsonl` and the EXR files.
 
 mod common;
+use common::{datagen, run_to};
 
 use matedit_contract::io::read_exr_channels;
 use matedit_contract::lock::Worker;
@@ -85,19 +86,6 @@ fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
     let p = dir.join(name);
     std::fs::write(&p, text).unwrap();
     p
-}
-
-fn run_to(manifest: &Path, out: &Path) {
-    let l = load(manifest).unwrap();
-    run(
-        &l,
-        &RunOptions {
-            out: Some(out.to_path_buf()),
-            worker: Worker::ALL,
-            progress: false,
-        },
-    )
-    .unwrap();
 }
 
 fn index(dir: &Path) -> Vec<Value> {
@@ -417,17 +405,6 @@ fn bench_puts_the_reference_first_and_measures_every_option_against_it() {
     }
 }
 
-fn datagen() -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    let bin = exe.parent().unwrap().parent().unwrap().join("datagen");
-    assert!(
-        bin.is_file(),
-        "{} not built: run `cargo test --workspace --release`",
-        bin.display()
-    );
-    bin
-}
-
 #[test]
 fn a_run_killed_at_random_moments_resumes_to_the_same_bytes() {
     let d = scratch("kill");
@@ -658,11 +635,7 @@ fn every_shipped_dataset_manifest_plans_or_names_the_variable_it_needs() {
     for f in &files {
         match load(f) {
             Ok(l) => {
-                let samples: usize = matedit_datagen::dataset::run::describe(&l)
-                    .lines()
-                    .find_map(|line| line.strip_prefix("total: ")?.split(' ').next()?.parse().ok())
-                    .unwrap_or(0);
-                assert!(samples > 0, "{} plans no samples", f.display());
+                assert!(l.plan.samples() > 0, "{} plans no samples", f.display());
                 planned += 1;
             }
             Err(e) => {

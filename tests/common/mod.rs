@@ -31,6 +31,33 @@ pub fn render_scene(shape: &str, brdf: &str, env: &str, env_res: EnvRes, res: us
     .expect("render")
 }
 
+/// Renders the dataset of `manifest` into `out` in this process, through the library
+/// `datagen run` calls.
+pub fn run_to(manifest: &std::path::Path, out: &std::path::Path) {
+    let l = matedit_datagen::dataset::run::load(manifest).unwrap();
+    matedit_datagen::dataset::run::run(
+        &l,
+        &matedit_datagen::dataset::run::RunOptions {
+            out: Some(out.to_path_buf()),
+            worker: matedit_contract::lock::Worker::ALL,
+            progress: false,
+        },
+    )
+    .unwrap();
+}
+
+/// The `datagen` binary of this build (beside the test binary's folder).
+pub fn datagen() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    let bin = exe.parent().unwrap().parent().unwrap().join("datagen");
+    assert!(
+        bin.is_file(),
+        "{} not built: run `cargo test --workspace --release`",
+        bin.display()
+    );
+    bin
+}
+
 /// A scratch directory unique to this test process.
 pub fn scratch(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("matedit-{name}-{}", std::process::id()));

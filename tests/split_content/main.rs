@@ -2,10 +2,9 @@
 //! never sit on both sides of a split, whatever the manifest's sources call it.
 
 use matedit_contract::io::write_env_exr;
-use matedit_contract::lock::Worker;
 use matedit_contract::verify::verify;
 use matedit_datagen::dataset::content::{NEAR_DUPLICATE_L1, descriptor_distance, mesh_descriptor};
-use matedit_datagen::dataset::run::{RunOptions, describe, load, run};
+use matedit_datagen::dataset::run::{describe, load};
 use matedit_datagen::dataset::verify::verify_sources;
 use matedit_datagen::shapes::Mesh;
 use matedit_datagen::shapes::procedural::Category;
@@ -16,9 +15,12 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+#[path = "../common/mod.rs"]
+mod common;
 mod environments;
 mod materials;
 mod shapes;
+use common::{datagen, run_to};
 
 fn scratch(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("matedit-content-{name}-{}", std::process::id()));
@@ -239,27 +241,3 @@ name = "test"
 shapes = { car = 2 }
 materials = 2
 "#;
-
-fn run_to(manifest: &Path, out: &Path) {
-    let l = load(manifest).unwrap();
-    run(
-        &l,
-        &RunOptions {
-            out: Some(out.to_path_buf()),
-            worker: Worker::ALL,
-            progress: false,
-        },
-    )
-    .unwrap();
-}
-
-fn datagen() -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    let bin = exe.parent().unwrap().parent().unwrap().join("datagen");
-    assert!(
-        bin.is_file(),
-        "{} not built: run `cargo test --workspace --release`",
-        bin.display()
-    );
-    bin
-}

@@ -221,10 +221,7 @@ impl Entry<'_> {
 
     /// The category called `name`, written in the entry's field `NAME`.
     fn category(&self, field: &str, name: &str) -> Result<Category, ManifestError> {
-        name.parse::<Category>().map_err(|e| {
-            self.mf
-                .invalid(self.span.clone(), &format!("{}.{field}", self.field), e)
-        })
+        name.parse::<Category>().map_err(|e| self.invalid(field, e))
     }
 
     /// Resolves the entry's `path`: `Ok(Some)` when it exists, `Ok(None)` when it is missing and
