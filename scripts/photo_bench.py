@@ -57,6 +57,7 @@ Usage:
     python3 scripts/photo_bench.py score --out out/photobench --matedit target/release/matedit \\
         --model out/train/quickstart [--methods "render=--composite render" ...] [--targets green,gold]
     python3 scripts/photo_bench.py all --out out/photobench --matedit BIN --model MODEL
+    python3 scripts/photo_bench.py levels --out out/photobench --methods detail   # after `score`
 Outputs: DIR/sceneNN/{photo,mask,truth_green,truth_chrome,truth_gold}.png (+ .exr), DIR/scenes.json,
 DIR/contact.png; DIR/edits/METHOD/sceneNN-TARGET/, DIR/edits/sheet.png, DIR/results.json.
 """
@@ -848,6 +849,60 @@ def cmd_score(args):
     print(f"per-case results: {json_path}; sheet: {out / 'edits' / 'sheet.png'}")
 
 
+
+def cmd_levels(args):
+    """How far each method's edits are from the truth's level, and what its scores would be at the
+    truth's level. The level error of a case is mean(linear edit) / mean(linear truth) over the
+    object's pixels; a scene's is the geometric mean over its targets (one light, one error). The
+    scores "at the truth's level" scale each edit's linear object pixels by the inverse of its
+    case's error and encode them to 8 bits again: an upper bound that uses the truth, not a
+    method, measuring what the edit's level costs against everything else."""
+    out = Path(args.out)
+    scenes = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]
+    targets = [t for t in args.targets.split(",") if t]
+    report = {"command": shlex.join([Path(sys.executable).name] + sys.argv), "methods": {}}
+    for m in args.methods:
+        cases, per_scene = [], []
+        for rec in scenes:
+            d = out / rec["name"]
+            obj = rgb8(d / "mask.png")[..., 0] > 127
+            photo = rgb8(d / "photo.png")
+            errors = []
+            for t in targets:
+                truth = rgb8(d / f"truth_{t}.png")
+                path = out / "edits" / m / f"{rec['name']}-{t}" / "edited.png"
+                if not path.exists():
+                    raise SystemExit(f"{path}: missing; run `score` with the method {m} first")
+                edit = rgb8(path)
+                lin, lin_truth = srgb_decode(edit / 255.0), srgb_decode(truth / 255.0)
+                error = float(lin[obj].mean() / max(lin_truth[obj].mean(), 1e-12))
+                errors.append(error)
+                levelled = edit.copy()
+                levelled[obj] = srgb8(lin[obj] / max(error, 1e-12))
+                tg = grad_magnitude(truth)
+                s, base = scores(levelled, truth, obj, tg), scores(photo, truth, obj, tg)
+                cases.append({"scene": rec["name"], "target": t, "level_error": error, **s,
+                              "beats": s["l2"] < base["l2"] and s["ssim"] > base["ssim"]})
+            per_scene.append((rec["name"], float(np.exp(np.mean(np.log(errors))))))
+        logs = np.log([e for _, e in per_scene])
+        row = {"log_rms": float(np.sqrt(np.mean(logs ** 2))), "bias": float(np.exp(logs.mean())),
+               "per_scene": dict(per_scene),
+               "at_truth_level": {"l2": float(np.mean([c["l2"] for c in cases])),
+                                  "ssim": float(np.mean([c["ssim"] for c in cases])),
+                                  "grad_corr": float(np.mean([c["grad_corr"] for c in cases
+                                                              if c["grad_corr"] is not None])),
+                                  "beats_unchanged": int(sum(c["beats"] for c in cases)), "cases": len(cases)},
+               "cases": cases}
+        report["methods"][m] = row
+        a = row["at_truth_level"]
+        print(f"{m}: level error log-RMS {row['log_rms']:.3f} (x{np.exp(row['log_rms']):.2f}), bias x{row['bias']:.2f}; "
+              f"per scene {' '.join(f'{e:.2f}' for _, e in per_scene)}", flush=True)
+        print(f"  at the truth's level: L2 {a['l2']:.1f}  SSIM {a['ssim']:.4f}  grad {a['grad_corr']:.3f}  "
+              f"beats unchanged {a['beats_unchanged']} / {a['cases']}", flush=True)
+    json_path = Path(args.json) if args.json else out / "levels.json"
+    write_atomic(json_path, lambda p: p.write_text(json.dumps(report, indent=1)))
+    print(f"Command: `{report['command']}`; per-case results: {json_path}")
+
 # ---------------------------------------------------------------------------------------------
 
 
@@ -889,6 +944,12 @@ def main():
     sub.add_parser("perspective", parents=[common, render],
                    help="the layer with true normals and light, orthographic against per-pixel views")
     sub.add_parser("lights", parents=[common], help="variants of each scene's true light (what an edit needs of it)")
+    levels = sub.add_parser("levels", parents=[common],
+                            help="each method's level error against the truths, and its scores at the truth's level")
+    levels.add_argument("--methods", nargs="+", required=True, metavar="NAME",
+                        help="methods whose edits `score` wrote (DIR/edits/NAME/)")
+    levels.add_argument("--targets", default=",".join(TARGETS), help="comma-separated targets of " + ", ".join(TARGETS))
+    levels.add_argument("--json", help="per-case results (default DIR/levels.json)")
     args = parser.parse_args()
     if args.command in ("render", "all"):
         cmd_render(args)
@@ -898,6 +959,8 @@ def main():
         cmd_perspective(args)
     if args.command == "lights":
         cmd_lights(args)
+    if args.command == "levels":
+        cmd_levels(args)
 
 
 if __name__ == "__main__":

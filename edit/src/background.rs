@@ -22,8 +22,8 @@ const MIN_SAMPLES: usize = 500;
 /// How L's level was set.
 #[derive(Clone, Debug, serde::Serialize, PartialEq)]
 pub struct LightLevel {
-    /// "background" (the photo's surroundings) or "network" (the level that makes I' match the
-    /// photo, as predicted).
+    /// "background" (the photo's surroundings), "network" (the level that makes I' match the
+    /// photo, as predicted) or "given" (a given map's own values).
     pub source: String,
     /// The factor L' was multiplied by (1 for "network").
     pub scale: f64,

@@ -65,7 +65,8 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         #[arg(long)]
         light: Option<String>,
         /// What sets the light's level: `background` (the photo's surroundings, where enough of
-        /// them is seen unclipped), `network` (the paper's: I' matches the photo) or `auto`
+        /// them is seen unclipped), `network` (the paper's: I' matches the photo), `given` (a
+        /// --light map's own values, radiance in the photo's linear units) or `auto`
         /// (background with --light, network otherwise: the best measured).
         #[arg(long, value_enum, default_value_t = LevelFrom::default())]
         light_level: LevelFrom,

@@ -85,6 +85,9 @@ pub enum LevelFrom {
     Background,
     /// The network's: the level at which I' = R(n', m', L') matches the photo (the paper's).
     Network,
+    /// A given light's own level (`--light` only): its values are radiance in the photo's linear
+    /// units, as a light probe captured with the photo's exposure would be.
+    Given,
 }
 
 /// How the photo's illumination is found: the network's L' (or a given map) and its level.
@@ -324,7 +327,13 @@ pub fn understand(
     let t = Instant::now();
     let mut x = network_prediction(&model.net, &prep)?;
     if let Some(l) = &light.given {
-        x.env = light_at_photo_level(&model.layer, &prep, &x, l)?;
+        x.env = if light.level == LevelFrom::Given {
+            // The network's units are the photo's linear values times its exposure.
+            let k = prep.exposure as f32;
+            l.iter().map(|&v| v * k).collect()
+        } else {
+            light_at_photo_level(&model.layer, &prep, &x, l)?
+        };
     }
     let network_seconds = t.elapsed().as_secs_f64();
     let labels = labels.as_ref().map(|(l, n)| (l.as_slice(), *n));
@@ -384,7 +393,7 @@ pub fn understand(
     let from_background = match light.level {
         LevelFrom::Auto => light.given.is_some(),
         LevelFrom::Background => true,
-        LevelFrom::Network => false,
+        LevelFrom::Network | LevelFrom::Given => false,
     };
     let light_level = if from_background {
         let level = background::light_level(
@@ -399,8 +408,9 @@ pub fn understand(
         x.env.iter_mut().for_each(|v| *v *= k);
         level
     } else {
+        let given = light.level == LevelFrom::Given && light.given.is_some();
         background::LightLevel {
-            source: "network".into(),
+            source: if given { "given" } else { "network" }.into(),
             scale: 1.0,
             pixels: 0,
             fov_deg,

@@ -528,7 +528,7 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
 }
 
 #[test]
-fn a_given_light_replaces_l_prime_at_the_level_the_background_shows() {
+fn a_given_light_replaces_l_prime_at_the_level_asked_for() {
     let d = dir("light");
     let (p, m, _) = write_photo(&d);
     let studio = target::relight_env("builtin:studio", 4).unwrap();
@@ -552,6 +552,7 @@ fn a_given_light_replaces_l_prime_at_the_level_the_background_shows() {
     for (name, level, source) in [
         ("auto", LevelFrom::Auto, "background"),
         ("network", LevelFrom::Network, "network"),
+        ("given", LevelFrom::Given, "given"),
     ] {
         let out = d.join(name);
         let r = edit(model(), &with(level, Some("builtin:studio")), &out).unwrap();
@@ -561,6 +562,12 @@ fn a_given_light_replaces_l_prime_at_the_level_the_background_shows() {
         let env = env_of(&out);
         let k = env[0] / studio[0];
         assert!(k.is_finite() && k > 0.0);
+        if level == LevelFrom::Given {
+            // The map's own level: only the photo's exposure (linear photo → network units).
+            let exposure = r.exposure as f32;
+            assert!((k - exposure).abs() <= 1e-5 * exposure, "{k} vs {exposure}");
+            assert_eq!(r.light_level.scale, 1.0);
+        }
         for (a, b) in env.iter().zip(&studio) {
             assert!(
                 (a - k * b).abs() <= 1e-4 * (k * b).abs().max(1e-6),
@@ -573,6 +580,9 @@ fn a_given_light_replaces_l_prime_at_the_level_the_background_shows() {
     let r = edit(model(), &with(LevelFrom::Auto, None), &out).unwrap();
     assert_eq!((r.light_level.source.as_str(), r.light_level.scale), ("network", 1.0));
     assert!(report(&out)["light"].is_null());
+    // `given` names a given light's level: without one, L' keeps the network's.
+    let r = edit(model(), &with(LevelFrom::Given, None), &d.join("given-none")).unwrap();
+    assert_eq!((r.light_level.source.as_str(), r.light_level.scale), ("network", 1.0));
     let r = edit(model(), &with(LevelFrom::Background, None), &d.join("bg")).unwrap();
     assert_eq!(r.light_level.source, "background", "{:?}", r.light_level);
     assert!(r.light_level.pixels >= 500 && r.light_level.scale.is_finite() && r.light_level.scale > 0.0);
