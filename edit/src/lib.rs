@@ -328,9 +328,7 @@ pub fn understand(
     let mut x = network_prediction(&model.net, &prep)?;
     if let Some(l) = &light.given {
         x.env = if light.level == LevelFrom::Given {
-            // The network's units are the photo's linear values times its exposure.
-            let k = prep.exposure as f32;
-            l.iter().map(|&v| v * k).collect()
+            light_at_own_level(l, prep.exposure)?
         } else {
             light_at_photo_level(&model.layer, &prep, &x, l)?
         };
@@ -429,6 +427,29 @@ pub fn understand(
         light_level,
         network_seconds,
     })
+}
+
+/// The brightest texel a given light may have at its own level, in the network's units (the
+/// photo's linear values times its exposure, where the object's mean luminance is 0.48): far
+/// above any sun, and 10¹⁸ below f32's largest value, the headroom the rendering layer's lobes
+/// and sums need to stay finite.
+pub const MAX_GIVEN_RADIANCE: f32 = 1e20;
+
+/// A given illumination `l` (`[3, He, 2He]`, radiance in the photo's linear units) at its own
+/// level: in the network's units, the photo's linear values times `exposure`. A light that
+/// would be brighter than [`MAX_GIVEN_RADIANCE`] there is refused (its edit could not be finite).
+pub fn light_at_own_level(l: &[f32], exposure: f64) -> Result<Vec<f32>> {
+    let scaled: Vec<f32> = l.iter().map(|&v| (v as f64 * exposure) as f32).collect();
+    let brightest = scaled.iter().fold(0.0_f32, |m, &v| m.max(v));
+    if !brightest.is_finite() || brightest > MAX_GIVEN_RADIANCE {
+        bail!(
+            "the given light at its own level (--light-level given) is too bright for this photo: \
+             its brightest texel times the photo's exposure ({exposure:.3e}) is {brightest:.3e}, \
+             above {MAX_GIVEN_RADIANCE:.0e}; give it in the photo's linear units, or let the photo \
+             set its level (--light-level auto)"
+        );
+    }
+    Ok(scaled)
 }
 
 /// A given illumination `l` (`[3, He, 2He]`) at the level that explains the photo best: the

@@ -601,6 +601,24 @@ fn a_given_light_replaces_l_prime_at_the_level_asked_for() {
     assert!(!out.exists());
 }
 
+#[test]
+fn a_light_at_its_own_level_is_refused_where_its_edit_could_not_be_finite() {
+    // The photo's exposure only: values, zeros and the bound itself pass unchanged in ratio.
+    let l = [0.0_f32, 1.0, 2.5, MAX_GIVEN_RADIANCE / 4.0];
+    let got = light_at_own_level(&l, 4.0).unwrap();
+    assert_eq!(got, vec![0.0, 4.0, 10.0, MAX_GIVEN_RADIANCE]);
+    // Brighter than the bound, or past f32 (a finite map times a large exposure), is refused
+    // by name; so is a tiny exposure that cannot bring f32::MAX down far enough.
+    for (l, exposure) in [
+        (vec![1.0_f32, MAX_GIVEN_RADIANCE], 1.5),
+        (vec![f32::MAX / 2.0], 4.0),
+        (vec![f32::MAX], 1e-10),
+    ] {
+        let e = light_at_own_level(&l, exposure).unwrap_err();
+        assert!(format!("{e:#}").contains("too bright for this photo"), "{e:#}");
+    }
+}
+
 fn as_refs(ch: &[(String, Vec<f32>)]) -> Vec<(&str, Vec<f32>)> {
     ch.iter().map(|(n, v)| (n.as_str(), v.clone())).collect()
 }
