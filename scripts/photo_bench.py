@@ -849,7 +849,6 @@ def cmd_score(args):
     print(f"per-case results: {json_path}; sheet: {out / 'edits' / 'sheet.png'}")
 
 
-
 def cmd_levels(args):
     """How far each method's edits are from the truth's level, and what its scores would be at the
     truth's level. The level error of a case is mean(linear edit) / mean(linear truth) over the
@@ -861,29 +860,32 @@ def cmd_levels(args):
     scenes = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]
     targets = [t for t in args.targets.split(",") if t]
     report = {"command": shlex.join([Path(sys.executable).name] + sys.argv), "methods": {}}
+    # Each case's truth, its gradients and the unchanged photo's scores, once for every method.
+    truths = []
+    for rec in scenes:
+        d = out / rec["name"]
+        obj = rgb8(d / "mask.png")[..., 0] > 127
+        photo = rgb8(d / "photo.png")
+        for t in targets:
+            truth = rgb8(d / f"truth_{t}.png")
+            tg = grad_magnitude(truth)
+            truths.append((rec["name"], t, obj, truth, tg, scores(photo, truth, obj, tg)))
     for m in args.methods:
-        cases, per_scene = [], []
-        for rec in scenes:
-            d = out / rec["name"]
-            obj = rgb8(d / "mask.png")[..., 0] > 127
-            photo = rgb8(d / "photo.png")
-            errors = []
-            for t in targets:
-                truth = rgb8(d / f"truth_{t}.png")
-                path = out / "edits" / m / f"{rec['name']}-{t}" / "edited.png"
-                if not path.exists():
-                    raise SystemExit(f"{path}: missing; run `score` with the method {m} first")
-                edit = rgb8(path)
-                lin, lin_truth = srgb_decode(edit / 255.0), srgb_decode(truth / 255.0)
-                error = float(lin[obj].mean() / max(lin_truth[obj].mean(), 1e-12))
-                errors.append(error)
-                levelled = edit.copy()
-                levelled[obj] = srgb8(lin[obj] / max(error, 1e-12))
-                tg = grad_magnitude(truth)
-                s, base = scores(levelled, truth, obj, tg), scores(photo, truth, obj, tg)
-                cases.append({"scene": rec["name"], "target": t, "level_error": error, **s,
-                              "beats": s["l2"] < base["l2"] and s["ssim"] > base["ssim"]})
-            per_scene.append((rec["name"], float(np.exp(np.mean(np.log(errors))))))
+        cases, errors = [], {}
+        for name, t, obj, truth, tg, base in truths:
+            path = out / "edits" / m / f"{name}-{t}" / "edited.png"
+            if not path.exists():
+                raise SystemExit(f"{path}: missing; run `score` with the method {m} first")
+            edit = rgb8(path)
+            lin, lin_truth = srgb_decode(edit / 255.0), srgb_decode(truth / 255.0)
+            error = float(lin[obj].mean() / max(lin_truth[obj].mean(), 1e-12))
+            errors.setdefault(name, []).append(error)
+            levelled = edit.copy()
+            levelled[obj] = srgb8(lin[obj] / max(error, 1e-12))
+            s = scores(levelled, truth, obj, tg)
+            cases.append({"scene": name, "target": t, "level_error": error, **s,
+                          "beats": s["l2"] < base["l2"] and s["ssim"] > base["ssim"]})
+        per_scene = [(name, float(np.exp(np.mean(np.log(e))))) for name, e in errors.items()]
         logs = np.log([e for _, e in per_scene])
         row = {"log_rms": float(np.sqrt(np.mean(logs ** 2))), "bias": float(np.exp(logs.mean())),
                "per_scene": dict(per_scene),

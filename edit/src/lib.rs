@@ -101,6 +101,18 @@ pub struct LightOptions {
     pub fov_deg: Option<f64>,
 }
 
+impl LightOptions {
+    /// What sets the level here: `Background`, `Network` or `Given`, never `Auto` (which is the
+    /// background with a given light, the network otherwise) and `Given` only with a given light.
+    fn level_from(&self) -> LevelFrom {
+        match (self.level, self.given.is_some()) {
+            (LevelFrom::Background, _) | (LevelFrom::Auto, true) => LevelFrom::Background,
+            (LevelFrom::Given, true) => LevelFrom::Given,
+            _ => LevelFrom::Network,
+        }
+    }
+}
+
 /// What to edit, as the command line gives it.
 #[derive(Clone, Debug, Default)]
 pub struct EditRequest {
@@ -326,8 +338,9 @@ pub fn understand(
     enter(w, "network")?;
     let t = Instant::now();
     let mut x = network_prediction(&model.net, &prep)?;
+    let level_from = light.level_from();
     if let Some(l) = &light.given {
-        x.env = if light.level == LevelFrom::Given {
+        x.env = if level_from == LevelFrom::Given {
             light_at_own_level(l, prep.exposure)?
         } else {
             light_at_photo_level(&model.layer, &prep, &x, l)?
@@ -388,12 +401,7 @@ pub fn understand(
         }
     };
     let fov_deg = light.fov_deg.unwrap_or(background::DEFAULT_FOV_DEG);
-    let from_background = match light.level {
-        LevelFrom::Auto => light.given.is_some(),
-        LevelFrom::Background => true,
-        LevelFrom::Network | LevelFrom::Given => false,
-    };
-    let light_level = if from_background {
+    let light_level = if level_from == LevelFrom::Background {
         let level = background::light_level(
             &p,
             &coverage,
@@ -406,9 +414,13 @@ pub fn understand(
         x.env.iter_mut().for_each(|v| *v *= k);
         level
     } else {
-        let given = light.level == LevelFrom::Given && light.given.is_some();
         background::LightLevel {
-            source: if given { "given" } else { "network" }.into(),
+            source: if level_from == LevelFrom::Given {
+                "given"
+            } else {
+                "network"
+            }
+            .into(),
             scale: 1.0,
             pixels: 0,
             fov_deg,
