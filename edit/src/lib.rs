@@ -41,7 +41,7 @@ use matedit_physics::brdf::Dsbrdf;
 use matedit_trainer::model::network::Net;
 use matedit_trainer::model::prediction::Prediction;
 use matedit_trainer::post_optimisation;
-use matedit_trainer::render::{Batch, RenderingLayer};
+use matedit_trainer::render::{Batch, MAX_RADIANCE, RenderingLayer};
 use matedit_trainer::train::checkpoint;
 use photo::{Framing, Photo, TRAINING_MEAN_LUMINANCE};
 use progress::{Progress, enter};
@@ -441,24 +441,19 @@ pub fn understand(
     })
 }
 
-/// The brightest texel a given light may have at its own level, in the network's units (the
-/// photo's linear values times its exposure, where the object's mean luminance is 0.48): far
-/// above any sun, and 10¹⁸ below f32's largest value, the headroom the rendering layer's lobes
-/// and sums need to stay finite.
-pub const MAX_GIVEN_RADIANCE: f32 = 1e20;
-
 /// A given illumination `l` (`[3, He, 2He]`, radiance in the photo's linear units) at its own
-/// level: in the network's units, the photo's linear values times `exposure`. A light that
-/// would be brighter than [`MAX_GIVEN_RADIANCE`] there is refused (its edit could not be finite).
+/// level: in the network's units, the photo's linear values times `exposure`. A light brighter
+/// there than the rendering layer renders ([`MAX_RADIANCE`], which it caps texels at) is refused:
+/// its edit would be silently dimmer than the light asked for.
 pub fn light_at_own_level(l: &[f32], exposure: f64) -> Result<Vec<f32>> {
     let scaled: Vec<f32> = l.iter().map(|&v| (v as f64 * exposure) as f32).collect();
     let brightest = scaled.iter().fold(0.0_f32, |m, &v| m.max(v));
-    if !brightest.is_finite() || brightest > MAX_GIVEN_RADIANCE {
+    if !brightest.is_finite() || brightest > MAX_RADIANCE {
         bail!(
             "the given light at its own level (--light-level given) is too bright for this photo: \
              its brightest texel times the photo's exposure ({exposure:.3e}) is {brightest:.3e}, \
-             above {MAX_GIVEN_RADIANCE:.0e}; give it in the photo's linear units, or let the photo \
-             set its level (--light-level auto)"
+             above the {MAX_RADIANCE:.0e} the rendering layer renders; give it in the photo's \
+             linear units, or let the photo set its level (--light-level auto)"
         );
     }
     Ok(scaled)

@@ -602,15 +602,15 @@ fn a_given_light_replaces_l_prime_at_the_level_asked_for() {
 }
 
 #[test]
-fn a_light_at_its_own_level_is_refused_where_its_edit_could_not_be_finite() {
+fn a_light_at_its_own_level_is_refused_where_the_layer_would_cap_it() {
     // The photo's exposure only: values, zeros and the bound itself pass unchanged in ratio.
-    let l = [0.0_f32, 1.0, 2.5, MAX_GIVEN_RADIANCE / 4.0];
+    let l = [0.0_f32, 1.0, 2.5, MAX_RADIANCE / 4.0];
     let got = light_at_own_level(&l, 4.0).unwrap();
-    assert_eq!(got, vec![0.0, 4.0, 10.0, MAX_GIVEN_RADIANCE]);
-    // Brighter than the bound, or past f32 (a finite map times a large exposure), is refused
-    // by name; so is a tiny exposure that cannot bring f32::MAX down far enough.
+    assert_eq!(got, vec![0.0, 4.0, 10.0, MAX_RADIANCE]);
+    // Brighter than the layer renders, or past f32 (a finite map times a large exposure), is
+    // refused by name; so is a tiny exposure that cannot bring f32::MAX down far enough.
     for (l, exposure) in [
-        (vec![1.0_f32, MAX_GIVEN_RADIANCE], 1.5),
+        (vec![1.0_f32, MAX_RADIANCE], 1.5),
         (vec![f32::MAX / 2.0], 4.0),
         (vec![f32::MAX], 1e-10),
     ] {
