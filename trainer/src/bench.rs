@@ -215,6 +215,7 @@ fn warm_up(
         perceptual: 0.0,
         illumination: 0.0,
         ssim: 0.0,
+        light_energy: 0.0,
     };
     let warm_ctx = StepContext {
         weights: &normals_only,
@@ -416,6 +417,7 @@ fn loss_terms(w: &LossWeights) -> String {
         ("perceptual", w.perceptual),
         ("illumination", w.illumination),
         ("ssim", w.ssim),
+        ("light_energy", w.light_energy),
     ]
     .into_iter()
     .filter(|(_, v)| *v != 0.0)

@@ -154,6 +154,32 @@ pub fn illumination_loss(pred: Tensor<4>, truth: Tensor<4>) -> Tensor<1> {
     mean((display(pred, e.clone()) - display(truth, e)).powi_scalar(2))
 }
 
+/// Added to both energies of [`light_energy_loss`] so that a black map has a finite logarithm:
+/// far below any map's mean radiance in the datasets here (real maps' means are 1e-2 to 1e2).
+pub const LIGHT_ENERGY_FLOOR: f64 = 1e-6;
+
+/// The loss on the predicted light's energy (an option, not in the paper): the mean over images
+/// and channels of ln²((E' + ε) / (E + ε)), E the map's mean radiance over the sphere (each
+/// equirectangular row weighted by its solid angle, sin θ) and ε = [`LIGHT_ENERGY_FLOOR`].
+/// [`illumination_loss`] compares the maps where the true map's 99th percentile is white, so a
+/// sun's or a lamp's energy above that clip costs the prediction nothing; this term charges a
+/// dim or an over-bright L' for all of it, whatever the map's absolute scale.
+pub fn light_energy_loss(pred: Tensor<4>, truth: Tensor<4>) -> Tensor<1> {
+    let [b, c, h, w] = truth.dims();
+    let device = truth.device();
+    let rows: Vec<f32> = (0..h)
+        .map(|i| ((i as f64 + 0.5) * std::f64::consts::PI / h as f64).sin() as f32)
+        .collect();
+    let total: f64 = rows.iter().map(|&r| r as f64).sum::<f64>() * w as f64;
+    let weights = Tensor::<4>::from_data(TensorData::new(rows, [1, 1, h, 1]), &device).div_scalar(total);
+    // Clamped so that no sum of texels can overflow f32 (a map's texels are far below 1e30).
+    let energy = |x: Tensor<4>| {
+        row_sums((x.clamp(0.0, 1e30) * weights.clone()).reshape([b * c, h * w])).add_scalar(LIGHT_ENERGY_FLOOR)
+    };
+    let ratio = energy(pred) / energy(truth.detach());
+    mean(ratio.log().powi_scalar(2))
+}
+
 /// The fallback perceptual loss between a rendered image and the ground truth (`[B, 3, H, W]`,
 /// linear), on object pixels (`mask` `[B, 1, H, W]`).
 pub fn perceptual_fallback(pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -> Tensor<1> {

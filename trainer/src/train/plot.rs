@@ -17,7 +17,7 @@ pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Resul
         let root = BitMapBackend::new(&tmp, (960, 540)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
         type Series<'a> = (&'static str, RGBColor, Box<dyn Fn(&MetricsLine) -> f64 + 'a>);
-        let series: [Series; 6] = [
+        let series: [Series; 7] = [
             ("total (Eq. 5)", BLACK, Box::new(|l| l.losses.total)),
             (
                 "w_n · normal",
@@ -43,6 +43,11 @@ pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Resul
                 "w_s · (1 − SSIM)",
                 RGBColor(214, 39, 40),
                 Box::new(|l| w.ssim * l.losses.ssim),
+            ),
+            (
+                "w_E · light energy",
+                RGBColor(140, 86, 75),
+                Box::new(|l| w.light_energy * l.losses.light_energy),
             ),
         ];
         let positive = |v: f64| v.is_finite() && v > 0.0;
@@ -171,6 +176,7 @@ mod tests {
                         perceptual,
                         illumination,
                         ssim,
+                        light_energy: 0.0,
                     },
                 }
             })

@@ -3,7 +3,7 @@
 //! l = w_n·l_normal + w_m·l_material + w_p·l_perceptual (Eq. 5).
 
 use super::batch::TensorBatch;
-use super::loss::{illumination_loss, material_loss, normal_loss, ssim_loss};
+use super::loss::{illumination_loss, light_energy_loss, material_loss, normal_loss, ssim_loss};
 use super::perceptual::Perceptual;
 use crate::data;
 use crate::model::network::Net;
@@ -105,6 +105,14 @@ pub struct LossWeights {
     /// paper; 0, the default, leaves it out). See [`super::loss::ssim_loss`].
     #[serde(default)]
     pub ssim: f64,
+    /// w_E, a loss on the energy of L' (not in the paper; 0, the default, leaves it out): what
+    /// the direct loss clips away. See [`super::loss::light_energy_loss`].
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub light_energy: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 fn default_wn() -> f64 {
@@ -125,6 +133,7 @@ impl Default for LossWeights {
             perceptual: default_wp(),
             illumination: 0.0,
             ssim: 0.0,
+            light_energy: 0.0,
         }
     }
 }
@@ -146,6 +155,10 @@ pub struct Losses {
     /// 1 − SSIM on I' plus on O' (0 unless its weight is set, and in pretraining).
     #[serde(default)]
     pub ssim: f64,
+    /// The loss on L''s energy (0 unless its weight is set; not written then, so that runs
+    /// without it log what they always logged).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub light_energy: f64,
 }
 
 /// What every step of a run shares.
@@ -214,7 +227,7 @@ pub fn train_step(
     let (w, device) = (ctx.weights, ctx.device);
     let b = host_batch.to_device(device);
     let rw = step.render_with;
-    let direct_light = w.illumination > 0.0;
+    let direct_light = w.illumination > 0.0 || w.light_energy > 0.0;
     let light = (step.joint() && rw.illumination.reads_prediction()) || direct_light;
     let p = net.predict(&b.input, &b.mask, &b.region_masks, light);
     let ln = normal_loss(p.normals.clone(), b.normals.clone(), b.mask.clone());
@@ -225,10 +238,15 @@ pub fn train_step(
         ..Losses::default()
     };
     let mut total = ln.mul_scalar(w.normal) + lm.mul_scalar(w.material);
-    if let (true, Some(env)) = (direct_light, &p.env) {
+    if let (true, Some(env)) = (w.illumination > 0.0, &p.env) {
         let ll = illumination_loss(env.clone(), b.env.clone());
         losses.illumination = scalar(&ll);
         total = total + ll.mul_scalar(w.illumination);
+    }
+    if let (true, Some(env)) = (w.light_energy > 0.0, &p.env) {
+        let le = light_energy_loss(env.clone(), b.env.clone());
+        losses.light_energy = scalar(&le);
+        total = total + le.mul_scalar(w.light_energy);
     }
     if step.joint() {
         let inputs = LayerInputs {
@@ -252,7 +270,8 @@ pub fn train_step(
         + w.material * losses.material
         + w.perceptual * losses.perceptual
         + w.illumination * losses.illumination
-        + w.ssim * losses.ssim;
+        + w.ssim * losses.ssim
+        + w.light_energy * losses.light_energy;
     if !losses.total.is_finite() {
         anyhow::bail!("the loss is not finite ({losses:?}) on batch {:?}", host_batch.ids);
     }

@@ -342,6 +342,108 @@ fn the_direct_illumination_loss_is_scale_free_and_finite() {
     assert!(g.iter().all(|v| v.is_finite()), "finite gradient");
 }
 
+/// The optional loss on L''s energy against closed forms: ln²k for a map scaled by k, the rows
+/// weighted by their solid angle, blind to the probe's absolute scale, charging the energy of a
+/// sun that the direct loss clips away, finite on hard maps, its gradient equal to central
+/// differences.
+#[test]
+fn the_light_energy_loss_matches_its_closed_forms() {
+    use super::loss::{LIGHT_ENERGY_FLOOR, illumination_loss, light_energy_loss};
+    let device = Device::flex().autodiff();
+    let (h, w) = (8, 16);
+    let n = 3 * h * w;
+    let value = |t: burn::tensor::Tensor<1>| t.into_data().try_to_vec::<f32>().unwrap()[0] as f64;
+    let loss = |p: &[f32], t: &[f32]| {
+        value(light_energy_loss(
+            tensor4(p.to_vec(), [1, 3, h, w], &device),
+            tensor4(t.to_vec(), [1, 3, h, w], &device),
+        ))
+    };
+    let truth: Vec<f32> = noise(n, 7).iter().map(|v| 0.05 + 2.0 * v).collect();
+    assert_eq!(loss(&truth, &truth), 0.0);
+    // Each channel's mean radiance over the sphere, in f64: rows weighted by sin θ.
+    let sin = |row: usize| ((row as f64 + 0.5) * std::f64::consts::PI / h as f64).sin();
+    let energies = |m: &[f32]| -> Vec<f64> {
+        let total: f64 = (0..h).map(sin).sum::<f64>() * w as f64;
+        (0..3)
+            .map(|c| (0..h * w).map(|t| sin(t / w) * m[c * h * w + t] as f64).sum::<f64>() / total)
+            .collect()
+    };
+    for k in [1e-3f32, 0.5, 2.0, 1e3] {
+        let scaled: Vec<f32> = truth.iter().map(|v| v * k).collect();
+        // ln²k but for the floor ε, which matters only where k·E nears it.
+        let want = energies(&truth)
+            .iter()
+            .map(|e| {
+                ((k as f64 * e + LIGHT_ENERGY_FLOOR) / (e + LIGHT_ENERGY_FLOOR))
+                    .ln()
+                    .powi(2)
+            })
+            .sum::<f64>()
+            / 3.0;
+        assert!((want - (k as f64).ln().powi(2)).abs() <= 1e-3 * want);
+        let got = loss(&scaled, &truth);
+        assert!((got - want).abs() <= 1e-4 * want, "k {k}: {got} vs ln²k {want}");
+        // The same mistake at a far larger absolute scale costs ln²k, the floor negligible.
+        let big: Vec<f32> = truth.iter().map(|v| v * 1e4).collect();
+        let big_scaled: Vec<f32> = big.iter().map(|v| v * k).collect();
+        let ln2k = (k as f64).ln().powi(2);
+        assert!((loss(&big_scaled, &big) - ln2k).abs() <= 1e-4 * ln2k);
+    }
+    // Solid-angle weights: one bright row near the pole against the same row at the equator.
+    let row_map = |row: usize| -> Vec<f32> { (0..n).map(|i| if (i / w) % h == row { 1.0 } else { 0.0 }).collect() };
+    let want = (sin(0) / sin(h / 2)).ln().powi(2);
+    let got = loss(&row_map(0), &row_map(h / 2));
+    assert!((got - want).abs() <= 1e-3 * want, "{got} vs {want}");
+    // A sun of one texel holding most of the energy: the direct loss, clipped at the truth's
+    // 99th percentile, barely sees it missing; the energy loss does.
+    let sky: Vec<f32> = vec![0.5; n];
+    let mut sun = sky.clone();
+    for c in 0..3 {
+        sun[c * h * w + 2 * w + 3] = 5e4;
+    }
+    let direct = |p: &[f32], t: &[f32]| {
+        value(illumination_loss(
+            tensor4(p.to_vec(), [1, 3, h, w], &device),
+            tensor4(t.to_vec(), [1, 3, h, w], &device),
+        ))
+    };
+    assert!(
+        direct(&sky, &sun) < 1e-3 * 255.0 * 255.0,
+        "the clip hides the sun: {}",
+        direct(&sky, &sun)
+    );
+    assert!(loss(&sky, &sun) > 1.0, "the energy loss sees it: {}", loss(&sky, &sun));
+    // Hard maps: zero, tiny, huge and negative texels give a finite loss and gradient.
+    let hard: Vec<f32> = (0..n).map(|i| [0.0, 1e-30, 3e38, -1.0][i % 4]).collect();
+    for (p, t) in [(&hard, &truth), (&truth, &hard), (&vec![0.0; n], &vec![0.0; n])] {
+        let p = tensor4(p.clone(), [1, 3, h, w], &device).require_grad();
+        let l = light_energy_loss(p.clone(), tensor4(t.clone(), [1, 3, h, w], &device));
+        assert!(value(l.clone()).is_finite());
+        assert!(gradient(&p, l).iter().all(|v| v.is_finite()), "finite gradient");
+    }
+    // The gradient against central differences (f64 arithmetic on the f32 loss, step 1e-2 of
+    // each texel's value) at a few texels of a map twice as bright as the truth.
+    let pred: Vec<f32> = truth.iter().zip(noise(n, 11)).map(|(v, r)| v * (1.5 + r)).collect();
+    let p = tensor4(pred.clone(), [1, 3, h, w], &device).require_grad();
+    let g = gradient(
+        &p,
+        light_energy_loss(p.clone(), tensor4(truth.clone(), [1, 3, h, w], &device)),
+    );
+    for i in [0, 5, w + 3, h * w / 2, n - 1] {
+        let d = pred[i] * 1e-2;
+        let (mut up, mut down) = (pred.clone(), pred.clone());
+        up[i] += d;
+        down[i] -= d;
+        let fd = (loss(&up, &truth) - loss(&down, &truth)) / (up[i] as f64 - down[i] as f64);
+        assert!(
+            (g[i] as f64 - fd).abs() <= 2e-2 * fd.abs().max(1e-6),
+            "texel {i}: {} vs {fd}",
+            g[i]
+        );
+    }
+}
+
 /// Deterministic values in [0, 1) (a 64-bit LCG: the tests need variety, not quality).
 fn noise(n: usize, seed: u64) -> Vec<f32> {
     let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
@@ -505,6 +607,30 @@ fn pretraining_with_the_direct_illumination_loss_lowers_it() {
     }
 }
 
+/// The loss on L''s energy trains the illumination module on its own (every other weight 0):
+/// reported and falling at every pretraining step with w_E > 0, absent (0, and the total 0) without.
+#[test]
+fn pretraining_with_the_light_energy_loss_lowers_it() {
+    for w_e in [0.0, 100.0] {
+        let w = LossWeights {
+            normal: 0.0,
+            material: 0.0,
+            perceptual: 0.0,
+            illumination: 0.0,
+            ssim: 0.0,
+            light_energy: w_e,
+        };
+        let seen = run_with(StepKind::PRETRAIN, 8, 5, &w);
+        let energy: Vec<f64> = seen.iter().map(|l| l.light_energy).collect();
+        if w_e == 0.0 {
+            assert!(seen.iter().all(|l| l.light_energy == 0.0 && l.total == 0.0), "{seen:?}");
+        } else {
+            assert!(energy[0] > 0.0 && energy.windows(2).all(|p| p[1] < p[0]), "{energy:?}");
+            assert!(seen.iter().all(|l| l.total == w_e * l.light_energy), "{seen:?}");
+        }
+    }
+}
+
 /// One joint step of a fresh seeded network (no dropout) with weights `w`: the step's losses and
 /// how far (largest absolute change on the fixed batch) it moved n' and L'.
 fn one_joint_step(seed: u64, w: &LossWeights, kind: StepKind) -> (super::step::Losses, f32, f32) {
@@ -567,6 +693,7 @@ fn the_ssim_loss_trains_through_the_rendering_layer() {
             perceptual: 0.0,
             illumination: 0.0,
             ssim: w_s,
+            light_energy: 0.0,
         };
         let (l, n_moved, l_moved) = one_joint_step(11, &w, StepKind::JOINT);
         if w_s > 0.0 {

@@ -101,6 +101,9 @@ pub struct LossSection {
     /// w_s of a structural loss, 1 − SSIM, on I' and O' (not in the paper; default 0: none).
     #[serde(default = "default_wl")]
     pub ssim: Spanned<f64>,
+    /// w_E of a loss on the energy of L' (not in the paper; default 0: none).
+    #[serde(default = "default_wl")]
+    pub light_energy: Spanned<f64>,
     /// Pretrained VGG16 weights (torchvision `.pth`/`.pt`, or safetensors) for the perceptual
     /// loss; without, the documented fallback is used and the log says so.
     #[serde(default)]
@@ -134,6 +137,7 @@ impl Default for LossSection {
             perceptual: default_wp(),
             illumination: default_wl(),
             ssim: default_wl(),
+            light_energy: default_wl(),
             vgg16: None,
             vgg16_layers: default_layers(),
         }
@@ -490,6 +494,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         ("loss.perceptual", &l.perceptual),
         ("loss.illumination", &l.illumination),
         ("loss.ssim", &l.ssim),
+        ("loss.light_energy", &l.light_energy),
     ] {
         if !(0.0..=1e6).contains(v.get_ref()) {
             return Err(bad(
@@ -544,6 +549,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         perceptual: *l.perceptual.get_ref(),
         illumination: *l.illumination.get_ref(),
         ssim: *l.ssim.get_ref(),
+        light_energy: *l.light_energy.get_ref(),
     };
     Ok(TrainPlan {
         path: path.to_path_buf(),
