@@ -4,6 +4,8 @@
 pub mod batch;
 pub mod checkpoint;
 pub mod loss;
+#[cfg(test)]
+mod loss_tests;
 pub mod manifest;
 pub mod perceptual;
 pub mod plot;

@@ -164,19 +164,25 @@ mod tests {
                 let perceptual = if joint { 5000.0 * wobble } else { 0.0 };
                 let illumination = 300.0 / (i as f64).powf(0.2);
                 let ssim = if joint { 0.3 * wobble } else { 0.0 };
+                let light_energy = 0.4 / (i as f64).powf(0.5);
                 MetricsLine {
                     stage: if joint { "joint" } else { "pretrain" }.into(),
                     step: if joint { i - 200 } else { i },
                     global_step: i,
                     lr: 1e-4,
                     losses: Losses {
-                        total: 1e4 * normal + 1e3 * material + perceptual + illumination + 1e4 * ssim,
+                        total: 1e4 * normal
+                            + 1e3 * material
+                            + perceptual
+                            + illumination
+                            + 1e4 * ssim
+                            + 1e3 * light_energy,
                         normal,
                         material,
                         perceptual,
                         illumination,
                         ssim,
-                        light_energy: 0.0,
+                        light_energy,
                     },
                 }
             })
@@ -185,6 +191,7 @@ mod tests {
         let weights = LossWeights {
             illumination: 1.0,
             ssim: 1e4,
+            light_energy: 1e3,
             ..LossWeights::default()
         };
         loss_curves(&lines, &path, &weights).unwrap();
@@ -197,6 +204,7 @@ mod tests {
             [44, 160, 44],
             [148, 103, 189],
             [214, 39, 40],
+            [140, 86, 75],
         ] {
             let n = img.pixels().filter(|p| p.0 == colour).count();
             assert!(n > 300, "colour {colour:?}: {n} pixels");
