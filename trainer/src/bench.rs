@@ -211,11 +211,7 @@ fn warm_up(
 ) -> Result<(Net, usize, (f64, f64))> {
     let normals_only = LossWeights {
         normal: LossWeights::default().normal,
-        material: 0.0,
-        perceptual: 0.0,
-        illumination: 0.0,
-        ssim: 0.0,
-        light_energy: 0.0,
+        ..LossWeights::NONE
     };
     let warm_ctx = StepContext {
         weights: &normals_only,

@@ -20,6 +20,7 @@ use crate::metrics::{SSIM_C1, SSIM_C2, SSIM_RADIUS, SSIM_SIGMA};
 use burn::tensor::module::{avg_pool2d, conv2d};
 use burn::tensor::ops::{AvgPoolOptions, ConvOptions};
 use burn::tensor::{Tensor, TensorData};
+use matedit_physics::envmap::texel_solid_angle;
 
 /// The sum of each row of `x` (`[B, N]` → `[B]`). On a CubeCL device Burn 0.22.1's reduction
 /// kernels are wrong once a reduction spans more than 65,535 workgroups (measured on lavapipe:
@@ -160,7 +161,7 @@ pub const LIGHT_ENERGY_FLOOR: f64 = 1e-6;
 
 /// The loss on the predicted light's energy (an option, not in the paper): the mean over images
 /// and channels of ln²((E' + ε) / (E + ε)), E the map's mean radiance over the sphere (each
-/// equirectangular row weighted by its solid angle, sin θ) and ε = [`LIGHT_ENERGY_FLOOR`].
+/// texel weighted by its solid angle over 4π) and ε = [`LIGHT_ENERGY_FLOOR`].
 /// [`illumination_loss`] compares the maps where the true map's 99th percentile is white, so a
 /// sun's or a lamp's energy above that clip costs the prediction nothing; this term charges a
 /// dim or an over-bright L' for all of it, whatever the map's absolute scale.
@@ -168,10 +169,9 @@ pub fn light_energy_loss(pred: Tensor<4>, truth: Tensor<4>) -> Tensor<1> {
     let [b, c, h, w] = truth.dims();
     let device = truth.device();
     let rows: Vec<f32> = (0..h)
-        .map(|i| ((i as f64 + 0.5) * std::f64::consts::PI / h as f64).sin() as f32)
+        .map(|i| (texel_solid_angle(i, w, h) / (4.0 * std::f64::consts::PI)) as f32)
         .collect();
-    let total: f64 = rows.iter().map(|&r| r as f64).sum::<f64>() * w as f64;
-    let weights = Tensor::<4>::from_data(TensorData::new(rows, [1, 1, h, 1]), &device).div_scalar(total);
+    let weights = Tensor::<4>::from_data(TensorData::new(rows, [1, 1, h, 1]), &device);
     // Clamped so that no sum of texels can overflow f32 (a map's texels are far below 1e30).
     let energy = |x: Tensor<4>| {
         row_sums((x.clamp(0.0, 1e30) * weights.clone()).reshape([b * c, h * w])).add_scalar(LIGHT_ENERGY_FLOOR)

@@ -125,6 +125,18 @@ fn default_wp() -> f64 {
     1.0
 }
 
+impl LossWeights {
+    /// Every weight 0: a base for runs and tests that train one term alone.
+    pub const NONE: LossWeights = LossWeights {
+        normal: 0.0,
+        material: 0.0,
+        perceptual: 0.0,
+        illumination: 0.0,
+        ssim: 0.0,
+        light_energy: 0.0,
+    };
+}
+
 impl Default for LossWeights {
     fn default() -> Self {
         Self {

@@ -236,12 +236,8 @@ fn pretraining_with_the_direct_illumination_loss_lowers_it() {
 fn pretraining_with_the_light_energy_loss_lowers_it() {
     for w_e in [0.0, 100.0] {
         let w = LossWeights {
-            normal: 0.0,
-            material: 0.0,
-            perceptual: 0.0,
-            illumination: 0.0,
-            ssim: 0.0,
             light_energy: w_e,
+            ..LossWeights::NONE
         };
         let seen = run_with(StepKind::PRETRAIN, 8, 5, &w);
         let energy: Vec<f64> = seen.iter().map(|l| l.light_energy).collect();
@@ -311,12 +307,8 @@ fn detached_normals_get_no_gradient_from_the_rendering_layer() {
 fn the_ssim_loss_trains_through_the_rendering_layer() {
     for w_s in [0.0, 100.0] {
         let w = LossWeights {
-            normal: 0.0,
-            material: 0.0,
-            perceptual: 0.0,
-            illumination: 0.0,
             ssim: w_s,
-            light_energy: 0.0,
+            ..LossWeights::NONE
         };
         let (l, n_moved, l_moved) = one_joint_step(11, &w, StepKind::JOINT);
         if w_s > 0.0 {
