@@ -581,8 +581,37 @@ def parse_methods(items):
     return methods
 
 
-def run_edit(args, scene_dir, spec, out_dir, extra):
-    """Runs matedit edit; returns (edited image or None, seconds, error text)."""
+METALS_F0 = Path(__file__).resolve().parents[1] / "assets" / "materials" / "metals_f0.json"
+
+
+def project_spec(mitsuba):
+    """The project's material spec nearest to a scene's Mitsuba input material, for methods that
+    give the object's own material (`--input-material {input}`), an oracle like `{scene}/light.exr`.
+    None is exact: `roughplastic` -> plastic:ALPHA:DIFFUSE (Mitsuba's coating refracts and
+    reflects internally, the project's adds a GGX lobe of F0 0.04); `principled` -> plastic with
+    alpha = roughness^2 when metallic < 0.5, else ggx with F0 = metallic * base + (1 - metallic) *
+    0.08 * specular (its diffuse share dropped); `roughconductor` -> ggx with the metal's F0 of
+    assets/materials/metals_f0.json (Schlick against Mitsuba's spectral Fresnel)."""
+    kind = mitsuba["type"]
+    fmt = lambda v: ",".join(f"{x:.4g}" for x in v)
+    if kind == "roughplastic":
+        return f"plastic:{mitsuba['alpha']:.4g}:{fmt(mitsuba['diffuse_reflectance']['value'])}"
+    if kind == "principled":
+        base, alpha = mitsuba["base_color"]["value"], mitsuba["roughness"] ** 2
+        if mitsuba["metallic"] < 0.5:
+            return f"plastic:{alpha:.4g}:{fmt(base)}"
+        m = mitsuba["metallic"]
+        return f"ggx:{alpha:.4g}:{fmt([m * b + (1 - m) * 0.08 * mitsuba['specular'] for b in base])}"
+    if kind == "roughconductor":
+        metals = json.loads(METALS_F0.read_text())["metals"].values()
+        f0 = next(v["f0_rgb"] for v in metals if v["file"] == mitsuba["material"])
+        return f"ggx:{mitsuba['alpha']:.4g}:{fmt(f0)}"
+    raise ValueError(f"no project spec for Mitsuba material {kind}")
+
+
+def run_edit(args, scene_dir, spec, out_dir, extra, input_spec=None):
+    """Runs matedit edit; returns (edited image or None, seconds, error text). `{scene}` in
+    `extra` is the scene's folder, `{input}` the project spec of its input material."""
     out_dir.mkdir(parents=True, exist_ok=True)
     edited, report = out_dir / "edited.png", out_dir / "report.json"
     if not (args.reuse and edited.exists() and report.exists()):
@@ -590,7 +619,7 @@ def run_edit(args, scene_dir, spec, out_dir, extra):
             f.unlink(missing_ok=True)
         cmd = [args.matedit, "edit", "--model", args.model, "--image", str(scene_dir / "photo.png"),
                "--mask", str(scene_dir / "mask.png"), "--material", spec, "--out", str(out_dir)]
-        cmd += [a.replace("{scene}", str(scene_dir)) for a in extra]
+        cmd += [a.replace("{scene}", str(scene_dir)).replace("{input}", input_spec or "") for a in extra]
         try:
             proc = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
         except (OSError, subprocess.TimeoutExpired) as e:
@@ -812,7 +841,7 @@ def cmd_score(args):
                           "error": None, "seconds": None, **base})
             for m, extra in methods.items():
                 edited, secs, err = run_edit(args, d, TARGETS[t]["spec"], out / "edits" / m / f"{rec['name']}-{t}",
-                                             extra)
+                                             extra, project_spec(rec["input_mitsuba"]))
                 if err is None and edited.shape != photo.shape:
                     err = (f"edited.png is {edited.shape[1]}x{edited.shape[0]}, "
                            f"the photo {photo.shape[1]}x{photo.shape[0]}")

@@ -74,6 +74,12 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// background is seen along. Default 40.
         #[arg(long, value_parser = finite_in(1.0, 170.0), allow_negative_numbers = true)]
         fov: Option<f64>,
+        /// The object's own material when it is known (a SPEC as --material takes, for every
+        /// region): used instead of the predicted m', and the light's level becomes the one at
+        /// which it explains the photo (a masked object does not tell its albedo from the light's
+        /// brightness). Not with --eq6, which would change it.
+        #[arg(long, conflicts_with = "optimize")]
+        input_material: Option<String>,
         /// How the render goes back into the photo.
         #[arg(long, value_enum, default_value_t = Composite::default())]
         composite: Composite,
@@ -264,6 +270,7 @@ fn run(cli: Cli) -> Result<()> {
             light,
             light_level,
             fov,
+            input_material,
             composite,
             optimize,
             eq6_a,
@@ -282,6 +289,7 @@ fn run(cli: Cli) -> Result<()> {
                 light,
                 light_level,
                 fov_deg: fov,
+                input_material,
                 composite,
                 optimize: optimize.then(|| Eq6Config {
                     a: eq6_a,
@@ -439,6 +447,12 @@ mod tests {
         ] {
             assert!(parse(&[option, value]).is_ok(), "{option} {value} refused");
         }
+        // The object's known material is held: Eq. 6, which would change it, is refused with it.
+        assert!(parse(&["--input-material", "library:red-plastic"]).is_ok());
+        let e = parse(&["--input-material", "lambert:0.2,0.2,0.2", "--eq6"])
+            .err()
+            .expect("--input-material with --eq6 accepted");
+        assert!(e.to_string().contains("--input-material"), "{e}");
     }
 
     #[test]

@@ -21,6 +21,9 @@ pub mod background;
 pub mod cli;
 pub mod composite;
 pub mod detail;
+pub mod light;
+#[cfg(test)]
+mod light_tests;
 pub mod output;
 pub mod photo;
 pub mod predict;
@@ -33,6 +36,7 @@ pub mod target;
 mod tests;
 pub mod transfer;
 
+pub use light::{LevelFrom, LightOptions, light_at_own_level, light_at_photo_level};
 pub use transfer::{swap, transfer, transfer_with};
 
 use anyhow::{Context, Result, bail};
@@ -41,7 +45,7 @@ use matedit_physics::brdf::Dsbrdf;
 use matedit_trainer::model::network::Net;
 use matedit_trainer::model::prediction::Prediction;
 use matedit_trainer::post_optimisation;
-use matedit_trainer::render::{Batch, MAX_RADIANCE, RenderingLayer};
+use matedit_trainer::render::RenderingLayer;
 use matedit_trainer::train::checkpoint;
 use photo::{Framing, Photo, TRAINING_MEAN_LUMINANCE};
 use progress::{Progress, enter};
@@ -72,47 +76,6 @@ pub enum Composite {
     Ratio,
 }
 
-/// What sets the level of the light the edit is rendered under.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum LevelFrom {
-    /// The background with a given light (`--light`), the network's otherwise: the levels
-    /// measured best on the photo benchmark (docs/PERFORMANCE.md, "Editing photos").
-    #[default]
-    Auto,
-    /// The photo's background, where it shows enough unclipped surroundings ([`background`]);
-    /// the network's level otherwise.
-    Background,
-    /// The network's: the level at which I' = R(n', m', L') matches the photo (the paper's).
-    Network,
-    /// A given light's own level (`--light` only): its values are radiance in the photo's linear
-    /// units, as a light probe captured with the photo's exposure would be.
-    Given,
-}
-
-/// How the photo's illumination is found: the network's L' (or a given map) and its level.
-#[derive(Clone, Debug, Default)]
-pub struct LightOptions {
-    /// A known illumination (`[3, He, 2He]`, camera space) used instead of L'.
-    pub given: Option<Vec<f32>>,
-    /// What sets its level.
-    pub level: LevelFrom,
-    /// The photo's horizontal field of view in degrees (default [`background::DEFAULT_FOV_DEG`]).
-    pub fov_deg: Option<f64>,
-}
-
-impl LightOptions {
-    /// What sets the level here: `Background`, `Network` or `Given`, never `Auto` (which is the
-    /// background with a given light, the network otherwise) and `Given` only with a given light.
-    fn level_from(&self) -> LevelFrom {
-        match (self.level, self.given.is_some()) {
-            (LevelFrom::Background, _) | (LevelFrom::Auto, true) => LevelFrom::Background,
-            (LevelFrom::Given, true) => LevelFrom::Given,
-            _ => LevelFrom::Network,
-        }
-    }
-}
-
 /// What to edit, as the command line gives it.
 #[derive(Clone, Debug, Default)]
 pub struct EditRequest {
@@ -132,6 +95,9 @@ pub struct EditRequest {
     pub light_level: LevelFrom,
     /// The photo's horizontal field of view in degrees (default [`background::DEFAULT_FOV_DEG`]).
     pub fov_deg: Option<f64>,
+    /// The object's own material, when known (a spec, as `--material` takes): used instead of
+    /// m', and it sets the light's level ([`LightOptions::input_material`]).
+    pub input_material: Option<String>,
     /// How to composite.
     pub composite: Composite,
     /// Refine n', m', L' with Eq. 6 before rendering.
@@ -214,6 +180,8 @@ pub struct EditReport {
     pub relight: Option<String>,
     /// The photo's illumination given instead of L', if any.
     pub light: Option<String>,
+    /// The object's own material given instead of m', if any.
+    pub input_material: Option<String>,
     /// How the light's level was set.
     pub light_level: background::LightLevel,
     /// How O' went back into the photo.
@@ -246,6 +214,8 @@ pub struct Understood {
     pub eq6: Option<Eq6Report>,
     /// How L*'s level was set (L* above is at that level).
     pub light_level: background::LightLevel,
+    /// The object's own material's spec, when it was given instead of m'.
+    pub input_material: Option<String>,
     /// Seconds the network took.
     pub network_seconds: f64,
 }
@@ -339,6 +309,13 @@ pub fn understand(
     let t = Instant::now();
     let mut x = network_prediction(&model.net, &prep)?;
     let level_from = light.level_from();
+    if let Some((_, m)) = &light.input_material {
+        x.materials = m.repeat(prep.regions);
+        if light.given.is_none() {
+            let l = std::mem::take(&mut x.env);
+            x.env = light_at_photo_level(&model.layer, &prep, &x, &l)?;
+        }
+    }
     if let Some(l) = &light.given {
         x.env = if level_from == LevelFrom::Given {
             light_at_own_level(l, prep.exposure)?
@@ -415,10 +392,10 @@ pub fn understand(
         level
     } else {
         background::LightLevel {
-            source: if level_from == LevelFrom::Given {
-                "given"
-            } else {
-                "network"
+            source: match (level_from, &light.input_material) {
+                (LevelFrom::Given, _) => "given",
+                (_, Some(_)) => "input material",
+                _ => "network",
             }
             .into(),
             scale: 1.0,
@@ -437,55 +414,9 @@ pub fn understand(
         detail,
         eq6,
         light_level,
+        input_material: light.input_material.as_ref().map(|(spec, _)| spec.clone()),
         network_seconds,
     })
-}
-
-/// A given illumination `l` (`[3, He, 2He]`, radiance in the photo's linear units) at its own
-/// level: in the network's units, the photo's linear values times `exposure`. A light brighter
-/// there than the rendering layer renders ([`MAX_RADIANCE`], which it caps texels at) is refused:
-/// its edit would be silently dimmer than the light asked for.
-pub fn light_at_own_level(l: &[f32], exposure: f64) -> Result<Vec<f32>> {
-    let scaled: Vec<f32> = l.iter().map(|&v| (v as f64 * exposure) as f32).collect();
-    let brightest = scaled.iter().fold(0.0_f32, |m, &v| m.max(v));
-    if !brightest.is_finite() || brightest > MAX_RADIANCE {
-        bail!(
-            "the given light at its own level (--light-level given) is too bright for this photo: \
-             its brightest texel times the photo's exposure ({exposure:.3e}) is {brightest:.3e}, \
-             above the {MAX_RADIANCE:.0e} the rendering layer renders; give it in the photo's \
-             linear units, or let the photo set its level (--light-level auto)"
-        );
-    }
-    Ok(scaled)
-}
-
-/// A given illumination `l` (`[3, He, 2He]`) at the level that explains the photo best: the
-/// scale k minimising Σ (k·R(n', m', l) − I)² over the object (a map's exposure is arbitrary).
-pub fn light_at_photo_level(layer: &RenderingLayer, prep: &Prepared, x: &Prediction, l: &[f32]) -> Result<Vec<f32>> {
-    let s = prep.size;
-    let rendered = layer.forward(&Batch {
-        batch: 1,
-        size: (s, s),
-        regions: prep.regions,
-        normals: &x.normals,
-        region_map: &prep.region_map,
-        materials: &x.materials,
-        env: l,
-    })?;
-    let (mut ri, mut rr) = (0.0_f64, 0.0_f64);
-    for (k, (&r, &i)) in rendered.iter().zip(&prep.input).enumerate() {
-        if prep.mask[k % (s * s)] > 0.0 {
-            ri += r as f64 * i as f64;
-            rr += r as f64 * r as f64;
-        }
-    }
-    let k = ri / rr;
-    if !(k.is_finite() && k > 0.0) {
-        bail!(
-            "the given light leaves the object black under the predicted material and normals: it cannot explain the photo"
-        );
-    }
-    Ok(l.iter().map(|&v| (v as f64 * k) as f32).collect())
 }
 
 /// Renders an understood photo with `targets` (and `relight`), composites, and writes every
@@ -522,6 +453,7 @@ fn finish(
         detail,
         eq6,
         light_level,
+        input_material,
         network_seconds,
     } = u;
     let relight_env = relight.as_ref().map(|(_, l)| l.as_slice());
@@ -575,6 +507,7 @@ fn finish(
         regions: targets.iter().map(|(_, r)| r.clone()).collect(),
         relight: relight.map(|(spec, _)| spec.to_string()),
         light: light_spec.map(str::to_string),
+        input_material,
         light_level,
         composite: how,
         eq6,
@@ -667,6 +600,14 @@ fn edit_checked(
             .transpose()?,
         level: req.light_level,
         fov_deg: req.fov_deg,
+        input_material: req
+            .input_material
+            .as_ref()
+            .map(|spec| {
+                let (m, _) = target::dsbrdf_of(spec).context("--input-material")?;
+                Ok::<_, anyhow::Error>((spec.clone(), m.to_normalised().map(|v| v as f32).to_vec()))
+            })
+            .transpose()?,
     };
     let t_load = t0.elapsed().as_secs_f64();
     let u = understand(model, read, &req.photo, req.optimize.as_ref(), &light, watcher)?;

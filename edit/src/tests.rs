@@ -9,7 +9,7 @@ use matedit_trainer::model::network::NetConfig;
 use matedit_trainer::train::checkpoint::{State, save};
 use std::sync::OnceLock;
 
-fn dir(name: &str) -> PathBuf {
+pub(crate) fn dir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("matedit-edit-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
@@ -17,7 +17,7 @@ fn dir(name: &str) -> PathBuf {
 }
 
 /// A checkpoint of a small untrained network (16² input, 4-row environments).
-fn model() -> &'static Path {
+pub(crate) fn model() -> &'static Path {
     static M: OnceLock<PathBuf> = OnceLock::new();
     M.get_or_init(|| {
         let root = dir("model");
@@ -32,7 +32,7 @@ fn model() -> &'static Path {
 
 /// A 60×40 sRGB photo: a grey-blue gradient background and an orange ellipse, with its mask
 /// (white on black) and a two-region label image (left half 1, right half 2).
-fn write_photo(d: &Path) -> (PathBuf, PathBuf, PathBuf) {
+pub(crate) fn write_photo(d: &Path) -> (PathBuf, PathBuf, PathBuf) {
     let (w, h) = (60u32, 40u32);
     let inside = |x: u32, y: u32| {
         let (u, v) = ((x as f64 - 30.0) / 20.0, (y as f64 - 22.0) / 12.0);
@@ -54,7 +54,7 @@ fn write_photo(d: &Path) -> (PathBuf, PathBuf, PathBuf) {
     (p, m, r)
 }
 
-fn request(p: &Path, m: &Path, material: &str) -> EditRequest {
+pub(crate) fn request(p: &Path, m: &Path, material: &str) -> EditRequest {
     EditRequest {
         photo: p.to_path_buf(),
         mask: Some(m.to_path_buf()),
@@ -525,98 +525,6 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     .unwrap_err();
     assert!(format!("{e:#}").contains("missing.png"));
     assert!(!never.exists());
-}
-
-#[test]
-fn a_given_light_replaces_l_prime_at_the_level_asked_for() {
-    let d = dir("light");
-    let (p, m, _) = write_photo(&d);
-    let studio = target::relight_env("builtin:studio", 4).unwrap();
-    let env_of = |out: &Path| {
-        let (_, _, ch) = matedit_contract::io::read_exr_channels(&out.join("env.exr")).unwrap();
-        let n = ch["R"].len();
-        (0..3 * n)
-            .map(|k| ch[["R", "G", "B"][k / n]][k % n])
-            .collect::<Vec<f32>>()
-    };
-    let report = |out: &Path| -> serde_json::Value {
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
-    };
-    // The default level with a given light is the background's; the map written is the given
-    // one up to that single factor.
-    let with = |level: LevelFrom, light: Option<&str>| EditRequest {
-        light: light.map(str::to_string),
-        light_level: level,
-        ..request(&p, &m, "library:gold-polished")
-    };
-    for (name, level, source) in [
-        ("auto", LevelFrom::Auto, "background"),
-        ("network", LevelFrom::Network, "network"),
-        ("given", LevelFrom::Given, "given"),
-    ] {
-        let out = d.join(name);
-        let r = edit(model(), &with(level, Some("builtin:studio")), &out).unwrap();
-        assert_eq!(r.light_level.source, source, "{name}: {:?}", r.light_level);
-        assert_eq!(report(&out)["light"], "builtin:studio");
-        assert_eq!(report(&out)["light_level"]["source"], source);
-        let env = env_of(&out);
-        let k = env[0] / studio[0];
-        assert!(k.is_finite() && k > 0.0);
-        if level == LevelFrom::Given {
-            // The map's own level: only the photo's exposure (linear photo → network units).
-            let exposure = r.exposure as f32;
-            assert!((k - exposure).abs() <= 1e-5 * exposure, "{k} vs {exposure}");
-            assert_eq!(r.light_level.scale, 1.0);
-        }
-        for (a, b) in env.iter().zip(&studio) {
-            assert!(
-                (a - k * b).abs() <= 1e-4 * (k * b).abs().max(1e-6),
-                "{name}: {a} vs {k} × {b}"
-            );
-        }
-    }
-    // Without a light the default keeps the network's level; asked for, the background sets it.
-    let out = d.join("net");
-    let r = edit(model(), &with(LevelFrom::Auto, None), &out).unwrap();
-    assert_eq!((r.light_level.source.as_str(), r.light_level.scale), ("network", 1.0));
-    assert!(report(&out)["light"].is_null());
-    // `given` names a given light's level: without one, L' keeps the network's.
-    let r = edit(model(), &with(LevelFrom::Given, None), &d.join("given-none")).unwrap();
-    assert_eq!((r.light_level.source.as_str(), r.light_level.scale), ("network", 1.0));
-    let r = edit(model(), &with(LevelFrom::Background, None), &d.join("bg")).unwrap();
-    assert_eq!(r.light_level.source, "background", "{:?}", r.light_level);
-    assert!(r.light_level.pixels >= 500 && r.light_level.scale.is_finite() && r.light_level.scale > 0.0);
-    // A light that cannot explain the photo, a light that is not a map: refused, nothing written.
-    let black = d.join("black.hdr");
-    let mut f = std::fs::File::create(&black).unwrap();
-    let pixels = vec![image::Rgb([0.0_f32; 3]); 8 * 4];
-    image::codecs::hdr::HdrEncoder::new(&mut f)
-        .encode(&pixels, 8, 4)
-        .unwrap();
-    let out = d.join("refused");
-    let e = edit(model(), &with(LevelFrom::Auto, Some(black.to_str().unwrap())), &out).unwrap_err();
-    assert!(format!("{e:#}").contains("leaves the object black"), "{e:#}");
-    let e = edit(model(), &with(LevelFrom::Auto, Some("builtin:nope")), &out).unwrap_err();
-    assert!(format!("{e:#}").contains("nope"), "{e:#}");
-    assert!(!out.exists());
-}
-
-#[test]
-fn a_light_at_its_own_level_is_refused_where_the_layer_would_cap_it() {
-    // The photo's exposure only: values, zeros and the bound itself pass unchanged in ratio.
-    let l = [0.0_f32, 1.0, 2.5, MAX_RADIANCE / 4.0];
-    let got = light_at_own_level(&l, 4.0).unwrap();
-    assert_eq!(got, vec![0.0, 4.0, 10.0, MAX_RADIANCE]);
-    // Brighter than the layer renders, or past f32 (a finite map times a large exposure), is
-    // refused by name; so is a tiny exposure that cannot bring f32::MAX down far enough.
-    for (l, exposure) in [
-        (vec![1.0_f32, MAX_RADIANCE], 1.5),
-        (vec![f32::MAX / 2.0], 4.0),
-        (vec![f32::MAX], 1e-10),
-    ] {
-        let e = light_at_own_level(&l, exposure).unwrap_err();
-        assert!(format!("{e:#}").contains("too bright for this photo"), "{e:#}");
-    }
 }
 
 fn as_refs(ch: &[(String, Vec<f32>)]) -> Vec<(&str, Vec<f32>)> {

@@ -136,6 +136,7 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
                 light: None,
                 light_level: Default::default(),
                 fov_deg: None,
+                input_material: None,
                 composite: f.composite,
                 optimize,
             })

@@ -1,0 +1,114 @@
+//! The photo's illumination for an edit: the network's L' or a given map, and what sets its
+//! level (the network's fit through m', the object's known material, or the photo's background,
+//! [`crate::background`]).
+
+use super::Prepared;
+use anyhow::{Result, bail};
+use matedit_trainer::model::prediction::Prediction;
+use matedit_trainer::render::{Batch, MAX_RADIANCE, RenderingLayer};
+
+/// What sets the level of the light the edit is rendered under.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LevelFrom {
+    /// The background with a given light (`--light`), the network's otherwise: the levels
+    /// measured best on the photo benchmark (docs/PERFORMANCE.md, "Editing photos").
+    #[default]
+    Auto,
+    /// The photo's background, where it shows enough unclipped surroundings ([`background`]);
+    /// the network's level otherwise.
+    Background,
+    /// The network's: the level at which I' = R(n', m', L') matches the photo (the paper's).
+    Network,
+    /// A given light's own level (`--light` only): its values are radiance in the photo's linear
+    /// units, as a light probe captured with the photo's exposure would be.
+    Given,
+}
+
+/// How the photo's illumination is found: the network's L' (or a given map) and its level.
+#[derive(Clone, Debug, Default)]
+pub struct LightOptions {
+    /// A known illumination (`[3, He, 2He]`, camera space) used instead of L'.
+    pub given: Option<Vec<f32>>,
+    /// What sets its level.
+    pub level: LevelFrom,
+    /// The photo's horizontal field of view in degrees (default
+    /// [`crate::background::DEFAULT_FOV_DEG`]).
+    pub fov_deg: Option<f64>,
+    /// The object's own material when it is known (`--input-material`): its spec and its
+    /// normalised DSBRDF (`[108]`). It replaces m' in every region, and the light's level becomes
+    /// the one at which it explains the photo: the albedo that a masked object does not tell the
+    /// network apart from the light's brightness (docs/PERFORMANCE.md, "The light's level").
+    pub input_material: Option<(String, Vec<f32>)>,
+}
+
+impl LightOptions {
+    /// What sets the level here: `Background`, `Network` or `Given`, never `Auto` (which is the
+    /// background with a given light, the network otherwise) and `Given` only with a given light.
+    pub(crate) fn level_from(&self) -> LevelFrom {
+        match (self.level, self.given.is_some()) {
+            (LevelFrom::Background, _) | (LevelFrom::Auto, true) => LevelFrom::Background,
+            (LevelFrom::Given, true) => LevelFrom::Given,
+            _ => LevelFrom::Network,
+        }
+    }
+}
+
+/// A given illumination `l` (`[3, He, 2He]`, radiance in the photo's linear units) at its own
+/// level: in the network's units, the photo's linear values times `exposure`. A light brighter
+/// there than the rendering layer renders ([`MAX_RADIANCE`], which it caps texels at) is refused:
+/// its edit would be silently dimmer than the light asked for.
+pub fn light_at_own_level(l: &[f32], exposure: f64) -> Result<Vec<f32>> {
+    let scaled: Vec<f32> = l.iter().map(|&v| (v as f64 * exposure) as f32).collect();
+    let brightest = scaled.iter().fold(0.0_f32, |m, &v| m.max(v));
+    if !brightest.is_finite() || brightest > MAX_RADIANCE {
+        bail!(
+            "the given light at its own level (--light-level given) is too bright for this photo: \
+             its brightest texel times the photo's exposure ({exposure:.3e}) is {brightest:.3e}, \
+             above the {MAX_RADIANCE:.0e} the rendering layer renders; give it in the photo's \
+             linear units, or let the photo set its level (--light-level auto)"
+        );
+    }
+    Ok(scaled)
+}
+
+/// An illumination `l` (`[3, He, 2He]`) at the level that explains the photo best through
+/// `x`'s normals and material: the scale k minimising Σ (k·R(n', m', l) − I)² over the object (a
+/// map's exposure is arbitrary). Refused where no light explains the photo: a black render, or
+/// a light brighter than the layer renders.
+pub fn light_at_photo_level(layer: &RenderingLayer, prep: &Prepared, x: &Prediction, l: &[f32]) -> Result<Vec<f32>> {
+    let s = prep.size;
+    let rendered = layer.forward(&Batch {
+        batch: 1,
+        size: (s, s),
+        regions: prep.regions,
+        normals: &x.normals,
+        region_map: &prep.region_map,
+        materials: &x.materials,
+        env: l,
+    })?;
+    let (mut ri, mut rr) = (0.0_f64, 0.0_f64);
+    for (k, (&r, &i)) in rendered.iter().zip(&prep.input).enumerate() {
+        if prep.mask[k % (s * s)] > 0.0 {
+            ri += r as f64 * i as f64;
+            rr += r as f64 * r as f64;
+        }
+    }
+    let k = ri / rr;
+    if !(k.is_finite() && k > 0.0) {
+        bail!(
+            "the light leaves the object black under the predicted normals and the material: it cannot explain the photo"
+        );
+    }
+    let scaled: Vec<f32> = l.iter().map(|&v| (v as f64 * k) as f32).collect();
+    // A material that reflects almost nothing (a black input material) asks for a light the layer
+    // would cap: its edit would be silently darker than the photo says.
+    let brightest = scaled.iter().fold(0.0_f32, |m, &v| m.max(v));
+    if !brightest.is_finite() || brightest > MAX_RADIANCE {
+        bail!(
+            "the material is too dark for the photo: the light that explains it has a texel of \
+             {brightest:.3e}, above the {MAX_RADIANCE:.0e} the rendering layer renders"
+        );
+    }
+    Ok(scaled)
+}

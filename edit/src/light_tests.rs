@@ -1,0 +1,271 @@
+//! The photo's light for an edit: a given map at the level asked for, and the object's known
+//! material setting L''s level (`--input-material`).
+
+use super::tests::{dir, model, request, write_photo};
+use super::*;
+use matedit_physics::brdf::Dsbrdf;
+use matedit_trainer::render::MAX_RADIANCE;
+
+fn env_of(out: &Path) -> Vec<f32> {
+    let (_, _, ch) = matedit_contract::io::read_exr_channels(&out.join("env.exr")).unwrap();
+    let n = ch["R"].len();
+    (0..3 * n).map(|k| ch[["R", "G", "B"][k / n]][k % n]).collect()
+}
+
+fn report(out: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn a_given_light_replaces_l_prime_at_the_level_asked_for() {
+    let d = dir("light");
+    let (p, m, _) = write_photo(&d);
+    let studio = target::relight_env("builtin:studio", 4).unwrap();
+    // The default level with a given light is the background's; the map written is the given
+    // one up to that single factor.
+    let with = |level: LevelFrom, light: Option<&str>| EditRequest {
+        light: light.map(str::to_string),
+        light_level: level,
+        ..request(&p, &m, "library:gold-polished")
+    };
+    for (name, level, source) in [
+        ("auto", LevelFrom::Auto, "background"),
+        ("network", LevelFrom::Network, "network"),
+        ("given", LevelFrom::Given, "given"),
+    ] {
+        let out = d.join(name);
+        let r = edit(model(), &with(level, Some("builtin:studio")), &out).unwrap();
+        assert_eq!(r.light_level.source, source, "{name}: {:?}", r.light_level);
+        assert_eq!(report(&out)["light"], "builtin:studio");
+        assert_eq!(report(&out)["light_level"]["source"], source);
+        let env = env_of(&out);
+        let k = env[0] / studio[0];
+        assert!(k.is_finite() && k > 0.0);
+        if level == LevelFrom::Given {
+            // The map's own level: only the photo's exposure (linear photo → network units).
+            let exposure = r.exposure as f32;
+            assert!((k - exposure).abs() <= 1e-5 * exposure, "{k} vs {exposure}");
+            assert_eq!(r.light_level.scale, 1.0);
+        }
+        for (a, b) in env.iter().zip(&studio) {
+            assert!(
+                (a - k * b).abs() <= 1e-4 * (k * b).abs().max(1e-6),
+                "{name}: {a} vs {k} × {b}"
+            );
+        }
+    }
+    // Without a light the default keeps the network's level; asked for, the background sets it.
+    let out = d.join("net");
+    let r = edit(model(), &with(LevelFrom::Auto, None), &out).unwrap();
+    assert_eq!((r.light_level.source.as_str(), r.light_level.scale), ("network", 1.0));
+    assert!(report(&out)["light"].is_null());
+    // `given` names a given light's level: without one, L' keeps the network's.
+    let r = edit(model(), &with(LevelFrom::Given, None), &d.join("given-none")).unwrap();
+    assert_eq!((r.light_level.source.as_str(), r.light_level.scale), ("network", 1.0));
+    let r = edit(model(), &with(LevelFrom::Background, None), &d.join("bg")).unwrap();
+    assert_eq!(r.light_level.source, "background", "{:?}", r.light_level);
+    assert!(r.light_level.pixels >= 500 && r.light_level.scale.is_finite() && r.light_level.scale > 0.0);
+    // A light that cannot explain the photo, a light that is not a map: refused, nothing written.
+    let black = d.join("black.hdr");
+    let mut f = std::fs::File::create(&black).unwrap();
+    let pixels = vec![image::Rgb([0.0_f32; 3]); 8 * 4];
+    image::codecs::hdr::HdrEncoder::new(&mut f)
+        .encode(&pixels, 8, 4)
+        .unwrap();
+    let out = d.join("refused");
+    let e = edit(model(), &with(LevelFrom::Auto, Some(black.to_str().unwrap())), &out).unwrap_err();
+    assert!(format!("{e:#}").contains("leaves the object black"), "{e:#}");
+    let e = edit(model(), &with(LevelFrom::Auto, Some("builtin:nope")), &out).unwrap_err();
+    assert!(format!("{e:#}").contains("nope"), "{e:#}");
+    assert!(!out.exists());
+}
+
+#[test]
+fn a_light_at_its_own_level_is_refused_where_the_layer_would_cap_it() {
+    // The photo's exposure only: values, zeros and the bound itself pass unchanged in ratio.
+    let l = [0.0_f32, 1.0, 2.5, MAX_RADIANCE / 4.0];
+    let got = light_at_own_level(&l, 4.0).unwrap();
+    assert_eq!(got, vec![0.0, 4.0, 10.0, MAX_RADIANCE]);
+    // Brighter than the layer renders, or past f32 (a finite map times a large exposure), is
+    // refused by name; so is a tiny exposure that cannot bring f32::MAX down far enough.
+    for (l, exposure) in [
+        (vec![1.0_f32, MAX_RADIANCE], 1.5),
+        (vec![f32::MAX / 2.0], 4.0),
+        (vec![f32::MAX], 1e-10),
+    ] {
+        let e = light_at_own_level(&l, exposure).unwrap_err();
+        assert!(format!("{e:#}").contains("too bright for this photo"), "{e:#}");
+    }
+}
+
+fn rgb_exr(path: &Path) -> Vec<f32> {
+    let (_, _, ch) = matedit_contract::io::read_exr_channels(path).unwrap();
+    ["R", "G", "B"].iter().flat_map(|c| ch[*c].clone()).collect()
+}
+
+#[test]
+fn the_objects_known_material_replaces_m_prime_and_sets_the_lights_level() {
+    let d = dir("input-material");
+    let (p, m, r) = write_photo(&d);
+    let with = |spec: &str, light: Option<&str>, level: LevelFrom| EditRequest {
+        input_material: Some(spec.to_string()),
+        light: light.map(str::to_string),
+        light_level: level,
+        ..request(&p, &m, "library:gold-polished")
+    };
+    let env = |spec: &str, light: Option<&str>, level: LevelFrom, name: &str| {
+        let out = d.join(name);
+        let rep = edit(model(), &with(spec, light, level), &out).unwrap();
+        (rep, out.clone(), env_of(&out))
+    };
+    // The material written is the one given (its DSBRDF fit), not the network's.
+    let (rep, out, dark) = env("lambert:0.2,0.2,0.2", None, LevelFrom::Auto, "dark");
+    assert_eq!(rep.light_level.source, "input material", "{:?}", rep.light_level);
+    assert_eq!(report(&out)["input_material"], "lambert:0.2,0.2,0.2");
+    let given = target::dsbrdf_of("lambert:0.2,0.2,0.2").unwrap().0;
+    let written = Dsbrdf::load(&out.join("material.dsbrdf.json")).unwrap();
+    let (a, b) = (given.to_normalised(), written.to_normalised());
+    for (x, y) in a.iter().zip(&b) {
+        assert!((x - y).abs() <= 1e-5 * x.abs().max(1.0), "{x} vs {y}");
+    }
+    // L* is at the level where I* = R(n', m_in, L*) fits the photo best in least squares: the
+    // fit's own scale is then 1.
+    let (i, ip) = (rgb_exr(&out.join("input.exr")), rgb_exr(&out.join("i_prime.exr")));
+    let (ri, rr) = i.iter().zip(&ip).fold((0.0_f64, 0.0_f64), |(ri, rr), (&i, &r)| {
+        (ri + i as f64 * r as f64, rr + r as f64 * r as f64)
+    });
+    assert!(
+        rr > 0.0 && (ri / rr - 1.0).abs() < 1e-3,
+        "least-squares scale {}",
+        ri / rr
+    );
+    // A Lambertian four times as bright explains the same photo under a light a quarter as
+    // bright (the layer is linear in albedo and in light), texel by texel.
+    let (_, _, bright) = env("lambert:0.8,0.8,0.8", None, LevelFrom::Auto, "bright");
+    for (a, b) in dark.iter().zip(&bright) {
+        assert!((a - 4.0 * b).abs() <= 2e-3 * a.abs().max(1e-6), "{a} vs 4 × {b}");
+    }
+    // The same with a given map at the fitted (network) level; the background's level does not
+    // depend on the material (to rounding).
+    let (rep, _, dark) = env(
+        "lambert:0.2,0.2,0.2",
+        Some("builtin:studio"),
+        LevelFrom::Network,
+        "dark-studio",
+    );
+    assert_eq!(rep.light_level.source, "input material");
+    let (_, _, bright) = env(
+        "lambert:0.8,0.8,0.8",
+        Some("builtin:studio"),
+        LevelFrom::Network,
+        "bright-studio",
+    );
+    for (a, b) in dark.iter().zip(&bright) {
+        assert!((a - 4.0 * b).abs() <= 2e-3 * a.abs().max(1e-6), "{a} vs 4 × {b}");
+    }
+    let (rep, _, dark) = env(
+        "lambert:0.2,0.2,0.2",
+        Some("builtin:studio"),
+        LevelFrom::Auto,
+        "dark-bg",
+    );
+    assert_eq!(rep.light_level.source, "background");
+    let (_, _, bright) = env(
+        "lambert:0.8,0.8,0.8",
+        Some("builtin:studio"),
+        LevelFrom::Auto,
+        "bright-bg",
+    );
+    for (a, b) in dark.iter().zip(&bright) {
+        assert!((a - b).abs() <= 1e-6 * a.abs().max(1e-6), "{a} vs {b}");
+    }
+    // Every region gets it, and the edit stays finite.
+    let out = d.join("regions");
+    let req = EditRequest {
+        regions: Some(r.clone()),
+        ..with("plastic:0.1:0.6,0.2,0.1", None, LevelFrom::Auto)
+    };
+    edit(model(), &req, &out).unwrap();
+    for k in 1..=2 {
+        let w = Dsbrdf::load(&out.join(format!("material-{k}.dsbrdf.json"))).unwrap();
+        assert_eq!(
+            w.to_normalised(),
+            Dsbrdf::load(&out.join("material-1.dsbrdf.json"))
+                .unwrap()
+                .to_normalised()
+        );
+    }
+    assert!(
+        rgb_exr(&out.join("edited.exr"))
+            .iter()
+            .all(|v| v.is_finite() && *v >= 0.0)
+    );
+    // A spec that is not a material: refused by name, nothing written.
+    let out = d.join("refused");
+    let e = edit(model(), &with("lambert:nope", None, LevelFrom::Auto), &out).unwrap_err();
+    assert!(format!("{e:#}").contains("--input-material"), "{e:#}");
+    assert!(!out.exists());
+}
+
+#[test]
+fn the_fitted_level_is_the_least_squares_scale_and_refuses_what_the_layer_cannot_render() {
+    use crate::photo::Framing;
+    use matedit_trainer::render::{Batch, RenderingLayer};
+    let (n, he) = (4, 4);
+    let layer = RenderingLayer::new(he);
+    let m = Dsbrdf::near_lambertian([0.5; 3])
+        .to_normalised()
+        .map(|v| v as f32)
+        .to_vec();
+    let x = |env: Vec<f32>| matedit_trainer::model::prediction::Prediction {
+        normals: (0..3 * n * n)
+            .map(|k| if k / (n * n) == 2 { 1.0 } else { 0.0 })
+            .collect(),
+        materials: m.clone(),
+        env,
+    };
+    let prep = |value: f32| Prepared {
+        size: n,
+        regions: 1,
+        framing: Framing {
+            x0: 0.0,
+            y0: 0.0,
+            side: n as f64,
+            size: n,
+        },
+        exposure: 1.0,
+        input: vec![value; 3 * n * n],
+        region_map: vec![1; n * n],
+        mask: vec![1.0; n * n],
+    };
+    let l = vec![1.0_f32; 3 * he * 2 * he];
+    let rendered = layer
+        .forward(&Batch {
+            batch: 1,
+            size: (n, n),
+            regions: 1,
+            normals: &x(l.clone()).normals,
+            region_map: &prep(0.0).region_map,
+            materials: &m,
+            env: &l,
+        })
+        .unwrap();
+    // A uniform photo under a uniform light: k = Σ I·R / Σ R², computed here in f64.
+    let (ri, rr) = rendered.iter().fold((0.0_f64, 0.0_f64), |(a, b), &r| {
+        (a + 0.3 * r as f64, b + r as f64 * r as f64)
+    });
+    let got = light_at_photo_level(&layer, &prep(0.3), &x(l.clone()), &l).unwrap();
+    assert!(
+        got.iter().all(|&v| ((v as f64) - ri / rr).abs() <= 1e-5 * ri / rr),
+        "{} vs {}",
+        got[0],
+        ri / rr
+    );
+    // A photo the layer could only explain with a light it caps, and a light that leaves the
+    // object black: refused by name.
+    let e = light_at_photo_level(&layer, &prep(1e9), &x(l.clone()), &l).unwrap_err();
+    assert!(format!("{e:#}").contains("too dark for the photo"), "{e:#}");
+    let black = vec![0.0_f32; l.len()];
+    let e = light_at_photo_level(&layer, &prep(0.3), &x(black.clone()), &black).unwrap_err();
+    assert!(format!("{e:#}").contains("leaves the object black"), "{e:#}");
+}
