@@ -80,9 +80,10 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// brightness). Not with --eq6, which would change it.
         #[arg(long, conflicts_with = "optimize")]
         input_material: Option<String>,
-        /// How the render goes back into the photo.
-        #[arg(long, value_enum, default_value_t = Composite::default())]
-        composite: Composite,
+        /// How the render goes back into the photo. Default: `ratio` with --input-material,
+        /// `detail` otherwise (the best measured for each, docs/PERFORMANCE.md).
+        #[arg(long, value_enum)]
+        composite: Option<Composite>,
         /// Refine n', m', L' with the paper's post-optimisation (Eq. 6) first; `--optimize` is the
         /// same flag (its earlier name).
         #[arg(long = "eq6", visible_alias = "optimize")]
@@ -289,8 +290,8 @@ fn run(cli: Cli) -> Result<()> {
                 light,
                 light_level,
                 fov_deg: fov,
+                composite: composite.unwrap_or_else(|| Composite::best_for(input_material.is_some())),
                 input_material,
-                composite,
                 optimize: optimize.then(|| Eq6Config {
                     a: eq6_a,
                     b: eq6_b,
@@ -447,6 +448,17 @@ mod tests {
         ] {
             assert!(parse(&[option, value]).is_ok(), "{option} {value} refused");
         }
+        // No --composite leaves the choice to the known material: `ratio` with one, `detail` without.
+        let composite = |args: &[&str]| match parse(args).map(|c| c.command) {
+            Ok(Command::Edit { composite, .. }) => composite,
+            _ => panic!("{args:?} refused"),
+        };
+        assert_eq!(composite(&["--input-material", "library:red-plastic"]), None);
+        assert_eq!(composite(&["--composite", "render"]), Some(Composite::Render));
+        assert_eq!(
+            (Composite::best_for(true), Composite::best_for(false)),
+            (Composite::Ratio, Composite::Detail)
+        );
         // The object's known material is held: Eq. 6, which would change it, is refused with it.
         assert!(parse(&["--input-material", "library:red-plastic"]).is_ok());
         let e = parse(&["--input-material", "lambert:0.2,0.2,0.2", "--eq6"])

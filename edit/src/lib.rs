@@ -76,6 +76,15 @@ pub enum Composite {
     Ratio,
 }
 
+impl Composite {
+    /// The composite measured best on the photo benchmark: `ratio` when the object's material is
+    /// known (I × R(m_t)/R(m*) is exact when m* is right), `detail` with the network's m'
+    /// (docs/PERFORMANCE.md, "The object's own material, given").
+    pub fn best_for(known_material: bool) -> Self {
+        if known_material { Self::Ratio } else { Self::Detail }
+    }
+}
+
 /// What to edit, as the command line gives it.
 #[derive(Clone, Debug, Default)]
 pub struct EditRequest {
@@ -98,7 +107,7 @@ pub struct EditRequest {
     /// The object's own material, when known (a spec, as `--material` takes): used instead of
     /// m', and it sets the light's level ([`LightOptions::input_material`]).
     pub input_material: Option<String>,
-    /// How to composite.
+    /// How to composite (the command line picks [`Composite::best_for`] when none is given).
     pub composite: Composite,
     /// Refine n', m', L' with Eq. 6 before rendering.
     pub optimize: Option<post_optimisation::Eq6Config>,
