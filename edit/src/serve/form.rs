@@ -17,8 +17,11 @@ use std::path::PathBuf;
 pub(super) struct Fields {
     pub(super) files: HashMap<&'static str, Part>,
     material: Option<String>,
+    /// The object's own material when it is known (`--input-material`).
+    input_material: Option<String>,
     optimize: bool,
-    composite: Composite,
+    /// None: [`Composite::best_for`], as the command line.
+    composite: Option<Composite>,
 }
 
 pub(super) async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
@@ -54,14 +57,16 @@ pub(super) async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
                 }
             }
             "material" => f.material = Some(text()).filter(|s| !s.is_empty()),
+            "input_material" => f.input_material = Some(text()).filter(|s| !s.is_empty()),
             "optimize" => f.optimize = matches!(text().as_str(), "on" | "true" | "1"),
             "composite" => {
                 f.composite = match text().as_str() {
-                    "" | "detail" => Composite::Detail,
-                    "shading" => Composite::Shading,
-                    "delta" => Composite::Delta,
-                    "render" => Composite::Render,
-                    "ratio" => Composite::Ratio,
+                    "" => None,
+                    "detail" => Some(Composite::Detail),
+                    "shading" => Some(Composite::Shading),
+                    "delta" => Some(Composite::Delta),
+                    "render" => Some(Composite::Render),
+                    "ratio" => Some(Composite::Ratio),
                     other => {
                         return Err(error(
                             StatusCode::BAD_REQUEST,
@@ -119,9 +124,19 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
     };
     check(&photo, mask.as_deref())?;
     let optimize = f.optimize.then(|| app.eq6.clone());
+    if let Some(spec) = &f.input_material {
+        upload::check_material(spec).context("the object's own material")?;
+        if optimize.is_some() {
+            bail!("the object's own material is held as given: Eq. 6 would change it; give one or the other");
+        }
+    }
+    let composite = f.composite.unwrap_or(Composite::best_for(f.input_material.is_some()));
     let work = match (source, f.material) {
         (Some(_), Some(_)) => bail!("give either a material or a photo to transfer from, not both"),
         (None, None) => bail!("no material: pick a library material or a photo to transfer from"),
+        (Some(_), None) if f.input_material.is_some() => {
+            bail!("the object's own material is for an edit to a library material, not a transfer")
+        }
         (None, Some(spec)) => {
             upload::check_material(&spec)?;
             if source_mask.is_some() {
@@ -136,8 +151,8 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
                 light: None,
                 light_level: Default::default(),
                 fov_deg: None,
-                input_material: None,
-                composite: f.composite,
+                input_material: f.input_material,
+                composite,
                 optimize,
             })
         }
@@ -147,7 +162,7 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
                 from: (source, source_mask),
                 to: (photo, mask),
                 optimize,
-                composite: f.composite,
+                composite,
             }
         }
     };

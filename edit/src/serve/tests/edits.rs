@@ -208,3 +208,30 @@ fn uploads_are_told_apart_by_content_not_name() {
     assert_eq!(upload::display_name("\u{1b}[31m"), "[31m");
     assert_eq!(upload::display_name(""), "upload");
 }
+
+#[test]
+fn the_objects_own_material_reaches_the_edit_and_picks_its_composite() {
+    let rt = runtime();
+    let server = rt.block_on(start(config(2))).unwrap();
+    let addr = server.addr;
+    let (photo, mask) = photo_and_mask();
+    for (composite, want) in [(&b""[..], "ratio"), (&b"detail"[..], "detail")] {
+        let (s, v) = post_edit(
+            addr,
+            &[
+                ("photo", Some("car.png"), &photo),
+                ("mask", Some("car-mask.png"), &mask),
+                ("material", None, b"library:gold-polished"),
+                ("input_material", None, b"plastic:0.1:0.6,0.1,0.1"),
+                ("composite", None, composite),
+            ],
+        );
+        assert_eq!(s, 202, "{v}");
+        let done = wait_for(addr, v["url"].as_str().unwrap(), &["done", "failed"]);
+        assert_eq!(done["state"], "done", "{done}");
+        let report = &done["report"];
+        assert_eq!(report["input_material"], "plastic:0.1:0.6,0.1,0.1", "{report}");
+        assert_eq!(report["light_level"]["source"], "input material", "{report}");
+        assert_eq!(report["composite"], want, "{report}");
+    }
+}

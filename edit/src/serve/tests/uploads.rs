@@ -173,6 +173,37 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
                 ("photo", Some("p.png"), &photo),
                 ("mask", Some("m.png"), &mask),
                 ("material", None, gold),
+                ("input_material", None, b"lambert:nope"),
+            ],
+            422,
+            "the object's own material",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
+                ("input_material", None, b"lambert:0.2,0.2,0.2"),
+                ("optimize", None, b"on"),
+            ],
+            422,
+            "Eq. 6 would change it",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &mask),
+                ("source", Some("s.png"), &photo),
+                ("input_material", None, b"lambert:0.2,0.2,0.2"),
+            ],
+            422,
+            "not a transfer",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
                 ("source", Some("s.png"), &photo),
             ],
             422,
