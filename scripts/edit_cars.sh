@@ -8,7 +8,10 @@
 # ASSETS: the folder holding photos/rembg_cars/ (default ../shared/eval-assets, or $MATEDIT_EVAL_ASSETS);
 # OUT: default out/edit-cars. Writes OUT/car-N/COMPOSITE/MATERIAL/ (every output of `matedit
 # edit`) and OUT/cars.png and a smaller OUT/cars.jpg (rows: each car with each composite;
-# columns: the photo and the three edits).
+# columns: the photo and the three edits); then OUT/car-N/known/MATERIAL/ and OUT/known.png and
+# .jpg: cars 1 and 2 edited by default and with the object's own material given
+# (`--input-material`, a user's guess: car-1's silver as aluminium's F0, car-2's white paint as a
+# white plastic; the composite is then `ratio`).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 model=${1:?usage: scripts/edit_cars.sh MODEL [ASSETS] [OUT]}
@@ -35,4 +38,25 @@ done
 for fig in "$out/cars.png" "$out/cars.jpg"; do
     target/release/examples/edit_figure "$fig" \
         "photo,fabric-felt-green,carpaint-red-gloss,gold-polished" "${rows[@]}"
+done
+
+known_rows=()
+for entry in "1 ggx:0.1:0.9116,0.9206,0.9239" "2 plastic:0.05:0.8,0.8,0.8"; do
+    n=${entry%% *}
+    own=${entry#* }
+    photo="$assets/photos/rembg_cars/car-$n.jpg"
+    mask="$assets/photos/rembg_cars/car-$n.out.png"
+    plain="car-$n, default::$photo"
+    known="car-$n, --input-material $own::$photo"
+    for m in $materials; do
+        plain="$plain,$out/car-$n/detail/$m/edited.png"
+        "$bin" edit --model "$model" --image "$photo" --mask "$mask" --material "library:$m" \
+            --input-material "$own" --out "$out/car-$n/known/$m" >/dev/null
+        known="$known,$out/car-$n/known/$m/edited.png"
+    done
+    known_rows+=("$plain" "$known")
+done
+for fig in "$out/known.png" "$out/known.jpg"; do
+    target/release/examples/edit_figure "$fig" \
+        "photo,fabric-felt-green,carpaint-red-gloss,gold-polished" "${known_rows[@]}"
 done
