@@ -318,11 +318,12 @@ pub fn understand(
     let t = Instant::now();
     let mut x = network_prediction(&model.net, &prep)?;
     let level_from = light.level_from();
-    if let Some((_, m)) = &light.input_material {
+    if let Some((spec, m)) = &light.input_material {
         x.materials = m.repeat(prep.regions);
         if light.given.is_none() {
             let l = std::mem::take(&mut x.env);
-            x.env = light_at_photo_level(&model.layer, &prep, &x, &l)?;
+            x.env = light_at_photo_level(&model.layer, &prep, &x, &l)
+                .with_context(|| format!("--input-material {spec}"))?;
         }
     }
     if let Some(l) = &light.given {
