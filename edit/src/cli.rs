@@ -129,6 +129,14 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// Its mask (default: its alpha channel).
         #[arg(long)]
         to_mask: Option<PathBuf>,
+        /// The first object's own material when it is known (a SPEC, as `edit
+        /// --input-material`): what is transferred instead of its m'.
+        #[arg(long, conflicts_with = "optimize")]
+        from_material: Option<String>,
+        /// The receiving object's own material when it is known: it sets its light's level (as
+        /// `edit --input-material`; the composite is then `ratio` unless --composite says).
+        #[arg(long, conflicts_with = "optimize")]
+        to_material: Option<String>,
         #[command(flatten)]
         finish: Finish,
     },
@@ -152,6 +160,13 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// Its mask (default: its alpha channel).
         #[arg(long)]
         b_mask: Option<PathBuf>,
+        /// The first object's own material when it is known (a SPEC, as `edit
+        /// --input-material`): the second receives it, and it sets the first's light's level.
+        #[arg(long, conflicts_with = "optimize")]
+        a_material: Option<String>,
+        /// The second object's own material when it is known (the same, the other way).
+        #[arg(long, conflicts_with = "optimize")]
+        b_material: Option<String>,
         #[command(flatten)]
         finish: Finish,
     },
@@ -216,9 +231,10 @@ struct Finish {
     /// Refine both photos' predictions with Eq. 6 first.
     #[arg(long)]
     optimize: bool,
-    /// How the render goes back into the photo.
-    #[arg(long, value_enum, default_value_t = Composite::default())]
-    composite: Composite,
+    /// How the render goes back into the photo. Default: `ratio` where every receiving object's
+    /// own material is given, `detail` otherwise (the best measured for each).
+    #[arg(long, value_enum)]
+    composite: Option<Composite>,
     /// Output folder.
     #[arg(long)]
     out: PathBuf,
@@ -328,6 +344,8 @@ fn run(cli: Cli) -> Result<()> {
             from_mask,
             to,
             to_mask,
+            from_material,
+            to_material,
             finish: Finish {
                 optimize,
                 composite,
@@ -339,8 +357,9 @@ fn run(cli: Cli) -> Result<()> {
                 &model,
                 (&from, from_mask.as_deref()),
                 (&to, to_mask.as_deref()),
+                [from_material.as_deref(), to_material.as_deref()],
                 cfg.as_ref(),
-                composite,
+                composite.unwrap_or(Composite::best_for(to_material.is_some())),
                 &out,
             )?;
             println!(
@@ -356,6 +375,8 @@ fn run(cli: Cli) -> Result<()> {
             a_mask,
             b,
             b_mask,
+            a_material,
+            b_material,
             finish: Finish {
                 optimize,
                 composite,
@@ -363,12 +384,14 @@ fn run(cli: Cli) -> Result<()> {
             },
         } => {
             let cfg = optimize.then(Eq6Config::default);
+            let both_known = a_material.is_some() && b_material.is_some();
             let [_, rb] = swap(
                 &model,
                 (&a, a_mask.as_deref()),
                 (&b, b_mask.as_deref()),
+                [a_material.as_deref(), b_material.as_deref()],
                 cfg.as_ref(),
-                composite,
+                composite.unwrap_or(Composite::best_for(both_known)),
                 &out,
             )?;
             println!(
@@ -459,6 +482,23 @@ mod tests {
             (Composite::best_for(true), Composite::best_for(false)),
             (Composite::Ratio, Composite::Detail)
         );
+        // So do transfer and swap, for either object; Eq. 6 is refused with any of them.
+        let pair = |cmd: &str, x: &str, y: &str, args: &[&str]| {
+            let base = ["matedit", cmd, "--model", "m", x, "p.png", y, "q.png", "--out", "o"];
+            Cli::try_parse_from(base.iter().chain(args)).map(|c| c.command)
+        };
+        for (cmd, x, y, own) in [
+            ("transfer", "--from", "--to", ["--from-material", "--to-material"]),
+            ("swap", "--a", "--b", ["--a-material", "--b-material"]),
+        ] {
+            for o in own {
+                assert!(pair(cmd, x, y, &[o, "lambert:0.2,0.2,0.2"]).is_ok(), "{cmd} {o}");
+                let e = pair(cmd, x, y, &[o, "lambert:0.2,0.2,0.2", "--optimize"])
+                    .err()
+                    .unwrap_or_else(|| panic!("{cmd} {o} with --optimize accepted"));
+                assert!(e.to_string().contains(o), "{e}");
+            }
+        }
         // The object's known material is held: Eq. 6, which would change it, is refused with it.
         assert!(parse(&["--input-material", "library:red-plastic"]).is_ok());
         let e = parse(&["--input-material", "lambert:0.2,0.2,0.2", "--eq6"])

@@ -36,7 +36,7 @@ pub mod target;
 mod tests;
 pub mod transfer;
 
-pub use light::{LevelFrom, LightOptions, light_at_own_level, light_at_photo_level};
+pub use light::{LevelFrom, LightOptions, known_material, light_at_own_level, light_at_photo_level};
 pub use transfer::{swap, transfer, transfer_with};
 
 use anyhow::{Context, Result, bail};
@@ -610,14 +610,7 @@ fn edit_checked(
             .transpose()?,
         level: req.light_level,
         fov_deg: req.fov_deg,
-        input_material: req
-            .input_material
-            .as_ref()
-            .map(|spec| {
-                let (m, _) = target::dsbrdf_of(spec).context("--input-material")?;
-                Ok::<_, anyhow::Error>((spec.clone(), m.to_normalised().map(|v| v as f32).to_vec()))
-            })
-            .transpose()?,
+        input_material: light::known_material(req.input_material.as_deref(), "--input-material")?,
     };
     let t_load = t0.elapsed().as_secs_f64();
     let u = understand(model, read, &req.photo, req.optimize.as_ref(), &light, watcher)?;

@@ -3,7 +3,7 @@
 //! [`crate::background`]).
 
 use super::Prepared;
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use matedit_trainer::model::prediction::Prediction;
 use matedit_trainer::render::{Batch, MAX_RADIANCE, RenderingLayer};
 
@@ -111,4 +111,14 @@ pub fn light_at_photo_level(layer: &RenderingLayer, prep: &Prepared, x: &Predict
         );
     }
     Ok(scaled)
+}
+
+/// The object's own material from its spec (`--input-material` and its kin), named `option` in
+/// errors: the spec and its normalised DSBRDF, for [`LightOptions::input_material`].
+pub fn known_material(spec: Option<&str>, option: &str) -> Result<Option<(String, Vec<f32>)>> {
+    spec.map(|spec| {
+        let (m, _) = crate::target::dsbrdf_of(spec).with_context(|| option.to_string())?;
+        Ok((spec.to_string(), m.to_normalised().map(|v| v as f32).to_vec()))
+    })
+    .transpose()
 }

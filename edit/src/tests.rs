@@ -298,6 +298,7 @@ fn bad_inputs_name_the_file_and_write_nothing() {
         model(),
         (&p, Some(&m)),
         (&dark, Some(&m)),
+        [None, None],
         None,
         Composite::Detail,
         &d.join("never"),
@@ -489,7 +490,16 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     });
     other.save(&q).unwrap();
     let out = d.join("t");
-    let r = transfer(model(), (&p, Some(&m)), (&q, Some(&m)), None, Composite::Render, &out).unwrap();
+    let r = transfer(
+        model(),
+        (&p, Some(&m)),
+        (&q, Some(&m)),
+        [None, None],
+        None,
+        Composite::Render,
+        &out,
+    )
+    .unwrap();
     assert!(r.regions[0].spec.contains("photo.png"), "{:?}", r.regions);
     assert!(r.photo.ends_with("other.png"));
     assert!(out.join("edited.png").is_file() && out.join("report.json").is_file());
@@ -505,6 +515,7 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
         model(),
         (&p, Some(&m)),
         (&q, Some(&m)),
+        [None, None],
         None,
         Composite::Ratio,
         &swapped,
@@ -512,12 +523,73 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     .unwrap();
     assert!(a.regions[0].spec.contains("other.png") && b.regions[0].spec.contains("photo.png"));
     assert!(swapped.join("a/edited.png").is_file() && swapped.join("b/edited.png").is_file());
+    // An object's own material, when given, is what the other receives, and it sets its own
+    // light's level: the same as `edit --input-material` with the other's material.
+    let grey = "lambert:0.3,0.3,0.3";
+    let known = d.join("k");
+    let [ka, kb] = swap(
+        model(),
+        (&p, Some(&m)),
+        (&q, Some(&m)),
+        [Some(grey), None],
+        None,
+        Composite::Ratio,
+        &known,
+    )
+    .unwrap();
+    assert_eq!(
+        (ka.input_material.as_deref(), kb.input_material.as_deref()),
+        (Some(grey), None)
+    );
+    assert_eq!(
+        (kb.regions[0].spec.as_str(), ka.light_level.source.as_str()),
+        (grey, "input material")
+    );
+    let by_edit = d.join("k-edit");
+    let req = EditRequest {
+        input_material: Some(grey.to_string()),
+        composite: Composite::Ratio,
+        ..request(&p, &m, "lambert:0.5,0.5,0.5")
+    };
+    edit(model(), &req, &by_edit).unwrap();
+    assert_eq!(
+        std::fs::read(by_edit.join("env.exr")).unwrap(),
+        std::fs::read(known.join("a/env.exr")).unwrap(),
+        "a's light is the one its own material gives"
+    );
+    let t = transfer(
+        model(),
+        (&p, Some(&m)),
+        (&q, Some(&m)),
+        [Some(grey), Some(grey)],
+        None,
+        Composite::Ratio,
+        &d.join("kt"),
+    )
+    .unwrap();
+    assert_eq!(
+        (t.regions[0].spec.as_str(), t.input_material.as_deref()),
+        (grey, Some(grey))
+    );
+    // With Eq. 6, which would change it, refused naming the option; nothing written.
+    let e = transfer(
+        model(),
+        (&p, Some(&m)),
+        (&q, Some(&m)),
+        [None, Some(grey)],
+        Some(&post_optimisation::Eq6Config::default()),
+        Composite::Ratio,
+        &d.join("never"),
+    )
+    .unwrap_err();
+    assert!(format!("{e:#}").contains("--to-material"), "{e:#}");
     // A bad second photo writes nothing for either.
     let never = d.join("never");
     let e = swap(
         model(),
         (&p, Some(&m)),
         (&d.join("missing.png"), Some(&m)),
+        [None, None],
         None,
         Composite::Render,
         &never,

@@ -422,6 +422,7 @@ fn run(model: &Model, job: &Job) -> anyhow::Result<EditReport> {
             model,
             (&from.0, from.1.as_deref()),
             (&to.0, to.1.as_deref()),
+            [None, None],
             optimize.as_ref(),
             *composite,
             &out,
