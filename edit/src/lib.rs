@@ -10,7 +10,7 @@
 //! memory; [`edit`] adds reading the inputs and writing every output ([`output`]) after all of
 //! them succeeded, so a bad input writes nothing. [`detail`] carries n' to the photo's
 //! resolution and [`background`] sets a light's level from the photo's surroundings.
-//! [`transfer`] and [`swap`] ([`transfer`](mod@transfer)) are Fig. 4 and Fig. 10; [`serve`] is the editing web page over the
+//! [`transfer`](fn@transfer) and [`swap`] ([`transfer`](mod@transfer)) are Fig. 4 and Fig. 10; [`serve`] is the editing web page over the
 //! same functions; [`cli`] is their command line, the `matedit` binary. The network, the rendering
 //! layer and Eq. 6 ([`matedit_trainer::post_optimisation`]) come from the trainer; target
 //! materials by name ([`target`]) from the material library, fitted on the fly.

@@ -15,7 +15,8 @@ pub enum LevelFrom {
     /// measured best on the photo benchmark (docs/PERFORMANCE.md, "Editing photos").
     #[default]
     Auto,
-    /// The photo's background, where it shows enough unclipped surroundings ([`background`]);
+    /// The photo's background, where it shows enough unclipped surroundings
+    /// ([`crate::background`]);
     /// the network's level otherwise.
     Background,
     /// The network's: the level at which I' = R(n', m', L') matches the photo (the paper's).
