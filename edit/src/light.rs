@@ -55,14 +55,29 @@ impl LightOptions {
     }
 }
 
+/// `l` times `k`, in f64.
+fn scaled_by(l: &[f32], k: f64) -> Vec<f32> {
+    l.iter().map(|&v| (v as f64 * k) as f32).collect()
+}
+
+/// Whether the rendering layer renders `l` as it is: its brightest texel (the error) is finite
+/// and at most [`MAX_RADIANCE`], which the layer caps texels at.
+fn renderable(l: &[f32]) -> Result<(), f32> {
+    let brightest = l.iter().fold(0.0_f32, |m, &v| m.max(v));
+    if brightest.is_finite() && brightest <= MAX_RADIANCE {
+        Ok(())
+    } else {
+        Err(brightest)
+    }
+}
+
 /// A given illumination `l` (`[3, He, 2He]`, radiance in the photo's linear units) at its own
 /// level: in the network's units, the photo's linear values times `exposure`. A light brighter
 /// there than the rendering layer renders ([`MAX_RADIANCE`], which it caps texels at) is refused:
 /// its edit would be silently dimmer than the light asked for.
 pub fn light_at_own_level(l: &[f32], exposure: f64) -> Result<Vec<f32>> {
-    let scaled: Vec<f32> = l.iter().map(|&v| (v as f64 * exposure) as f32).collect();
-    let brightest = scaled.iter().fold(0.0_f32, |m, &v| m.max(v));
-    if !brightest.is_finite() || brightest > MAX_RADIANCE {
+    let scaled = scaled_by(l, exposure);
+    if let Err(brightest) = renderable(&scaled) {
         bail!(
             "the given light at its own level (--light-level given) is too bright for this photo: \
              its brightest texel times the photo's exposure ({exposure:.3e}) is {brightest:.3e}, \
@@ -101,11 +116,10 @@ pub fn light_at_photo_level(layer: &RenderingLayer, prep: &Prepared, x: &Predict
             "the light leaves the object black under the predicted normals and the material: it cannot explain the photo"
         );
     }
-    let scaled: Vec<f32> = l.iter().map(|&v| (v as f64 * k) as f32).collect();
+    let scaled = scaled_by(l, k);
     // A material that reflects almost nothing (a black input material) asks for a light the layer
     // would cap: its edit would be silently darker than the photo says.
-    let brightest = scaled.iter().fold(0.0_f32, |m, &v| m.max(v));
-    if !brightest.is_finite() || brightest > MAX_RADIANCE {
+    if let Err(brightest) = renderable(&scaled) {
         bail!(
             "the material is too dark for the photo: the light that explains it has a texel of \
              {brightest:.3e}, above the {MAX_RADIANCE:.0e} the rendering layer renders"

@@ -119,7 +119,7 @@ fn the_objects_known_material_replaces_m_prime_and_sets_the_lights_level() {
         (rep, out.clone(), env_of(&out))
     };
     // The material written is the one given (its DSBRDF fit), not the network's.
-    let (rep, out, dark) = env("lambert:0.2,0.2,0.2", None, LevelFrom::Auto, "dark");
+    let (rep, out, _) = env("lambert:0.2,0.2,0.2", None, LevelFrom::Auto, "dark");
     assert_eq!(rep.light_level.source, "input material", "{:?}", rep.light_level);
     assert_eq!(report(&out)["input_material"], "lambert:0.2,0.2,0.2");
     let given = target::dsbrdf_of("lambert:0.2,0.2,0.2").unwrap().0;
@@ -140,44 +140,24 @@ fn the_objects_known_material_replaces_m_prime_and_sets_the_lights_level() {
         ri / rr
     );
     // A Lambertian four times as bright explains the same photo under a light a quarter as
-    // bright (the layer is linear in albedo and in light), texel by texel.
-    let (_, _, bright) = env("lambert:0.8,0.8,0.8", None, LevelFrom::Auto, "bright");
-    for (a, b) in dark.iter().zip(&bright) {
-        assert!((a - 4.0 * b).abs() <= 2e-3 * a.abs().max(1e-6), "{a} vs 4 × {b}");
-    }
-    // The same with a given map at the fitted (network) level; the background's level does not
-    // depend on the material (to rounding).
-    let (rep, _, dark) = env(
-        "lambert:0.2,0.2,0.2",
-        Some("builtin:studio"),
-        LevelFrom::Network,
-        "dark-studio",
-    );
-    assert_eq!(rep.light_level.source, "input material");
-    let (_, _, bright) = env(
-        "lambert:0.8,0.8,0.8",
-        Some("builtin:studio"),
-        LevelFrom::Network,
-        "bright-studio",
-    );
-    for (a, b) in dark.iter().zip(&bright) {
-        assert!((a - 4.0 * b).abs() <= 2e-3 * a.abs().max(1e-6), "{a} vs 4 × {b}");
-    }
-    let (rep, _, dark) = env(
-        "lambert:0.2,0.2,0.2",
-        Some("builtin:studio"),
-        LevelFrom::Auto,
-        "dark-bg",
-    );
-    assert_eq!(rep.light_level.source, "background");
-    let (_, _, bright) = env(
-        "lambert:0.8,0.8,0.8",
-        Some("builtin:studio"),
-        LevelFrom::Auto,
-        "bright-bg",
-    );
-    for (a, b) in dark.iter().zip(&bright) {
-        assert!((a - b).abs() <= 1e-6 * a.abs().max(1e-6), "{a} vs {b}");
+    // bright (the layer is linear in albedo and in light), texel by texel; so with a given map at
+    // the fitted (network) level. The background's level does not depend on the material (to
+    // rounding).
+    for (light, level, source, ratio, tol) in [
+        (None, LevelFrom::Auto, "input material", 4.0, 2e-3),
+        (Some("builtin:studio"), LevelFrom::Network, "input material", 4.0, 2e-3),
+        (Some("builtin:studio"), LevelFrom::Auto, "background", 1.0, 1e-6),
+    ] {
+        let name = format!("{source}-{}", light.is_some());
+        let (rep, _, dark) = env("lambert:0.2,0.2,0.2", light, level, &format!("dark-{name}"));
+        assert_eq!(rep.light_level.source, source);
+        let (_, _, bright) = env("lambert:0.8,0.8,0.8", light, level, &format!("bright-{name}"));
+        for (a, b) in dark.iter().zip(&bright) {
+            assert!(
+                (a - ratio * b).abs() <= tol * a.abs().max(1e-6),
+                "{name}: {a} vs {ratio} × {b}"
+            );
+        }
     }
     // Every region gets it, and the edit stays finite.
     let out = d.join("regions");
