@@ -21,8 +21,9 @@ use std::path::Path;
 pub const TRAINING_FILL: f64 = 0.875;
 
 /// Median of the mean object luminance (Rec. 709 weights) in the quickstart training split
-/// (400 samples; 10–90 %: 0.17–1.53).
-pub const TRAINING_MEAN_LUMINANCE: f64 = 0.48;
+/// (400 samples; 10–90 %: 0.17–1.53); the level a network trained with `exposure = "normalised"`
+/// sees every image at.
+pub const TRAINING_MEAN_LUMINANCE: f64 = matedit_trainer::model::network::NORMALISED_MEAN_LUMINANCE;
 
 /// The largest photo read, in pixels: a 40-megapixel photo is read (about 0.5 GB as linear
 /// `f32`), a larger one refused before it is decoded.

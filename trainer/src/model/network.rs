@@ -27,6 +27,59 @@ pub struct NetConfig {
     /// `encoder-decoder` stage).
     #[config(default = false)]
     pub encoder_decoder: bool,
+    /// The exposure the modules see the object at; `None` (what a checkpoint from before this
+    /// choice reads as) is [`Exposure::Absolute`].
+    pub exposure: Option<Exposure>,
+}
+
+/// The exposure the prediction modules see an object at.
+///
+/// A photo's exposure is arbitrary, so `matedit edit` scales every photo to one mean object
+/// luminance before the network sees it. A network trained on images at their rendered exposure
+/// learns the albedo from the object's absolute brightness (the training lights have a few fixed
+/// levels), a cue that edit-time scaling removes: it then answers one albedo for every photo.
+/// `Normalised` shows the modules every image, in training as in editing, at
+/// [`NORMALISED_MEAN_LUMINANCE`] and scales L' back, so the network is exactly equivariant to
+/// exposure (kI gives n', m', kL') and must find the albedo in what an exposure does not change:
+/// highlights against the diffuse body, saturation, shading contrast.
+#[derive(Config, Debug, Copy, PartialEq, Eq)]
+pub enum Exposure {
+    /// The image as rendered (the paper; checkpoints from before this choice).
+    Absolute,
+    /// Each image scaled so that its object's mean luminance is [`NORMALISED_MEAN_LUMINANCE`].
+    Normalised,
+}
+
+impl matedit_contract::manifest::Named for Exposure {
+    const NAMES: &'static [(&'static str, Self)] =
+        &[("absolute", Exposure::Absolute), ("normalised", Exposure::Normalised)];
+}
+
+/// The object's mean luminance (Rec. 709) an [`Exposure::Normalised`] network sees: the median
+/// over the quickstart training split, the level `matedit edit` scales photos to.
+pub const NORMALISED_MEAN_LUMINANCE: f64 = 0.48;
+
+/// The range of the gain [`exposure_gain`] applies: an object 10⁶ times darker or brighter than
+/// the normalised level (or black) is seen at the bound's exposure instead of overflowing.
+pub const MAX_EXPOSURE_GAIN: f64 = 1e6;
+
+/// Per image, the gain `[B, 1, 1, 1]` that brings the mean luminance of `image` `[B, 3, H, W]`
+/// over `mask` `[B, 1, H, W]` to [`NORMALISED_MEAN_LUMINANCE`], within 1/[`MAX_EXPOSURE_GAIN`] to
+/// [`MAX_EXPOSURE_GAIN`]. Non-finite and negative pixels count as 0, as in the network's input.
+/// It is a constant of the image: no gradient flows through it.
+pub fn exposure_gain(image: &Tensor<4>, mask: &Tensor<4>) -> Tensor<4> {
+    let clean = image.clone().mask_fill(image.clone().is_nan(), 0.0).clamp(0.0, 1e30);
+    let [b, _, h, w] = clean.dims();
+    let device = clean.device();
+    let weights = Tensor::<1>::from_floats([0.2126_f32, 0.7152, 0.0722], &device).reshape([1, 3, 1, 1]);
+    let luminance = (clean * weights).sum_dim(1) * mask.clone();
+    let total = luminance.reshape([b, h * w]).sum_dim(1);
+    let area = mask.clone().reshape([b, h * w]).sum_dim(1).clamp_min(1.0);
+    let mean = (total / area).reshape([b, 1, 1, 1]);
+    let (lo, hi) = (1.0 / MAX_EXPOSURE_GAIN, MAX_EXPOSURE_GAIN);
+    (mean.clamp_min(NORMALISED_MEAN_LUMINANCE / hi).recip() * NORMALISED_MEAN_LUMINANCE)
+        .clamp(lo, hi)
+        .detach()
 }
 
 /// The three prediction modules.
@@ -40,6 +93,8 @@ pub struct Net {
     pub illumination: IlluminationNet,
     /// Baseline 1 (Sec. 4.5), in a run that trains it.
     pub encoder_decoder: Option<EncoderDecoder>,
+    /// Whether the modules see each image at [`NORMALISED_MEAN_LUMINANCE`] ([`Exposure`]).
+    pub normalised_exposure: bool,
 }
 
 impl NetConfig {
@@ -94,6 +149,7 @@ impl NetConfig {
             encoder_decoder: self
                 .encoder_decoder
                 .then(|| EncoderDecoder::new(self.input_size, &self.widths, self.init, device)),
+            normalised_exposure: self.exposure == Some(Exposure::Normalised),
         }
     }
 }
@@ -110,7 +166,8 @@ pub struct Predictions {
 
 impl Net {
     /// Predicts n', m' and, with `with_light`, L' from input images `[B, 3, H, W]` (linear),
-    /// their object masks `[B, 1, H, W]` and region masks `[B, R, H, W]`.
+    /// their object masks `[B, 1, H, W]` and region masks `[B, R, H, W]`. L' is in the input's
+    /// units whatever the [`Exposure`].
     pub fn predict(
         &self,
         input: &Tensor<4>,
@@ -118,10 +175,113 @@ impl Net {
         region_masks: &Tensor<4>,
         with_light: bool,
     ) -> Predictions {
+        let gain = self.normalised_exposure.then(|| exposure_gain(input, mask));
+        let seen = match &gain {
+            Some(g) => input.clone() * g.clone(),
+            None => input.clone(),
+        };
         Predictions {
-            normals: self.normal.forward(input.clone(), mask.clone()),
-            materials: self.material.forward(input.clone(), region_masks.clone()),
-            env: with_light.then(|| self.illumination.forward(input.clone(), mask.clone())),
+            normals: self.normal.forward(seen.clone(), mask.clone()),
+            materials: self.material.forward(seen.clone(), region_masks.clone()),
+            env: with_light.then(|| {
+                let env = self.illumination.forward(seen, mask.clone());
+                match gain {
+                    Some(g) => env / g,
+                    None => env,
+                }
+            }),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::Widths;
+    use crate::render::op::host;
+
+    fn net(exposure: Exposure) -> Net {
+        let device = Device::flex();
+        NetConfig::new(16, Widths::new(4, 16, 32, 8))
+            .with_env_height(8)
+            .with_exposure(Some(exposure))
+            .init(&device)
+    }
+
+    /// A 16² object on the lower right, shaded and coloured so every module has something to see.
+    fn photo() -> (Vec<f32>, Vec<f32>, Vec<u8>) {
+        let (s, p) = (16, 256);
+        let mask: Vec<f32> = (0..p).map(|k| f32::from(k % s >= 3 && k / s >= 2)).collect();
+        let regions: Vec<u8> = mask.iter().map(|&m| m as u8).collect();
+        let input = (0..3 * p)
+            .map(|k| 0.05 + ((k * 37) % 11) as f32 * 0.08 + (k / p) as f32 * 0.1)
+            .collect();
+        (input, mask, regions)
+    }
+
+    fn close(a: &[f32], b: &[f32], tol: f32) -> bool {
+        a.iter()
+            .zip(b)
+            .all(|(x, y)| (x - y).abs() <= tol * (1.0 + x.abs().max(y.abs())))
+    }
+
+    #[test]
+    fn a_normalised_network_is_equivariant_to_exposure_over_the_gain_range() {
+        let device = Device::flex();
+        let n = net(Exposure::Normalised);
+        let (input, mask, regions) = photo();
+        let at = |k: f32| {
+            let scaled: Vec<f32> = input.iter().map(|v| v * k).collect();
+            n.predict_photo(&scaled, &mask, &regions, 1, &device).unwrap()
+        };
+        let one = at(1.0);
+        for k in [1e-5_f32, 1e-3, 0.37, 3.0, 250.0, 1e5] {
+            let x = at(k);
+            assert!(close(&x.normals, &one.normals, 1e-3), "n' at exposure ×{k}");
+            assert!(close(&x.materials, &one.materials, 1e-3), "m' at exposure ×{k}");
+            let scaled: Vec<f32> = one.env.iter().map(|v| v * k).collect();
+            assert!(close(&x.env, &scaled, 1e-3), "L' at exposure ×{k} is not k L'");
+        }
+        // The absolute network (the paper's) sees the exposure: the same test fails for it.
+        let a = net(Exposure::Absolute);
+        let p = |k: f32| {
+            let scaled: Vec<f32> = input.iter().map(|v| v * k).collect();
+            a.predict_photo(&scaled, &mask, &regions, 1, &device).unwrap()
+        };
+        let (x, y) = (p(1.0), p(250.0));
+        let scaled: Vec<f32> = x.env.iter().map(|v| v * 250.0).collect();
+        assert!(!close(&y.env, &scaled, 1e-3));
+    }
+
+    #[test]
+    fn the_exposure_gain_brings_the_object_to_the_normalised_level_and_stays_finite() {
+        let device = Device::flex();
+        let mask = Tensor::<4>::from_floats([[[[1.0_f32, 1.0], [0.0, 0.0]]]], &device);
+        let gain = |rgb: [[f32; 4]; 3]| {
+            let image = Tensor::<1>::from_floats(rgb.concat().as_slice(), &device).reshape([1, 3, 2, 2]);
+            host(&exposure_gain(&image, &mask))[0] as f64
+        };
+        // Grey 0.12 and 0.36 on the object (mean 0.24), anything off it: gain 2.
+        let g = gain([[0.12, 0.36, 99.0, 5.0]; 3]);
+        assert!((g - NORMALISED_MEAN_LUMINANCE / 0.24).abs() < 1e-5, "{g}");
+        // Rec. 709 weights: pure green 1.0 has luminance 0.7152.
+        let g = gain([[0.0; 4], [1.0, 1.0, 0.0, 0.0], [0.0; 4]]);
+        assert!((g - NORMALISED_MEAN_LUMINANCE / 0.7152).abs() < 1e-5, "{g}");
+        // Black, NaN, negative and infinite objects get a bounded, finite gain.
+        for (v, want) in [
+            (0.0_f32, MAX_EXPOSURE_GAIN),
+            (f32::NAN, MAX_EXPOSURE_GAIN),
+            (-3.0, MAX_EXPOSURE_GAIN),
+            (1e-30, MAX_EXPOSURE_GAIN),
+            (f32::INFINITY, 1.0 / MAX_EXPOSURE_GAIN),
+            (1e30, 1.0 / MAX_EXPOSURE_GAIN),
+        ] {
+            let g = gain([[v; 4]; 3]);
+            assert!(g.is_finite() && (g / want - 1.0).abs() < 1e-4, "pixels {v}: gain {g}");
+        }
+        // An empty mask (no object) too.
+        let image = Tensor::<4>::ones([1, 3, 2, 2], &device);
+        let g = host(&exposure_gain(&image, &Tensor::<4>::zeros([1, 1, 2, 2], &device)))[0];
+        assert!(g.is_finite() && g > 0.0);
     }
 }

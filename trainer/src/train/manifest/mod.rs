@@ -5,7 +5,7 @@
 use super::perceptual::{DEFAULT_LAYERS, Perceptual};
 use super::step::{LossWeights, RenderWith, StageKind};
 use crate::data::OnCorrupt;
-use crate::model::network::NetConfig;
+use crate::model::network::{Exposure, NetConfig};
 use crate::model::vgg16::Layer;
 use crate::model::{Init, Widths};
 use matedit_contract::manifest::{Choice, ManifestError, Named, choice, expand_vars, invalid, parse_toml, read_text};
@@ -72,6 +72,10 @@ pub struct ModelSection {
     /// `uniform-0.08` (the paper) or `default` (Burn's Kaiming uniform).
     #[serde(default = "default_init")]
     pub init: Spanned<Choice<Init>>,
+    /// `absolute` (the paper: each image as rendered) or `normalised` (each image at one mean
+    /// object luminance, as `matedit edit` shows a photo; [`Exposure`]).
+    #[serde(default = "default_exposure")]
+    pub exposure: Spanned<Choice<Exposure>>,
 }
 
 fn default_env_height() -> Spanned<usize> {
@@ -80,6 +84,10 @@ fn default_env_height() -> Spanned<usize> {
 
 fn default_init() -> Spanned<Choice<Init>> {
     Choice::default_to(Init::Uniform008)
+}
+
+fn default_exposure() -> Spanned<Choice<Exposure>> {
+    Choice::default_to(Exposure::Absolute)
 }
 
 /// `[loss]`: the weights of Eq. 5 and the perceptual loss's network.
@@ -357,6 +365,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         }
     };
     let init = choice(path, &text, &m.model.init, "model.init")?;
+    let exposure = choice(path, &text, &m.model.exposure, "model.exposure")?;
     let kinds = |k: StageKind| m.stages.iter().filter(|s| s.get_ref().kind == k).count();
     if kinds(StageKind::EncoderDecoder) > 0
         && let Some(other) = m.stages.iter().find(|s| s.get_ref().kind != StageKind::EncoderDecoder)
@@ -370,6 +379,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
     let net = NetConfig::new(*m.model.input_size.get_ref(), widths)
         .with_env_height(*m.model.env_height.get_ref())
         .with_init(init)
+        .with_exposure((exposure == Exposure::Normalised).then_some(exposure))
         .with_encoder_decoder(m.stages.iter().any(|s| s.get_ref().kind == StageKind::EncoderDecoder));
     if let Err(e) = net.validate() {
         let span = if e.starts_with("input_size") {

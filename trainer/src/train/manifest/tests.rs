@@ -55,6 +55,7 @@ fn fields_outside_their_ranges_are_refused_naming_the_field() {
         ("[0, 1e-3]", "[0, 1e300]", "learning_rate"),
         ("[0, 1e-3]", "[0, 0.0]", "learning_rate"),
         ("workers = 2", "workers = 100000", "data.workers"),
+        ("init = \"uniform-0.08\"", "exposure = \"auto\"", "model.exposure"),
         (
             "shuffle_buffer = 64",
             "shuffle_buffer = 10000000",
@@ -69,6 +70,18 @@ fn fields_outside_their_ranges_are_refused_naming_the_field() {
         assert!(msg.contains(needle), "{to}: {msg}");
         assert!(msg.len() < 400, "{to}: a long message: {msg}");
     }
+    let exposure = |t: &str| {
+        parse(&path, text.replacen("init = \"uniform-0.08\"", t, 1))
+            .map(|p| p.net.exposure)
+            .ok()
+    };
+    assert_eq!(
+        exposure("init = \"default\""),
+        Some(None),
+        "the default: absolute, as before the choice"
+    );
+    assert_eq!(exposure("exposure = \"normalised\""), Some(Some(Exposure::Normalised)));
+    assert_eq!(exposure("exposure = \"absolute\""), Some(None));
     for (from, to) in [
         ("workers = 2", "workers = 0"),
         ("shuffle_buffer = 64", "shuffle_buffer = 0"),
