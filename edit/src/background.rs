@@ -7,6 +7,7 @@
 //! level without going through m'.
 
 use super::photo::{Encoding, Photo, luminance, srgb_decode};
+use matedit_trainer::model::LUMINANCE_WEIGHTS;
 
 /// The horizontal field of view assumed when a photo does not say (degrees): a normal lens
 /// (about 50 mm on 35 mm film).
@@ -112,7 +113,7 @@ pub fn light_level(
             let d = pixel_direction(x as f64 + 0.5, y as f64 + 0.5, p.width, p.height, fov_deg);
             let l = env_lookup(env, env_height, d);
             photo_sum += luminance(rgb) * exposure;
-            light_sum += 0.2126 * l[0] + 0.7152 * l[1] + 0.0722 * l[2];
+            light_sum += (0..3).map(|c| LUMINANCE_WEIGHTS[c] * l[c]).sum::<f64>();
             pixels += 1;
         }
     }

@@ -419,9 +419,10 @@ impl Framing {
     }
 }
 
-/// Rec. 709 luminance.
+/// Rec. 709 luminance (the weights the network's exposure uses).
 pub fn luminance(p: [f32; 3]) -> f64 {
-    0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64
+    let w = matedit_trainer::model::LUMINANCE_WEIGHTS;
+    w[0] * p[0] as f64 + w[1] * p[1] as f64 + w[2] * p[2] as f64
 }
 
 /// The framed network input of one photo.

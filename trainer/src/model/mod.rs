@@ -96,9 +96,17 @@ impl Init {
     }
 }
 
+/// Rec. 709 luminance weights of linear RGB: what the network's exposure and `matedit edit`'s
+/// exposure measure an object's brightness with.
+pub const LUMINANCE_WEIGHTS: [f64; 3] = [0.2126, 0.7152, 0.0722];
+
+/// An image as the modules read it: NaN as 0, negative values as 0, values capped at 10³⁰.
+pub fn finite_image(image: Tensor<4>) -> Tensor<4> {
+    image.clone().mask_fill(image.is_nan(), 0.0).clamp(0.0, 1e30)
+}
+
 /// The network input: ln(1 + max(I, 0)) with non-finite values as 0, and the mask, `[B, 4, H, W]`.
 pub fn network_input(image: Tensor<4>, mask: Tensor<4>) -> Tensor<4> {
-    let clean = image.clone().mask_fill(image.clone().is_nan(), 0.0).clamp(0.0, 1e30);
-    let x = clean.log1p() * mask.clone();
+    let x = finite_image(image).log1p() * mask.clone();
     Tensor::cat(vec![x, mask], 1)
 }

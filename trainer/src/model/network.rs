@@ -5,7 +5,7 @@ use crate::model::encoder_decoder::EncoderDecoder;
 use crate::model::illumination::IlluminationNet;
 use crate::model::material::MaterialNet;
 use crate::model::normal::NormalNet;
-use crate::model::{Init, Widths};
+use crate::model::{Init, LUMINANCE_WEIGHTS, Widths, finite_image};
 use burn::config::Config;
 use burn::module::Module;
 use burn::tensor::{Device, Tensor};
@@ -68,10 +68,10 @@ pub const MAX_EXPOSURE_GAIN: f64 = 1e6;
 /// [`MAX_EXPOSURE_GAIN`]. Non-finite and negative pixels count as 0, as in the network's input.
 /// It is a constant of the image: no gradient flows through it.
 pub fn exposure_gain(image: &Tensor<4>, mask: &Tensor<4>) -> Tensor<4> {
-    let clean = image.clone().mask_fill(image.clone().is_nan(), 0.0).clamp(0.0, 1e30);
+    let clean = finite_image(image.clone());
     let [b, _, h, w] = clean.dims();
     let device = clean.device();
-    let weights = Tensor::<1>::from_floats([0.2126_f32, 0.7152, 0.0722], &device).reshape([1, 3, 1, 1]);
+    let weights = Tensor::<1>::from_floats(LUMINANCE_WEIGHTS.map(|w| w as f32), &device).reshape([1, 3, 1, 1]);
     let luminance = (clean * weights).sum_dim(1) * mask.clone();
     let total = luminance.reshape([b, h * w]).sum_dim(1);
     let area = mask.clone().reshape([b, h * w]).sum_dim(1).clamp_min(1.0);
