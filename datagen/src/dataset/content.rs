@@ -184,13 +184,13 @@ fn hash_f64s(kind: &str, values: &[f64]) -> String {
 /// The parameter fingerprint of a material.
 pub fn material_fingerprint(source: &MaterialSource) -> Result<String, String> {
     match source {
-        MaterialSource::Library(spec) => Ok(match spec {
+        MaterialSource::Analytic(spec) => Ok(match spec {
             BrdfSpec::Lambert(c) => hash_f64s("material-v1 lambert", c),
             BrdfSpec::Ggx { alpha, f0 } => hash_f64s("material-v1 ggx", &[*alpha, f0[0], f0[1], f0[2]]),
             BrdfSpec::Plastic { alpha, albedo } => {
                 hash_f64s("material-v1 plastic", &[*alpha, albedo[0], albedo[1], albedo[2]])
             }
-            // Not produced by the library today; the spec's text is still a parameter list.
+            // Not produced by the library or the parametric families today; the spec's text is still a parameter list.
             other => {
                 let mut h = blake3::Hasher::new();
                 h.update(b"material-v1 spec\0");

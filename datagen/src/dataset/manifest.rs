@@ -48,6 +48,8 @@ pub enum MaterialSource {
     Merl,
     /// MERL's materials as neural BRDFs (`*.nbrdf.json`).
     Nbrdf,
+    /// Materials drawn per seed from continuous families (`matedit_assets::materials::parametric`).
+    Parametric,
 }
 
 impl Named for MaterialSource {
@@ -56,6 +58,7 @@ impl Named for MaterialSource {
         ("dsbrdf", MaterialSource::Dsbrdf),
         ("merl", MaterialSource::Merl),
         ("nbrdf", MaterialSource::Nbrdf),
+        ("parametric", MaterialSource::Parametric),
     ];
 }
 
@@ -431,13 +434,18 @@ pub struct ShapeSourceToml {
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct MaterialSourceToml {
-    /// `library`, `dsbrdf` (a file or a folder of `.dsbrdf.json`) or `merl` (a folder of
-    /// `.binary` files).
+    /// `library`, `dsbrdf` (a file or a folder of `.dsbrdf.json`), `merl` (a folder of
+    /// `.binary` files), `nbrdf` (a folder of `.nbrdf.json`) or `parametric` (drawn per seed).
     pub source: Spanned<Choice<MaterialSource>>,
     /// Library names (`["*"]` for all).
     pub names: Option<Vec<String>>,
-    /// Library families (metal, carpaint, plastic, rubber, ceramic, fabric, wood).
+    /// Library families (metal, carpaint, plastic, rubber, ceramic, fabric, wood), or parametric
+    /// ones (plastic, metal).
     pub families: Option<Vec<String>>,
+    /// Parametric: materials per family (seeds `first_seed ..`).
+    pub count: Option<usize>,
+    /// Parametric: the first seed (default 0).
+    pub first_seed: Option<u64>,
     /// File or folder for `dsbrdf` and `merl`.
     pub path: Option<String>,
     /// `error` (default) or `library`: what to do when `path` does not exist.

@@ -63,7 +63,7 @@ pub fn file_stem(id: &str) -> String {
 
 fn fingerprint(item: &MaterialItem) -> String {
     match &item.source {
-        MaterialSource::Library(spec) => format!("{FIT_VERSION}|{spec:?}"),
+        MaterialSource::Analytic(spec) => format!("{FIT_VERSION}|{spec:?}"),
         MaterialSource::Dsbrdf(_) => "dsbrdf-file".into(),
         MaterialSource::Merl(p) => {
             let size = std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
@@ -80,7 +80,7 @@ fn fingerprint(item: &MaterialItem) -> String {
 
 fn source_model(item: &MaterialItem) -> Result<BrdfModel> {
     Ok(match &item.source {
-        MaterialSource::Library(spec) => spec.build().with_context(|| item.id.clone())?,
+        MaterialSource::Analytic(spec) => spec.build().with_context(|| item.id.clone())?,
         MaterialSource::Dsbrdf(p) => BrdfModel::Dsbrdf(Box::new(Dsbrdf::load(p)?)),
         MaterialSource::Merl(p) => BrdfModel::Measured(Arc::new(MerlBrdf::read(p)?)),
         MaterialSource::Nbrdf(p) => BrdfModel::Neural(Arc::new(NeuralBrdf::read(p)?)),

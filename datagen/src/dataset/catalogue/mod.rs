@@ -2,21 +2,21 @@
 //! a stable id, sorted by id. Ids name things inside their source, never where it is mounted,
 //! so two machines build identical datasets from the same manifest.
 
-use super::manifest::{
-    EnvSource, EnvSourceToml, IfMissing, ManifestFile, MaterialSource as MaterialSourceName, MaterialSourceToml,
-    ShapeSource, ShapeSourceToml,
-};
+use super::manifest::{EnvSource, EnvSourceToml, IfMissing, ManifestFile, ShapeSource, ShapeSourceToml};
 use crate::shapes::UpAxis;
 use crate::shapes::procedural::Category;
 use crate::shapes::sources;
 use matedit_assets::envmaps::Family;
-use matedit_assets::materials::library::library;
 use matedit_contract::manifest::{Choice, ManifestError, Named};
 use matedit_contract::records::Merge;
 use matedit_physics::BrdfSpec;
-use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use toml::Spanned;
+
+mod materials;
+
+use materials::materials_of;
+pub use materials::merl_group;
 
 /// A shape of the catalogue.
 #[derive(Clone, Debug, PartialEq)]
@@ -43,8 +43,8 @@ pub struct ShapeItem {
 /// Where a material's BRDF comes from.
 #[derive(Clone, Debug, PartialEq)]
 pub enum MaterialSource {
-    /// An analytic library material.
-    Library(BrdfSpec),
+    /// An analytic BRDF: a library material or a parametric family's draw.
+    Analytic(BrdfSpec),
     /// A DSBRDF file (already the 108 parameters).
     Dsbrdf(PathBuf),
     /// A MERL measurement.
@@ -388,51 +388,6 @@ fn shapes_of(
     Ok(())
 }
 
-fn library_items(names: Option<&Vec<String>>, families: Option<&Vec<String>>) -> Result<Vec<MaterialItem>, String> {
-    let lib = library();
-    let known_families: BTreeSet<&str> = lib.iter().map(|m| m.family).collect();
-    if let Some(fs) = families {
-        for f in fs {
-            if !known_families.contains(f.as_str()) {
-                return Err(format!(
-                    "unknown family {f:?} (known: {})",
-                    known_families.iter().copied().collect::<Vec<_>>().join(", ")
-                ));
-            }
-        }
-    }
-    if let Some(ns) = names {
-        for n in ns {
-            if n != "*" && !lib.iter().any(|m| &m.name == n) {
-                return Err(format!(
-                    "no library material {n:?} (list them with `datagen assets materials --list`)"
-                ));
-            }
-        }
-    }
-    let all = names.is_none() && families.is_none() || names.is_some_and(|n| n.iter().any(|x| x == "*"));
-    Ok(lib
-        .into_iter()
-        .filter(|m| {
-            all || names.is_some_and(|n| n.contains(&m.name))
-                || families.is_some_and(|f| f.iter().any(|x| x == m.family))
-        })
-        .map(|m| MaterialItem {
-            id: format!("library:{}", m.name),
-            group: format!("library:{}", m.group),
-            source: MaterialSource::Library(m.spec),
-            fingerprint: String::new(),
-            entry: 0,
-        })
-        .collect())
-}
-
-/// MERL names differ by a trailing digit for near-duplicates (`blue-metallic-paint2`), so the
-/// group drops trailing digits.
-pub fn merl_group(name: &str) -> String {
-    format!("merl:{}", name.trim_end_matches(|c: char| c.is_ascii_digit()))
-}
-
 fn files_with(dir: &Path, suffix: &str) -> std::io::Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     if dir.is_file() {
@@ -451,92 +406,6 @@ fn files_with(dir: &Path, suffix: &str) -> std::io::Result<Vec<PathBuf>> {
     }
     out.sort();
     Ok(out)
-}
-
-fn stem(p: &Path, suffix: &str) -> String {
-    let n = p
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    n.strip_suffix(suffix).unwrap_or(&n).to_string()
-}
-
-fn materials_of(
-    mf: &ManifestFile,
-    cat: &mut Catalogue,
-    i: usize,
-    entry: &Spanned<MaterialSourceToml>,
-) -> Result<(), ManifestError> {
-    let s = entry.get_ref();
-    let e = Entry {
-        mf,
-        span: entry.span(),
-        field: format!("materials[{i}]"),
-    };
-    let kind = mf.choice(&s.source, &format!("{}.source", e.field))?;
-    match kind {
-        MaterialSourceName::Library => {
-            e.not_for(
-                "library",
-                &[("path", s.path.is_some()), ("if_missing", s.if_missing.is_some())],
-            )?;
-            let items = library_items(s.names.as_ref(), s.families.as_ref()).map_err(|err| e.invalid("names", err))?;
-            cat.materials.extend(items);
-        }
-        MaterialSourceName::Dsbrdf | MaterialSourceName::Merl | MaterialSourceName::Nbrdf => {
-            e.not_for(
-                kind.name(),
-                &[("names", s.names.is_some()), ("families", s.families.is_some())],
-            )?;
-            let suffix = match kind {
-                MaterialSourceName::Dsbrdf => ".dsbrdf.json",
-                MaterialSourceName::Nbrdf => ".nbrdf.json",
-                _ => ".binary",
-            };
-            match e.existing_path(s.path.as_ref(), s.if_missing.as_ref(), IfMissing::Library)? {
-                Some(path) => {
-                    let files = e.files_with(&path, suffix)?;
-                    if files.is_empty() {
-                        return Err(e.invalid("path", format!("{} holds no *{suffix} file", path.display())));
-                    }
-                    for f in files {
-                        let name = stem(&f, suffix);
-                        // A MERL material as a table and as a network shares one group, so that
-                        // the two forms cannot land on both sides of a split.
-                        let (id, group, source) = match kind {
-                            MaterialSourceName::Dsbrdf => (
-                                format!("dsbrdf:{name}"),
-                                format!("dsbrdf:{name}"),
-                                MaterialSource::Dsbrdf(f),
-                            ),
-                            MaterialSourceName::Nbrdf => {
-                                (format!("nbrdf:{name}"), merl_group(&name), MaterialSource::Nbrdf(f))
-                            }
-                            _ => (format!("merl:{name}"), merl_group(&name), MaterialSource::Merl(f)),
-                        };
-                        cat.materials.push(MaterialItem {
-                            id,
-                            group,
-                            source,
-                            fingerprint: String::new(),
-                            entry: i,
-                        });
-                    }
-                }
-                None => {
-                    let items = library_items(None, None).map_err(|err| e.invalid_entry(err))?;
-                    cat.substitutions.push(format!(
-                        "{}: {} is missing; using the {} library materials",
-                        e.field,
-                        s.path.as_deref().unwrap_or(""),
-                        items.len()
-                    ));
-                    cat.materials.extend(items);
-                }
-            }
-        }
-    }
-    Ok(())
 }
 
 fn procedural_envs(family: &str, first: u64, count: usize) -> Result<Vec<EnvItem>, String> {
@@ -662,35 +531,4 @@ fn envs_of(
         }
     }
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn merl_near_duplicates_share_a_group() {
-        assert_eq!(merl_group("blue-metallic-paint2"), merl_group("blue-metallic-paint"));
-        assert_ne!(merl_group("gold-paint"), merl_group("blue-metallic-paint"));
-    }
-
-    #[test]
-    fn library_selection_by_name_and_family() {
-        assert_eq!(library_items(None, None).unwrap().len(), library().len());
-        let metals = library_items(None, Some(&vec!["metal".into()])).unwrap();
-        assert_eq!(metals.len(), 48);
-        assert!(
-            library_items(Some(&vec!["nope".into()]), None)
-                .unwrap_err()
-                .contains("nope")
-        );
-        assert!(
-            library_items(None, Some(&vec!["glass".into()]))
-                .unwrap_err()
-                .contains("glass")
-        );
-        let two = library_items(Some(&vec!["gold-brushed".into(), "rubber-red".into()]), None).unwrap();
-        assert_eq!(two.len(), 2);
-        assert_eq!(two[0].group, "library:metal-gold");
-    }
 }
