@@ -4,7 +4,7 @@
 //! the file, the line and the field.
 
 mod common;
-use common::run_to;
+use common::{run_to, scratch};
 
 use matedit_assets::materials::parametric::ParametricFamily;
 use matedit_datagen::dataset::catalogue::MaterialSource;
@@ -13,13 +13,6 @@ use matedit_physics::BrdfSpec;
 use serde_json::Value;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("matedit-parametric-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// A small dataset whose materials are `entry`.
 fn manifest(seed: u64, entry: &str) -> String {
@@ -87,7 +80,7 @@ fn materials_by_split(out: &Path) -> (BTreeSet<String>, BTreeSet<String>) {
 
 #[test]
 fn a_seed_is_one_material_in_every_dataset_and_splits_never_share_one() {
-    let d = scratch("same");
+    let d = scratch("parametric-same");
     let entry = |first: u64| {
         format!("source = \"parametric\"\nfamilies = [\"plastic\", \"metal\"]\ncount = 6\nfirst_seed = {first}")
     };
@@ -149,7 +142,7 @@ fn a_seed_is_one_material_in_every_dataset_and_splits_never_share_one() {
 
 #[test]
 fn bad_parametric_entries_are_refused_with_field_and_line() {
-    let d = scratch("bad");
+    let d = scratch("parametric-bad");
     let cases = [
         ("source = \"parametric\"\ncount = 4", "materials[0].families: required"),
         (

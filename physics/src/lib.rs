@@ -35,3 +35,7 @@ pub mod tonemap;
 
 pub use brdf::{Brdf, BrdfModel, BrdfSpec};
 pub use envmap::EnvMap;
+
+/// Rec. 709 luminance weights of linear RGB: the one measure of brightness of the factory's
+/// drawn materials, the network's exposure and `matedit edit`'s photo exposure.
+pub const LUMINANCE_WEIGHTS: [f64; 3] = [0.2126, 0.7152, 0.0722];

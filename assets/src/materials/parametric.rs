@@ -8,10 +8,7 @@
 //! family and seed), so `parametric:plastic:17` is the same material in every dataset.
 
 use crate::random::Draw;
-use matedit_physics::BrdfSpec;
-
-/// Rec. 709 luminance weights: the albedo's luminance is drawn, then its colour.
-const LUMINANCE: [f64; 3] = [0.2126, 0.7152, 0.0722];
+use matedit_physics::{BrdfSpec, LUMINANCE_WEIGHTS as LUMINANCE};
 
 /// A family of drawn materials.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

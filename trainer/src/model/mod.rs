@@ -96,9 +96,8 @@ impl Init {
     }
 }
 
-/// Rec. 709 luminance weights of linear RGB: what the network's exposure and `matedit edit`'s
-/// exposure measure an object's brightness with.
-pub const LUMINANCE_WEIGHTS: [f64; 3] = [0.2126, 0.7152, 0.0722];
+/// What the network's exposure and `matedit edit`'s exposure measure an object's brightness with.
+pub use matedit_physics::LUMINANCE_WEIGHTS;
 
 /// An image as the modules read it: NaN as 0, negative values as 0, values capped at 10³⁰.
 pub fn finite_image(image: Tensor<4>) -> Tensor<4> {
