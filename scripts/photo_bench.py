@@ -58,6 +58,10 @@ Usage:
         --model out/train/quickstart [--methods "render=--composite render" ...] [--targets green,gold]
     python3 scripts/photo_bench.py all --out out/photobench --matedit BIN --model MODEL
     python3 scripts/photo_bench.py levels --out out/photobench --methods detail   # after `score`
+    python3 scripts/photo_bench.py ceiling --out out/photobench   # a perfect edit's scores
+Oracles for methods (`{scene}/...` in --methods): sceneNN/light.exr (the true light in the
+camera's frame, for `--light`), sceneNN/normals.exr (the true shading normals in the camera's
+frame, for `--normals`), `{input}` (the project spec nearest the input material).
 Outputs: DIR/sceneNN/{photo,mask,truth_green,truth_chrome,truth_gold}.png (+ .exr), DIR/scenes.json,
 DIR/contact.png; DIR/edits/METHOD/sceneNN-TARGET/, DIR/edits/sheet.png, DIR/results.json.
 """
@@ -378,6 +382,28 @@ def camera_frame_light(mi, record, height=64, supersample=8):
     return look.reshape(height, supersample, w, supersample, 3).mean(axis=(1, 3)).astype(np.float32)
 
 
+def camera_frame_normals(mi, rec, plan, width, height):
+    """The object's shading normals as `matedit edit --normals` reads them: camera space (+x
+    right, +y up, +z towards the camera), each pixel the mean of 16 samples' normals renormalised
+    (zero where no sample hits the object), turned towards the camera where a two-sided surface
+    faces away (as rendered)."""
+    geom = load_mesh(rec["mesh_file"], plan["entry"])
+    origin, target = np.array(rec["camera"]["origin"]), np.array(rec["camera"]["target"])
+    scene = build_scene(mi, geom, {"type": "diffuse"}, plan, (origin, target), width, height, 16, env=False,
+                        integrator={"type": "aov", "aovs": "n:sh_normal,p:position"})
+    mi.render(scene, seed=1)
+    layers = dict(scene.sensors()[0].film().bitmap().split())
+    fwd = (target - origin) / np.linalg.norm(target - origin)
+    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    to_camera = np.stack([right, np.cross(right, fwd), -fwd])
+    n = np.array(layers["n"], dtype=np.float64)[..., :3] @ to_camera.T
+    wo = origin - np.array(layers["p"], dtype=np.float64)[..., :3]
+    n = np.where((np.sum(n * (wo @ to_camera.T), -1) < 0)[..., None], -n, n)
+    length = np.linalg.norm(n, axis=-1, keepdims=True)
+    return np.where(length > 1e-6, n / np.maximum(length, 1e-12), 0.0).astype(np.float32)
+
+
 def render_radiance(mi, scene, seed):
     return np.array(mi.render(scene, seed=seed), dtype=np.float32)[..., :3]
 
@@ -536,10 +562,13 @@ def cmd_render(args):
           f"{MAX_DEPTH}, Mitsuba {mi.__version__} {mi.variant()}", flush=True)
     t0 = time.time()
     records = [render_scene(mi, p, out, args.width, args.height, args.spp) for p in plans]
-    for rec in records:  # the true light, for `--light {scene}/light.exr` (an oracle method)
+    for plan, rec in zip(plans, records):  # the true light and normals, for oracle methods
         light = out / rec["name"] / "light.exr"
         if not light.exists():
             write_exr(mi, light, camera_frame_light(mi, rec))
+        normals = out / rec["name"] / "normals.exr"
+        if not normals.exists():
+            write_exr(mi, normals, camera_frame_normals(mi, rec, plan, args.width, args.height))
     write_atomic(out / "scenes.json", lambda p: p.write_text(json.dumps({**settings, "scenes": records}, indent=1)))
     write_contact(out, records)
     print(f"{len(records)} scenes in {time.time() - t0:.0f} s: {out / 'scenes.json'}, {out / 'contact.png'}")
@@ -765,6 +794,58 @@ def cmd_perspective(args):
           f"(mean |layer − truth| / mean truth on the object, chrome, true normals and light)")
 
 
+def cmd_ceiling(args):
+    """What a perfect edit scores: each target's truth rendered again with another seed (the same
+    scene, camera, spp and exposure; only the path tracer's noise differs), scored against the
+    truth exactly as an edit is. No method can expect more on these truths: the rows are the
+    benchmark's ceiling, set by the Monte Carlo noise of a 64-spp truth. Writes
+    sceneNN/truth_TARGET_reseed.{exr,png} (kept, so a rerun only scores) and DIR/ceiling.json."""
+    mi = mitsuba()
+    out = Path(args.out)
+    settings = json.loads((out / "scenes.json").read_text())
+    records = settings["scenes"][: args.scenes]
+    plans = {p["name"]: p for p in scene_plans(len(records), Path(args.assets), None)}
+    targets = [t for t in args.targets.split(",") if t]
+    cases = []
+    for rec in records:
+        d = out / rec["name"]
+        plan = plans[rec["name"]]
+        camera = (np.array(rec["camera"]["origin"]), np.array(rec["camera"]["target"]))
+        geom = None
+        photo, obj = rgb8(d / "photo.png"), rgb8(d / "mask.png")[..., 0] > 127
+        for t in targets:
+            exr, png = d / f"truth_{t}_reseed.exr", d / f"truth_{t}_reseed.png"
+            if not png.exists():
+                if geom is None:
+                    geom = load_mesh(rec["mesh_file"], plan["entry"])
+                scene = build_scene(mi, geom, TARGETS[t]["mitsuba"], plan, camera, settings["width"],
+                                    settings["height"], settings["spp"])
+                radiance = render_radiance(mi, scene, rec["seed"] + 1)
+                write_exr(mi, exr, radiance)
+                write_png(png, srgb8(radiance * rec["exposure"]))
+            truth = rgb8(d / f"truth_{t}.png")
+            tg = grad_magnitude(truth)
+            base = scores(photo, truth, obj, tg)
+            s = scores(rgb8(png), truth, obj, tg)
+            cases.append({"scene": rec["name"], "target": t, **s,
+                          "beats": s["l2"] < base["l2"] and s["ssim"] > base["ssim"]})
+            print(f"{rec['name']} {t:<6} another render of the truth: L2 {s['l2']:7.1f}  SSIM {s['ssim']:.4f}  "
+                  f"grad {fmt(s['grad_corr'], '.3f')}", flush=True)
+    rows = {}
+    for key, mine in [("all", cases)] + [(t, [c for c in cases if c["target"] == t]) for t in targets]:
+        rows[key] = {"cases": len(mine), "l2": mean_or_none([c["l2"] for c in mine]),
+                     "ssim": mean_or_none([c["ssim"] for c in mine]),
+                     "grad_corr": mean_or_none([c["grad_corr"] for c in mine if c["grad_corr"] is not None]),
+                     "beats_unchanged": sum(c["beats"] for c in mine)}
+    print("\n| truths | L2 | SSIM | gradient corr. | beats unchanged |\n|---|---|---|---|---|")
+    for key, r in rows.items():
+        print(f"| {key} | {r['l2']:.1f} | {r['ssim']:.4f} | {r['grad_corr']:.3f} | {r['beats_unchanged']} / {r['cases']} |")
+    command = shlex.join([Path(sys.executable).name] + sys.argv)
+    print(f"\nCommand: `{command}`")
+    report = {"command": command, "seed_offset": 1, "means": rows, "cases": cases}
+    write_atomic(out / "ceiling.json", lambda p: p.write_text(json.dumps(report, indent=1)))
+
+
 LIGHT_VARIANTS = {
     "light_blocks.exr": "the true light averaged over 8x8-texel blocks (8x16 values: the key light's direction, "
                         "no detail)",
@@ -975,6 +1056,9 @@ def main():
     sub.add_parser("perspective", parents=[common, render],
                    help="the layer with true normals and light, orthographic against per-pixel views")
     sub.add_parser("lights", parents=[common], help="variants of each scene's true light (what an edit needs of it)")
+    ceiling = sub.add_parser("ceiling", parents=[common, render],
+                             help="each truth rendered again with another seed and scored: what a perfect edit gets")
+    ceiling.add_argument("--targets", default=",".join(TARGETS), help="comma-separated targets of " + ", ".join(TARGETS))
     levels = sub.add_parser("levels", parents=[common],
                             help="each method's level error against the truths, and its scores at the truth's level")
     levels.add_argument("--methods", nargs="+", required=True, metavar="NAME",
@@ -992,6 +1076,8 @@ def main():
         cmd_lights(args)
     if args.command == "levels":
         cmd_levels(args)
+    if args.command == "ceiling":
+        cmd_ceiling(args)
 
 
 if __name__ == "__main__":

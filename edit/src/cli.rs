@@ -80,6 +80,12 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// brightness). Not with --eq6, which would change it.
         #[arg(long, conflicts_with = "optimize")]
         input_material: Option<String>,
+        /// The object's normals when they are known (a depth sensor, a normal estimator): a map
+        /// of the photo's size, EXR (x, y, z as stored) or PNG ((n + 1) / 2), camera space (+x
+        /// right, +y up, +z towards the camera). Used instead of the predicted n' at both
+        /// resolutions; pixels without a usable normal keep n'.
+        #[arg(long)]
+        normals: Option<PathBuf>,
         /// How the render goes back into the photo. Default: `ratio` with --input-material,
         /// `detail` otherwise (the best measured for each, docs/PERFORMANCE.md).
         #[arg(long, value_enum)]
@@ -288,6 +294,7 @@ fn run(cli: Cli) -> Result<()> {
             light_level,
             fov,
             input_material,
+            normals,
             composite,
             optimize,
             eq6_a,
@@ -308,6 +315,7 @@ fn run(cli: Cli) -> Result<()> {
                 fov_deg: fov,
                 composite: composite.unwrap_or_else(|| Composite::best_for(input_material.is_some())),
                 input_material,
+                normals,
                 optimize: optimize.then(|| Eq6Config {
                     a: eq6_a,
                     b: eq6_b,

@@ -24,6 +24,7 @@ pub mod detail;
 pub mod light;
 #[cfg(test)]
 mod light_tests;
+pub mod normals;
 pub mod output;
 pub mod photo;
 pub mod predict;
@@ -107,6 +108,9 @@ pub struct EditRequest {
     /// The object's own material, when known (a spec, as `--material` takes): used instead of
     /// m', and it sets the light's level ([`LightOptions::input_material`]).
     pub input_material: Option<String>,
+    /// The object's normals at the photo's resolution, when known (EXR or PNG, camera space):
+    /// used instead of n' ([`normals`]).
+    pub normals: Option<PathBuf>,
     /// How to composite (the command line picks [`Composite::best_for`] when none is given).
     pub composite: Composite,
     /// Refine n', m', L' with Eq. 6 before rendering.
@@ -191,6 +195,8 @@ pub struct EditReport {
     pub light: Option<String>,
     /// The object's own material given instead of m', if any.
     pub input_material: Option<String>,
+    /// The normal map given instead of n', if any, and where it had no normal.
+    pub normals: Option<normals::NormalsReport>,
     /// How the light's level was set.
     pub light_level: background::LightLevel,
     /// How O' went back into the photo.
@@ -225,6 +231,8 @@ pub struct Understood {
     pub light_level: background::LightLevel,
     /// The object's own material's spec, when it was given instead of m'.
     pub input_material: Option<String>,
+    /// The normal map given instead of n', when one was.
+    pub normals: Option<normals::NormalsReport>,
     /// Seconds the network took.
     pub network_seconds: f64,
 }
@@ -317,6 +325,17 @@ pub fn understand(
     enter(w, "network")?;
     let t = Instant::now();
     let mut x = network_prediction(&model.net, &prep)?;
+    let mut normals_report = None;
+    if let Some(g) = &light.normals {
+        g.check_covers(&coverage)?;
+        let (n, kept) = g.framed(&prep, &x.normals);
+        x.normals = n;
+        normals_report = Some(normals::NormalsReport {
+            path: g.path.clone(),
+            network_pixels_kept: kept,
+            detail_pixels_kept: 0,
+        });
+    }
     let level_from = light.level_from();
     if let Some((spec, m)) = &light.input_material {
         x.materials = m.repeat(prep.regions);
@@ -344,6 +363,11 @@ pub fn understand(
         detail::MAX_DETAIL_OBJECT_PIXELS,
     )
     .with_context(|| path.display().to_string())?;
+    if let (Some(g), Some(r)) = (&light.normals, normals_report.as_mut()) {
+        let (n, kept) = g.framed(&detail.prep, &detail.normals);
+        detail.normals = n;
+        r.detail_pixels_kept = kept;
+    }
     let eq6 = match optimize {
         None => None,
         Some(cfg) => {
@@ -425,6 +449,7 @@ pub fn understand(
         eq6,
         light_level,
         input_material: light.input_material.as_ref().map(|(spec, _)| spec.clone()),
+        normals: normals_report,
         network_seconds,
     })
 }
@@ -464,6 +489,7 @@ fn finish(
         eq6,
         light_level,
         input_material,
+        normals,
         network_seconds,
     } = u;
     let relight_env = relight.as_ref().map(|(_, l)| l.as_slice());
@@ -518,6 +544,7 @@ fn finish(
         relight: relight.map(|(spec, _)| spec.to_string()),
         light: light_spec.map(str::to_string),
         input_material,
+        normals,
         light_level,
         composite: how,
         eq6,
@@ -611,6 +638,11 @@ fn edit_checked(
         level: req.light_level,
         fov_deg: req.fov_deg,
         input_material: light::known_material(req.input_material.as_deref(), "--input-material")?,
+        normals: req
+            .normals
+            .as_deref()
+            .map(|n| normals::load_normals(n, read.photo.width, read.photo.height))
+            .transpose()?,
     };
     let t_load = t0.elapsed().as_secs_f64();
     let u = understand(model, read, &req.photo, req.optimize.as_ref(), &light, watcher)?;

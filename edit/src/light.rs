@@ -41,6 +41,9 @@ pub struct LightOptions {
     /// the one at which it explains the photo: the albedo that a masked object does not tell the
     /// network apart from the light's brightness (docs/PERFORMANCE.md, "The light's level").
     pub input_material: Option<(String, Vec<f32>)>,
+    /// The object's normals when they are known (`--normals`): they replace n' at both
+    /// resolutions, before the light's level is set ([`crate::normals`]).
+    pub normals: Option<crate::normals::GivenNormals>,
 }
 
 impl LightOptions {

@@ -212,7 +212,7 @@ fn check_file(path: &Path) -> Result<()> {
 }
 
 /// Decodes an image with its size checked from the header first.
-fn decode(path: &Path) -> Result<image::DynamicImage> {
+pub(crate) fn decode(path: &Path) -> Result<image::DynamicImage> {
     let what = path.display();
     check_file(path)?;
     let reader = || -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
