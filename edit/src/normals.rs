@@ -80,18 +80,25 @@ pub fn load_normals(path: &Path, width: usize, height: usize) -> Result<GivenNor
     if (w, h) != (width, height) {
         bail!("{what}: the normal map is {w}×{h}, the photo {width}×{height}; they must match pixel for pixel");
     }
-    let normals = raw
-        .into_iter()
-        .map(|n| {
-            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            (len.is_finite() && len >= MIN_LENGTH).then(|| n.map(|v| v / len))
-        })
-        .collect();
+    let normals = raw.into_iter().map(unit).collect();
     Ok(GivenNormals {
         path: what.to_string(),
         width,
         normals,
     })
+}
+
+/// `n` at unit length, or `None` where it has no direction: a non-finite component, or a length
+/// under [`MIN_LENGTH`]. Scaled by its largest component first, so that finite normals beyond
+/// f32's square root (1e20 and up) keep their direction.
+fn unit(n: [f32; 3]) -> Option<[f32; 3]> {
+    let m = n.iter().fold(0.0_f32, |m, v| m.max(v.abs()));
+    if !m.is_finite() || m == 0.0 || n.iter().any(|v| v.is_nan()) {
+        return None;
+    }
+    let u = n.map(|v| v / m);
+    let len = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
+    (m * len >= MIN_LENGTH).then(|| u.map(|v| v / len))
 }
 
 impl GivenNormals {
@@ -223,6 +230,35 @@ mod tests {
                 .filter(|&k| prep.mask[k] == 0.0)
                 .all(|k| n[k] == 0.0 && n[2 * p2 + k] == 0.0)
         );
+    }
+
+    #[test]
+    fn a_normal_has_a_direction_at_any_finite_scale_and_none_otherwise() {
+        for k in [-30, -1, 0, 1, 10, 20, 30, 38] {
+            let s = 10f32.powi(k);
+            let v = [s * (3.0 / 13.0), s * (-4.0 / 13.0), s * (12.0 / 13.0)];
+            match unit(v) {
+                Some(n) => {
+                    assert!(s >= MIN_LENGTH * 0.99, "scale {s}: {n:?}");
+                    for (a, b) in n.iter().zip([3.0 / 13.0, -4.0 / 13.0, 12.0 / 13.0]) {
+                        assert!((a - b).abs() < 1e-6, "scale {s}: {n:?}");
+                    }
+                }
+                None => assert!(s < MIN_LENGTH, "scale {s} lost its direction"),
+            }
+        }
+        assert_eq!(
+            unit([f32::MAX, f32::MAX, 0.0]).map(|n| (n[0] * 1e6).round()),
+            Some(707_107.0)
+        );
+        for bad in [
+            [f32::NAN, 0.0, 1.0],
+            [f32::INFINITY, 0.0, 1.0],
+            [0.0; 3],
+            [0.01, 0.0, 0.05],
+        ] {
+            assert_eq!(unit(bad), None, "{bad:?}");
+        }
     }
 
     #[test]
