@@ -81,9 +81,10 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         #[arg(long, conflicts_with = "optimize")]
         input_material: Option<String>,
         /// The object's normals when they are known (a depth sensor, a normal estimator): a map
-        /// of the photo's size, EXR (x, y, z as stored) or PNG ((n + 1) / 2), camera space (+x
-        /// right, +y up, +z towards the camera). Used instead of the predicted n' at both
-        /// resolutions; pixels without a usable normal keep n'.
+        /// of the photo's size, EXR (channels X, Y, Z or R, G, B, as stored) or PNG ((n + 1) / 2),
+        /// camera space (+x right, +y up, +z towards the camera). Used instead of the predicted
+        /// n' at both resolutions; pixels without a usable normal keep n'. A map facing away from
+        /// the camera (another convention) is refused.
         #[arg(long)]
         normals: Option<PathBuf>,
         /// How the render goes back into the photo. Default: `ratio` with --input-material,
