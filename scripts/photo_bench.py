@@ -382,11 +382,11 @@ def camera_frame_light(mi, record, height=64, supersample=8):
     return look.reshape(height, supersample, w, supersample, 3).mean(axis=(1, 3)).astype(np.float32)
 
 
-def camera_frame_normals(mi, rec, plan, width, height):
-    """The object's shading normals as `matedit edit --normals` reads them: camera space (+x
-    right, +y up, +z towards the camera), each pixel the mean of 16 samples' normals renormalised
-    (zero where no sample hits the object), turned towards the camera where a two-sided surface
-    faces away (as rendered)."""
+def camera_frame_geometry(mi, rec, plan, width, height):
+    """Per pixel, in the camera's frame (+x right, +y up, +z towards the camera): the object's
+    shading normal, the mean of 16 samples' normals renormalised (zero where no sample hits the
+    object) and turned towards the camera where the two-sided surface faces away (as rendered),
+    and the unit direction towards the camera. Both [height, width, 3]."""
     geom = load_mesh(rec["mesh_file"], plan["entry"])
     origin, target = np.array(rec["camera"]["origin"]), np.array(rec["camera"]["target"])
     scene = build_scene(mi, geom, {"type": "diffuse"}, plan, (origin, target), width, height, 16, env=False,
@@ -398,10 +398,16 @@ def camera_frame_normals(mi, rec, plan, width, height):
     right /= np.linalg.norm(right)
     to_camera = np.stack([right, np.cross(right, fwd), -fwd])
     n = np.array(layers["n"], dtype=np.float64)[..., :3] @ to_camera.T
-    wo = origin - np.array(layers["p"], dtype=np.float64)[..., :3]
-    n = np.where((np.sum(n * (wo @ to_camera.T), -1) < 0)[..., None], -n, n)
+    wo = (origin - np.array(layers["p"], dtype=np.float64)[..., :3]) @ to_camera.T
+    wo /= np.maximum(np.linalg.norm(wo, axis=-1, keepdims=True), 1e-12)
+    n = np.where((np.sum(n * wo, -1) < 0)[..., None], -n, n)
     length = np.linalg.norm(n, axis=-1, keepdims=True)
-    return np.where(length > 1e-6, n / np.maximum(length, 1e-12), 0.0).astype(np.float32)
+    return np.where(length > 1e-6, n / np.maximum(length, 1e-12), 0.0), wo
+
+
+def camera_frame_normals(mi, rec, plan, width, height):
+    """The object's shading normals as `matedit edit --normals` reads them (camera_frame_geometry)."""
+    return camera_frame_geometry(mi, rec, plan, width, height)[0].astype(np.float32)
 
 
 def render_radiance(mi, scene, seed):
@@ -764,22 +770,9 @@ def cmd_perspective(args):
     rows = []
     for rec in records:
         plan = plans[rec["name"]]
-        geom = load_mesh(rec["mesh_file"], plan["entry"])
-        origin, target = np.array(rec["camera"]["origin"]), np.array(rec["camera"]["target"])
-        scene = build_scene(mi, geom, {"type": "diffuse"}, plan, (origin, target), 640, 480, 16, env=False,
-                            integrator={"type": "aov", "aovs": "n:sh_normal,p:position"})
-        mi.render(scene, seed=1)
-        layers = dict(scene.sensors()[0].film().bitmap().split())
-        fwd = (target - origin) / np.linalg.norm(target - origin)
-        right = np.cross(fwd, [0.0, 1.0, 0.0])
-        right /= np.linalg.norm(right)
-        to_camera = np.stack([right, np.cross(right, fwd), -fwd])
         obj = np.asarray(Image.open(out / rec["name"] / "mask.png")) > 127
-        n = np.array(layers["n"])[..., :3][obj] @ to_camera.T
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        wo = origin - np.array(layers["p"])[..., :3][obj]
-        wo = (wo / np.linalg.norm(wo, axis=1, keepdims=True)) @ to_camera.T
-        n = np.where((np.sum(n * wo, 1) < 0)[:, None], -n, n)  # two-sided, as rendered
+        n, wo = camera_frame_geometry(mi, rec, plan, 640, 480)
+        n, wo = n[obj], wo[obj]
         light = np.array(mi.Bitmap(str(out / rec["name"] / "light.exr")))[..., :3].reshape(-1, 3)
         truth = np.array(mi.Bitmap(str(out / rec["name"] / "truth_chrome.exr")))[..., :3][obj]
         errors = []
