@@ -37,7 +37,7 @@ pub(super) async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
         let bytes = field.bytes().await.map_err(multipart_error)?;
         let text = || String::from_utf8_lossy(&bytes).trim().to_string();
         match name.as_str() {
-            "photo" | "mask" | "source" | "source_mask" => {
+            "photo" | "mask" | "source" | "source_mask" | "normals" => {
                 // An empty file input sends an empty part without a name: as if not given. A
                 // file chosen that is empty is an error of its own.
                 if bytes.is_empty() && !file_name.is_empty() {
@@ -51,6 +51,7 @@ pub(super) async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
                         "photo" => "photo",
                         "mask" => "mask",
                         "source" => "source",
+                        "normals" => "normals",
                         _ => "source_mask",
                     };
                     f.files.insert(role, Part { name: file_name, bytes });
@@ -116,6 +117,7 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
     let mask = save("mask", &mut f)?;
     let source = save("source", &mut f)?;
     let source_mask = save("source_mask", &mut f)?;
+    let normals = save("normals", &mut f)?;
     // Messages name the uploads as the user called them, not by where they were saved.
     let check = |photo: &std::path::Path, mask: Option<&std::path::Path>| -> Result<()> {
         crate::read_photo(photo, mask, None)
@@ -123,6 +125,14 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
             .map_err(|e| anyhow::anyhow!(upload::name_uploads(&format!("{e:#}"), &names)))
     };
     check(&photo, mask.as_deref())?;
+    if let Some(n) = &normals {
+        // Checked as `matedit edit --normals` checks it: the photo's size, some usable normal on
+        // the object, facing the camera.
+        let read = crate::read_photo(&photo, mask.as_deref(), None)?;
+        crate::normals::load_normals(n, read.photo.width, read.photo.height)
+            .and_then(|g| g.check_covers(&read.coverage))
+            .map_err(|e| anyhow::anyhow!(upload::name_uploads(&format!("{e:#}"), &names)))?;
+    }
     let optimize = f.optimize.then(|| app.eq6.clone());
     if let Some(spec) = &f.input_material {
         upload::check_material(spec).context("the object's own material")?;
@@ -136,6 +146,9 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
         (None, None) => bail!("no material: pick a library material or a photo to transfer from"),
         (Some(_), None) if f.input_material.is_some() => {
             bail!("the object's own material is for an edit to a library material, not a transfer")
+        }
+        (Some(_), None) if normals.is_some() => {
+            bail!("the object's normals are for an edit to a library material, not a transfer")
         }
         (None, Some(spec)) => {
             upload::check_material(&spec)?;
@@ -152,7 +165,7 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
                 light_level: Default::default(),
                 fov_deg: None,
                 input_material: f.input_material,
-                normals: None,
+                normals,
                 composite,
                 optimize,
             })

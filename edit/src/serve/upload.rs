@@ -95,6 +95,12 @@ pub fn save(dir: &Path, role: &str, part: &Part, max_pixels: u64) -> Result<(Pat
             ext.to_uppercase()
         );
     }
+    if role == "normals" && !matches!(ext, "png" | "exr") {
+        bail!(
+            "{shown}: normal maps must be EXR or PNG images, this is {}",
+            ext.to_uppercase()
+        );
+    }
     let (w, h) = dimensions(&part.bytes, ext).with_context(|| shown.clone())?;
     if w == 0 || h == 0 {
         bail!("{shown}: the image is empty ({w}×{h})");

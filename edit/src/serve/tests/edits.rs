@@ -210,6 +210,33 @@ fn uploads_are_told_apart_by_content_not_name() {
 }
 
 #[test]
+fn the_objects_normals_reach_the_edit() {
+    let rt = runtime();
+    let server = rt.block_on(start(config(2))).unwrap();
+    let addr = server.addr;
+    let (photo, mask) = photo_and_mask();
+    let facing = png(image::RgbImage::from_pixel(60, 40, image::Rgb([128, 128, 255])));
+    let (s, v) = post_edit(
+        addr,
+        &[
+            ("photo", Some("car.png"), &photo),
+            ("mask", Some("car-mask.png"), &mask),
+            ("material", None, b"library:gold-polished"),
+            ("normals", Some("car-normals.png"), &facing),
+        ],
+    );
+    assert_eq!(s, 202, "{v}");
+    let done = wait_for(addr, v["url"].as_str().unwrap(), &["done", "failed"]);
+    assert_eq!(done["state"], "done", "{done}");
+    let normals = &done["report"]["normals"];
+    assert_eq!(normals["network_pixels_kept"], 0, "{normals}");
+    assert_eq!(normals["detail_pixels_kept"], 0, "{normals}");
+    // The report names the upload as the user did, not by where the server saved it.
+    let path = normals["path"].as_str().unwrap();
+    assert!(path.contains("car-normals.png") && !path.contains('/'), "{path}");
+}
+
+#[test]
 fn the_objects_own_material_reaches_the_edit_and_picks_its_composite() {
     let rt = runtime();
     let server = rt.block_on(start(config(2))).unwrap();

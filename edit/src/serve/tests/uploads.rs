@@ -23,6 +23,8 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
     let crc = crc32(&huge[12..29]);
     huge[29..33].copy_from_slice(&crc.to_be_bytes());
     let truncated = photo[..photo.len() / 2].to_vec();
+    // A normal map facing the camera everywhere, as (n + 1) / 2.
+    let facing = png(image::RgbImage::from_pixel(60, 40, image::Rgb([128, 128, 255])));
     // An EXR photo of many channels (each would be decoded in full).
     let many = {
         let p = dir("exr").join("many.exr");
@@ -99,6 +101,56 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
             vec![("photo", Some("p.png"), &photo), ("material", None, gold)],
             422,
             "no mask given and the photo has no alpha channel",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
+                ("normals", Some("n.png"), &other_size),
+            ],
+            422,
+            "normals “n.png”: the normal map is 30×20, the photo 60×40",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
+                ("normals", Some("n.png"), &photo),
+            ],
+            422,
+            "face away from the camera",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
+                ("normals", Some("n.exr"), &exr_mask),
+            ],
+            422,
+            "needs channels X, Y, Z or R, G, B",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &mask),
+                ("material", None, gold),
+                ("normals", Some("n.jpg"), &jpeg),
+            ],
+            422,
+            "normal maps must be EXR or PNG images, this is JPG",
+        ),
+        (
+            vec![
+                ("photo", Some("p.png"), &photo),
+                ("mask", Some("m.png"), &mask),
+                ("source", Some("s.png"), &photo),
+                ("normals", Some("n.png"), &facing),
+            ],
+            422,
+            "the object's normals are for an edit to a library material, not a transfer",
         ),
         (
             vec![
