@@ -327,7 +327,6 @@ pub fn understand(
     let mut x = network_prediction(&model.net, &prep)?;
     let mut normals_report = None;
     if let Some(g) = &light.normals {
-        g.check_covers(&coverage)?;
         let (n, kept) = g.framed(&prep, &x.normals);
         x.normals = n;
         normals_report = Some(normals::NormalsReport {
@@ -641,7 +640,7 @@ fn edit_checked(
         normals: req
             .normals
             .as_deref()
-            .map(|n| normals::load_normals(n, read.photo.width, read.photo.height))
+            .map(|n| normals::load_normals(n, read.photo.width, read.photo.height, &read.coverage))
             .transpose()?,
     };
     let t_load = t0.elapsed().as_secs_f64();

@@ -7,7 +7,7 @@
 //! in it, renormalised. Where the map has no usable normal (non-finite, or too short to have a
 //! direction) the network's n' stays, and the report counts those pixels.
 
-use super::photo::{Prepared, decode};
+use super::photo::{Prepared, decode, extension};
 use anyhow::{Context, Result, bail};
 use std::path::Path;
 
@@ -29,6 +29,8 @@ pub struct GivenNormals {
     pub path: String,
     /// Width of the map (the photo's).
     pub width: usize,
+    /// Height of the map (the photo's).
+    pub height: usize,
     /// Unit normals per photo pixel, `None` where the map has none.
     pub normals: Vec<Option<[f32; 3]>>,
 }
@@ -44,18 +46,13 @@ pub struct NormalsReport {
     pub detail_pixels_kept: usize,
 }
 
-/// Reads a normal map of `width`×`height`: EXR (channels X, Y, Z as `normals.exr` is written, or
-/// R, G, B; values as stored) or PNG (8- or
-/// 16-bit, n = 2v − 1, as `normals.png` is written). Non-finite and near-zero normals are
-/// "no normal here"; a map with none on the object is refused by [`GivenNormals::check_covers`].
-pub fn load_normals(path: &Path, width: usize, height: usize) -> Result<GivenNormals> {
+/// Reads the normal map of a `width`×`height` photo whose object is `coverage`: EXR (channels X,
+/// Y, Z as `normals.exr` is written, or R, G, B; values as stored) or PNG (8- or 16-bit,
+/// n = 2v − 1, as `normals.png` is written). Non-finite and near-zero normals are "no normal
+/// here"; the map is refused as [`GivenNormals::check_covers`] says.
+pub fn load_normals(path: &Path, width: usize, height: usize, coverage: &[f32]) -> Result<GivenNormals> {
     let what = path.display();
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .unwrap_or_default();
-    let (w, h, raw): (usize, usize, Vec<[f32; 3]>) = match ext.as_str() {
+    let (w, h, raw): (usize, usize, Vec<[f32; 3]>) = match extension(path).as_str() {
         "exr" => {
             let (w, h, mut ch) = matedit_contract::io::read_exr_channels(path)?;
             let names = [["X", "Y", "Z"], ["R", "G", "B"]]
@@ -75,17 +72,21 @@ pub fn load_normals(path: &Path, width: usize, height: usize) -> Result<GivenNor
                 rgb.pixels().map(|p| [0, 1, 2].map(|c| 2.0 * p[c] - 1.0)).collect(),
             )
         }
-        other => bail!("{what}: normal maps must be EXR (x, y, z as stored) or PNG ((n + 1) / 2), not .{other}"),
+        other => {
+            bail!("{what}: normal maps must be EXR (X, Y, Z or R, G, B as stored) or PNG ((n + 1) / 2), not .{other}")
+        }
     };
     if (w, h) != (width, height) {
         bail!("{what}: the normal map is {w}×{h}, the photo {width}×{height}; they must match pixel for pixel");
     }
-    let normals = raw.into_iter().map(unit).collect();
-    Ok(GivenNormals {
+    let given = GivenNormals {
         path: what.to_string(),
         width,
-        normals,
-    })
+        height,
+        normals: raw.into_iter().map(unit).collect(),
+    };
+    given.check_covers(coverage)?;
+    Ok(given)
 }
 
 /// `n` at unit length, or `None` where it has no direction: a non-finite component, or a length
@@ -135,10 +136,9 @@ impl GivenNormals {
     /// renormalised mean of the usable normals in it, or `fallback`'s where there is none.
     /// Returns the normals and how many object pixels kept `fallback`'s.
     pub fn framed(&self, prep: &Prepared, fallback: &[f32]) -> (Vec<f32>, usize) {
-        let height = self.normals.len() / self.width.max(1);
         let sums = prep
             .framing
-            .area_average(self.width, height, |k| match self.normals[k] {
+            .area_average(self.width, self.height, |k| match self.normals[k] {
                 Some(n) => [n[0], n[1], n[2], 1.0],
                 None => [0.0; 4],
             });
@@ -203,6 +203,7 @@ mod tests {
         let map = GivenNormals {
             path: "n.exr".into(),
             width: w,
+            height: h,
             normals,
         };
         map.check_covers(&coverage).expect("covers");
@@ -266,6 +267,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("matedit-normals-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("dir");
         let (w, h) = (12, 10);
+        let object = vec![1.0_f32; w * h];
         // PNG: (n + 1) / 2; a mid-grey pixel is no normal, (255, 128, 128) is +x.
         let png = dir.join("n.png");
         let img = image::RgbImage::from_fn(w as u32, h as u32, |x, _| {
@@ -276,7 +278,7 @@ mod tests {
             }
         });
         img.save(&png).expect("png");
-        let m = load_normals(&png, w, h).expect("png read");
+        let m = load_normals(&png, w, h, &object).expect("png read");
         let n = m.normals[0].expect("a normal");
         assert!(
             (n[0] - 1.0).abs() < 1e-3 && n[1].abs() < 0.01 && n[2].abs() < 0.01,
@@ -297,7 +299,7 @@ mod tests {
             (p[0], p[1], p[2])
         })
         .expect("exr");
-        let m = load_normals(&exr_path, w, h).expect("exr read");
+        let m = load_normals(&exr_path, w, h, &object).expect("exr read");
         assert_eq!(m.normals[0], Some([0.0, -1.0, 0.0]));
         assert!(m.normals[1].is_none() && m.normals[2].is_none());
         // X, Y, Z channels (as `matedit edit` writes normals.exr) are read before R, G, B.
@@ -311,12 +313,12 @@ mod tests {
         )
         .expect("xyz exr");
         assert_eq!(
-            load_normals(&xyz_path, w, h).expect("xyz read").normals[5],
+            load_normals(&xyz_path, w, h, &object).expect("xyz read").normals[5],
             Some([0.0, 0.0, 1.0])
         );
         let lone = dir.join("lone.exr");
         matedit_contract::io::write_exr_channels(&lone, w, h, vec![("X", ones)]).expect("lone exr");
-        let e = load_normals(&lone, w, h).expect_err("one channel accepted");
+        let e = load_normals(&lone, w, h, &object).expect_err("one channel accepted");
         assert!(e.to_string().contains("needs channels X, Y, Z or R, G, B"), "{e}");
         let all = vec![1.0_f32; w * h];
         m.check_covers(&all).expect("some usable normal");
@@ -340,11 +342,11 @@ mod tests {
             .expect_err("6 of 100 facing away accepted");
         assert!(e.to_string().contains("face away from the camera"), "{e}");
         // Another size, another format: refused by name.
-        let e = load_normals(&png, w + 1, h).expect_err("size mismatch accepted");
+        let e = load_normals(&png, w + 1, h, &object).expect_err("size mismatch accepted");
         assert!(e.to_string().contains("must match pixel for pixel"), "{e}");
         let jpg = dir.join("n.jpg");
         std::fs::write(&jpg, b"not read").expect("jpg");
-        let e = load_normals(&jpg, w, h).expect_err(".jpg accepted");
+        let e = load_normals(&jpg, w, h, &object).expect_err(".jpg accepted");
         assert!(e.to_string().contains("normal maps must be EXR"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }

@@ -119,19 +119,14 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
     let source_mask = save("source_mask", &mut f)?;
     let normals = save("normals", &mut f)?;
     // Messages name the uploads as the user called them, not by where they were saved.
-    let check = |photo: &std::path::Path, mask: Option<&std::path::Path>| -> Result<()> {
-        crate::read_photo(photo, mask, None)
-            .map(|_| ())
-            .map_err(|e| anyhow::anyhow!(upload::name_uploads(&format!("{e:#}"), &names)))
-    };
-    check(&photo, mask.as_deref())?;
+    let named = |e: anyhow::Error| anyhow::anyhow!(upload::name_uploads(&format!("{e:#}"), &names));
+    let check =
+        |photo: &std::path::Path, mask: Option<&std::path::Path>| crate::read_photo(photo, mask, None).map_err(named);
+    let read = check(&photo, mask.as_deref())?;
     if let Some(n) = &normals {
         // Checked as `matedit edit --normals` checks it: the photo's size, some usable normal on
         // the object, facing the camera.
-        let read = crate::read_photo(&photo, mask.as_deref(), None)?;
-        crate::normals::load_normals(n, read.photo.width, read.photo.height)
-            .and_then(|g| g.check_covers(&read.coverage))
-            .map_err(|e| anyhow::anyhow!(upload::name_uploads(&format!("{e:#}"), &names)))?;
+        crate::normals::load_normals(n, read.photo.width, read.photo.height, &read.coverage).map_err(named)?;
     }
     let optimize = f.optimize.then(|| app.eq6.clone());
     if let Some(spec) = &f.input_material {
