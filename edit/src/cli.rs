@@ -3,7 +3,7 @@
 
 use crate::serve::{ServeConfig, serve};
 use crate::target::parse_material_arg;
-use crate::{Composite, EditRequest, LevelFrom, edit, swap, transfer};
+use crate::{Composite, EditRequest, Given, LevelFrom, edit, swap, transfer};
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use matedit_contract::args::{count_in, finite_in};
@@ -144,6 +144,14 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// `edit --input-material`; the composite is then `ratio` unless --composite says).
         #[arg(long, conflicts_with = "optimize")]
         to_material: Option<String>,
+        /// The first object's normals when they are known (a map of its photo, as `edit
+        /// --normals`): used instead of its n' (they matter to its m' only with --optimize).
+        #[arg(long)]
+        from_normals: Option<PathBuf>,
+        /// The receiving object's normals when they are known (as `edit --normals`): it is
+        /// rendered with them instead of its n'.
+        #[arg(long)]
+        to_normals: Option<PathBuf>,
         #[command(flatten)]
         finish: Finish,
     },
@@ -174,6 +182,13 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// The second object's own material when it is known (the same, the other way).
         #[arg(long, conflicts_with = "optimize")]
         b_material: Option<String>,
+        /// The first object's normals when they are known (a map of its photo, as `edit
+        /// --normals`): it is rendered with them instead of its n'.
+        #[arg(long)]
+        a_normals: Option<PathBuf>,
+        /// The second object's normals when they are known (the same, the other way).
+        #[arg(long)]
+        b_normals: Option<PathBuf>,
         #[command(flatten)]
         finish: Finish,
     },
@@ -355,6 +370,8 @@ fn run(cli: Cli) -> Result<()> {
             to_mask,
             from_material,
             to_material,
+            from_normals,
+            to_normals,
             finish: Finish {
                 optimize,
                 composite,
@@ -364,9 +381,16 @@ fn run(cli: Cli) -> Result<()> {
             let cfg = optimize.then(Eq6Config::default);
             let r = transfer(
                 &model,
-                (&from, from_mask.as_deref()),
-                (&to, to_mask.as_deref()),
-                [from_material.as_deref(), to_material.as_deref()],
+                Given {
+                    material: from_material.as_deref(),
+                    normals: from_normals.as_deref(),
+                    ..Given::photo(&from, from_mask.as_deref())
+                },
+                Given {
+                    material: to_material.as_deref(),
+                    normals: to_normals.as_deref(),
+                    ..Given::photo(&to, to_mask.as_deref())
+                },
                 cfg.as_ref(),
                 composite.unwrap_or(Composite::best_for(to_material.is_some())),
                 &out,
@@ -386,6 +410,8 @@ fn run(cli: Cli) -> Result<()> {
             b_mask,
             a_material,
             b_material,
+            a_normals,
+            b_normals,
             finish: Finish {
                 optimize,
                 composite,
@@ -396,9 +422,16 @@ fn run(cli: Cli) -> Result<()> {
             let both_known = a_material.is_some() && b_material.is_some();
             let [_, rb] = swap(
                 &model,
-                (&a, a_mask.as_deref()),
-                (&b, b_mask.as_deref()),
-                [a_material.as_deref(), b_material.as_deref()],
+                Given {
+                    material: a_material.as_deref(),
+                    normals: a_normals.as_deref(),
+                    ..Given::photo(&a, a_mask.as_deref())
+                },
+                Given {
+                    material: b_material.as_deref(),
+                    normals: b_normals.as_deref(),
+                    ..Given::photo(&b, b_mask.as_deref())
+                },
                 cfg.as_ref(),
                 composite.unwrap_or(Composite::best_for(both_known)),
                 &out,
@@ -506,6 +539,29 @@ mod tests {
                     .err()
                     .unwrap_or_else(|| panic!("{cmd} {o} with --optimize accepted"));
                 assert!(e.to_string().contains(o), "{e}");
+            }
+        }
+        // Either object's normals reach its side (and are Eq. 6's start, as edit's --normals).
+        let normals = |c| match c {
+            Command::Transfer {
+                from_normals,
+                to_normals,
+                ..
+            } => [from_normals, to_normals],
+            Command::Swap {
+                a_normals, b_normals, ..
+            } => [a_normals, b_normals],
+            _ => panic!("not a pair"),
+        };
+        for (cmd, x, y, own) in [
+            ("transfer", "--from", "--to", ["--from-normals", "--to-normals"]),
+            ("swap", "--a", "--b", ["--a-normals", "--b-normals"]),
+        ] {
+            for (k, o) in own.iter().enumerate() {
+                let c = pair(cmd, x, y, &[o, "n.exr", "--optimize"]).unwrap_or_else(|e| panic!("{cmd} {o}: {e}"));
+                let mut want = [None, None];
+                want[k] = Some(PathBuf::from("n.exr"));
+                assert_eq!(normals(c), want, "{cmd} {o}");
             }
         }
         // The object's known material is held: Eq. 6, which would change it, is refused with it.

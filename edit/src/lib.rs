@@ -38,7 +38,7 @@ mod tests;
 pub mod transfer;
 
 pub use light::{LevelFrom, LightOptions, known_material, light_at_own_level, light_at_photo_level};
-pub use transfer::{swap, transfer, transfer_with};
+pub use transfer::{Given, swap, transfer, transfer_with};
 
 use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
@@ -581,7 +581,15 @@ fn finish(
 pub fn edit(model: &Path, req: &EditRequest, out: &Path) -> Result<EditReport> {
     let t0 = Instant::now();
     check_request(req)?;
-    output::refuse_overwriting_inputs(out, &[Some(&req.photo), req.mask.as_deref(), req.regions.as_deref()])?;
+    output::refuse_overwriting_inputs(
+        out,
+        &[
+            Some(&req.photo),
+            req.mask.as_deref(),
+            req.regions.as_deref(),
+            req.normals.as_deref(),
+        ],
+    )?;
     let model = Model::load(model)?;
     edit_checked(&model, req, out, None, t0)
 }
@@ -603,7 +611,15 @@ pub fn edit_with(
     t0: Instant,
 ) -> Result<EditReport> {
     check_request(req)?;
-    output::refuse_overwriting_inputs(out, &[Some(&req.photo), req.mask.as_deref(), req.regions.as_deref()])?;
+    output::refuse_overwriting_inputs(
+        out,
+        &[
+            Some(&req.photo),
+            req.mask.as_deref(),
+            req.regions.as_deref(),
+            req.normals.as_deref(),
+        ],
+    )?;
     edit_checked(model, req, out, watcher, t0)
 }
 

@@ -412,4 +412,86 @@ mod tests {
         }
         std::fs::remove_dir_all(&d).ok();
     }
+
+    #[test]
+    fn transfer_and_swap_render_each_photo_with_its_own_given_normals() {
+        use crate::tests::{dir, model, write_photo};
+        use crate::{Composite, Given};
+        let d = dir("given-normals-transfer");
+        let (p, m, _) = write_photo(&d);
+        let coverage = crate::photo::load_mask(&m, 60, 40).expect("mask");
+        let tilt = [-0.36_f32, 0.48, 0.8];
+        let map = d.join("map.exr");
+        exr::prelude::write_rgb_file(&map, 60, 40, |x, y| {
+            let n = if coverage[y * 60 + x] > 0.0 { tilt } else { [0.0; 3] };
+            (n[0], n[1], n[2])
+        })
+        .expect("exr");
+        let written = |file: &Path| {
+            let (w, h, ch) = matedit_contract::io::read_exr_channels(file).expect("normals.exr");
+            let c = |n: &str| ch.get(n).cloned().expect("channel");
+            let (x, y, z) = (c("X"), c("Y"), c("Z"));
+            (0..w * h).map(|k| [x[k], y[k], z[k]]).collect::<Vec<[f32; 3]>>()
+        };
+        let all_tilted = |ns: &[[f32; 3]]| {
+            let on: Vec<&[f32; 3]> = ns.iter().filter(|n| n.iter().any(|&v| v != 0.0)).collect();
+            !on.is_empty()
+                && on
+                    .iter()
+                    .all(|n| n.iter().zip(&tilt).all(|(a, b)| (a - b).abs() < 1e-5))
+        };
+        let with_map = Given {
+            normals: Some(&map),
+            ..Given::photo(&p, Some(&m))
+        };
+        let plain = Given::photo(&p, Some(&m));
+        // Transfer: the receiving photo is rendered with its map; the map of the photo the
+        // material comes from does not reach the output.
+        let t = crate::transfer(model(), plain, with_map, None, Composite::Detail, &d.join("t")).expect("transfer");
+        assert_eq!(t.normals.as_ref().map(|r| r.detail_pixels_kept), Some(0));
+        assert!(all_tilted(&written(&d.join("t/normals.exr"))));
+        let f = crate::transfer(model(), with_map, plain, None, Composite::Detail, &d.join("f")).expect("transfer");
+        assert!(f.normals.is_none());
+        assert!(!all_tilted(&written(&d.join("f/normals.exr"))));
+        // Swap: each photo with its own.
+        let [a, b] = crate::swap(model(), with_map, plain, None, Composite::Detail, &d.join("s")).expect("swap");
+        assert!(a.normals.is_some() && b.normals.is_none());
+        assert!(all_tilted(&written(&d.join("s/a/normals.exr"))));
+        assert!(!all_tilted(&written(&d.join("s/b/normals.exr"))));
+        // A bad map on either side is refused by its name before anything is written.
+        let small = d.join("small.png");
+        image::RgbImage::from_pixel(30, 20, image::Rgb([128, 128, 255]))
+            .save(&small)
+            .expect("png");
+        let bad = Given {
+            normals: Some(&small),
+            ..plain
+        };
+        let o = d.join("refused");
+        let e = crate::transfer(model(), bad, plain, None, Composite::Detail, &o).expect_err("bad map");
+        assert!(format!("{e:#}").contains("small.png"), "{e:#}");
+        let e = crate::swap(model(), plain, bad, None, Composite::Detail, &o).expect_err("bad map");
+        assert!(format!("{e:#}").contains("must match pixel for pixel"), "{e:#}");
+        assert!(!o.exists(), "a refused transfer wrote {}", o.display());
+        // A map inside the output folder, where the edit writes its own normals.exr, is refused
+        // rather than overwritten, by edit and transfer alike.
+        let inside = d.join("inside");
+        std::fs::create_dir_all(&inside).expect("dir");
+        std::fs::copy(&map, inside.join("normals.exr")).expect("copy");
+        let req = crate::EditRequest {
+            normals: Some(inside.join("normals.exr")),
+            ..crate::tests::request(&p, &m, "lambert:0.2,0.6,0.2")
+        };
+        let e = crate::edit(model(), &req, &inside).expect_err("overwrote its normals");
+        assert!(format!("{e:#}").contains("would overwrite this input"), "{e:#}");
+        let given_inside = inside.join("normals.exr");
+        let g = Given {
+            normals: Some(&given_inside),
+            ..plain
+        };
+        let e = crate::transfer(model(), plain, g, None, Composite::Detail, &inside).expect_err("overwrote");
+        assert!(format!("{e:#}").contains("would overwrite this input"), "{e:#}");
+        assert_eq!(std::fs::read(&given_inside).ok(), std::fs::read(&map).ok());
+        std::fs::remove_dir_all(&d).ok();
+    }
 }

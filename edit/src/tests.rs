@@ -296,9 +296,8 @@ fn bad_inputs_name_the_file_and_write_nothing() {
     );
     let e = transfer(
         model(),
-        (&p, Some(&m)),
-        (&dark, Some(&m)),
-        [None, None],
+        Given::photo(&p, Some(&m)),
+        Given::photo(&dark, Some(&m)),
         None,
         Composite::Detail,
         &d.join("never"),
@@ -492,9 +491,8 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     let out = d.join("t");
     let r = transfer(
         model(),
-        (&p, Some(&m)),
-        (&q, Some(&m)),
-        [None, None],
+        Given::photo(&p, Some(&m)),
+        Given::photo(&q, Some(&m)),
         None,
         Composite::Render,
         &out,
@@ -513,9 +511,8 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     let swapped = d.join("s");
     let [a, b] = swap(
         model(),
-        (&p, Some(&m)),
-        (&q, Some(&m)),
-        [None, None],
+        Given::photo(&p, Some(&m)),
+        Given::photo(&q, Some(&m)),
         None,
         Composite::Ratio,
         &swapped,
@@ -529,9 +526,11 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     let known = d.join("k");
     let [ka, kb] = swap(
         model(),
-        (&p, Some(&m)),
-        (&q, Some(&m)),
-        [Some(grey), None],
+        Given {
+            material: Some(grey),
+            ..Given::photo(&p, Some(&m))
+        },
+        Given::photo(&q, Some(&m)),
         None,
         Composite::Ratio,
         &known,
@@ -559,9 +558,14 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     );
     let t = transfer(
         model(),
-        (&p, Some(&m)),
-        (&q, Some(&m)),
-        [Some(grey), Some(grey)],
+        Given {
+            material: Some(grey),
+            ..Given::photo(&p, Some(&m))
+        },
+        Given {
+            material: Some(grey),
+            ..Given::photo(&q, Some(&m))
+        },
         None,
         Composite::Ratio,
         &d.join("kt"),
@@ -574,9 +578,11 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     // With Eq. 6, which would change it, refused naming the option; nothing written.
     let e = transfer(
         model(),
-        (&p, Some(&m)),
-        (&q, Some(&m)),
-        [None, Some(grey)],
+        Given::photo(&p, Some(&m)),
+        Given {
+            material: Some(grey),
+            ..Given::photo(&q, Some(&m))
+        },
         Some(&post_optimisation::Eq6Config::default()),
         Composite::Ratio,
         &d.join("never"),
@@ -587,9 +593,8 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     let never = d.join("never");
     let e = swap(
         model(),
-        (&p, Some(&m)),
-        (&d.join("missing.png"), Some(&m)),
-        [None, None],
+        Given::photo(&p, Some(&m)),
+        Given::photo(&d.join("missing.png"), Some(&m)),
         None,
         Composite::Render,
         &never,

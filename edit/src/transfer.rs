@@ -2,8 +2,8 @@
 //! another photo's object, under that photo's light, through the same steps as [`crate::edit`].
 
 use super::{
-    Composite, EditReport, LightOptions, Model, Understood, finish, known_material, output, read_photo, target,
-    understand,
+    Composite, EditReport, LightOptions, Model, ReadPhoto, Understood, finish, known_material, normals, output,
+    read_photo, target, understand,
 };
 use crate::progress::{Progress, enter};
 use anyhow::{Context, Result, bail};
@@ -14,51 +14,84 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
+/// A photo given to [`transfer`] or [`swap`], with what is known of its object.
+#[derive(Clone, Copy, Debug)]
+pub struct Given<'a> {
+    /// The photo.
+    pub photo: &'a Path,
+    /// Its mask (default: its alpha channel).
+    pub mask: Option<&'a Path>,
+    /// The object's own material when it is known (a spec, as `edit --input-material`): it
+    /// replaces that photo's m' (what the other photo receives, and what sets this one's light's
+    /// level).
+    pub material: Option<&'a str>,
+    /// The object's normals at the photo's resolution when they are known (as `edit --normals`):
+    /// they replace that photo's n'.
+    pub normals: Option<&'a Path>,
+}
+
+impl<'a> Given<'a> {
+    /// A photo and its mask, nothing else known of its object.
+    pub fn photo(photo: &'a Path, mask: Option<&'a Path>) -> Self {
+        Given {
+            photo,
+            mask,
+            material: None,
+            normals: None,
+        }
+    }
+
+    /// The paths this photo reads, which no output may overwrite.
+    fn inputs(&self) -> [Option<&'a Path>; 3] {
+        [Some(self.photo), self.mask, self.normals]
+    }
+}
+
 /// Material transfer (Fig. 4): the material predicted from photo `from` (its first region)
 /// rendered on the object of photo `to`, under `to`'s predicted light; outputs as [`crate::edit`]'s.
-/// `known` holds either object's own material when it is known (specs, as
-/// `--input-material`): it replaces that photo's m' (what `to` receives, or what sets `to`'s
-/// light's level).
-#[allow(clippy::too_many_arguments)]
+/// What is known of either object ([`Given`]) replaces that photo's estimate.
 pub fn transfer(
     model: &Path,
-    from: (&Path, Option<&Path>),
-    to: (&Path, Option<&Path>),
-    known: [Option<&str>; 2],
+    from: Given,
+    to: Given,
     optimize: Option<&post_optimisation::Eq6Config>,
     how: Composite,
     out: &Path,
 ) -> Result<EditReport> {
     let t0 = Instant::now();
-    output::refuse_overwriting_inputs(out, &[Some(from.0), from.1, Some(to.0), to.1])?;
+    refuse_overwriting(out, [&from, &to])?;
     let model = Model::load(model)?;
-    transfer_checked(&model, from, to, known, optimize, how, out, None, t0)
+    transfer_checked(&model, from, to, optimize, how, out, None, t0)
 }
 
 /// [`transfer`] with a loaded model, watched as [`crate::edit_with`].
 #[allow(clippy::too_many_arguments)]
 pub fn transfer_with(
     model: &Model,
-    from: (&Path, Option<&Path>),
-    to: (&Path, Option<&Path>),
-    known: [Option<&str>; 2],
+    from: Given,
+    to: Given,
     optimize: Option<&post_optimisation::Eq6Config>,
     how: Composite,
     out: &Path,
     watcher: Option<&Arc<Progress>>,
     t0: Instant,
 ) -> Result<EditReport> {
-    output::refuse_overwriting_inputs(out, &[Some(from.0), from.1, Some(to.0), to.1])?;
-    transfer_checked(model, from, to, known, optimize, how, out, watcher, t0)
+    refuse_overwriting(out, [&from, &to])?;
+    transfer_checked(model, from, to, optimize, how, out, watcher, t0)
+}
+
+/// Refuses an output folder that holds any input of the two photos.
+fn refuse_overwriting(out: &Path, photos: [&Given; 2]) -> Result<()> {
+    let inputs: Vec<Option<&Path>> = photos.iter().flat_map(|g| g.inputs()).collect();
+    output::refuse_overwriting_inputs(out, &inputs)
 }
 
 /// [`transfer_with`] once the output folder was checked.
 #[allow(clippy::too_many_arguments)]
 fn transfer_checked(
     model: &Model,
-    from: (&Path, Option<&Path>),
-    to: (&Path, Option<&Path>),
-    known: [Option<&str>; 2],
+    from: Given,
+    to: Given,
     optimize: Option<&post_optimisation::Eq6Config>,
     how: Composite,
     out: &Path,
@@ -66,13 +99,13 @@ fn transfer_checked(
     t0: Instant,
 ) -> Result<EditReport> {
     enter(watcher.map(|w| w.as_ref()), "reading")?;
-    let read_from = read_photo(from.0, from.1, None)?;
-    let read_to = read_photo(to.0, to.1, None)?;
-    let [light_from, light_to] = own_materials(known, optimize, ["--from-material", "--to-material"])?;
+    let read_from = read_photo(from.photo, from.mask, None)?;
+    let read_to = read_photo(to.photo, to.mask, None)?;
+    let [light_from, light_to] = light_options([(&from, &read_from), (&to, &read_to)], optimize, ["from", "to"])?;
     let t_load = t0.elapsed().as_secs_f64();
-    let source = understand(model, read_from, from.0, optimize, &light_from, watcher)?;
+    let source = understand(model, read_from, from.photo, optimize, &light_from, watcher)?;
     let target = source_material(&source)?;
-    let u = understand(model, read_to, to.0, optimize, &light_to, watcher)?;
+    let u = understand(model, read_to, to.photo, optimize, &light_to, watcher)?;
     finish(
         model,
         u,
@@ -87,24 +120,31 @@ fn transfer_checked(
     )
 }
 
-/// Each photo's light options with its own material, where known (named `options` in errors);
-/// refused with Eq. 6, which would change them.
-fn own_materials(
-    known: [Option<&str>; 2],
+/// Each photo's light options with what is known of its object (its options named
+/// `--{side}-material` in errors; a normal map by its path, as `edit --normals` names it). A
+/// known material is refused with Eq. 6, which would change it; known normals are Eq. 6's start,
+/// as in `edit`.
+fn light_options(
+    photos: [(&Given, &ReadPhoto); 2],
     optimize: Option<&post_optimisation::Eq6Config>,
-    options: [&str; 2],
+    sides: [&str; 2],
 ) -> Result<[LightOptions; 2]> {
     if optimize.is_some()
-        && let Some(k) = known.iter().position(Option::is_some)
+        && let Some(k) = photos.iter().position(|(g, _)| g.material.is_some())
     {
         bail!(
-            "{} holds an object's material as given: Eq. 6 would change it; give one or the other",
-            options[k]
+            "--{}-material holds an object's material as given: Eq. 6 would change it; give one or the other",
+            sides[k]
         );
     }
     let side = |k: usize| -> Result<LightOptions> {
+        let (given, read) = photos[k];
         Ok(LightOptions {
-            input_material: known_material(known[k], options[k])?,
+            input_material: known_material(given.material, &format!("--{}-material", sides[k]))?,
+            normals: given
+                .normals
+                .map(|n| normals::load_normals(n, read.photo.width, read.photo.height, &read.coverage))
+                .transpose()?,
             ..LightOptions::default()
         })
     };
@@ -130,14 +170,12 @@ fn source_material(u: &Understood) -> Result<(Dsbrdf, target::RegionTarget)> {
     Ok((material, record))
 }
 
-/// Material swap (Fig. 10): each photo's object with the other's predicted material, into
-/// `out/a` and `out/b`; `known` as [`transfer`]'s, for `a` and `b`.
-#[allow(clippy::too_many_arguments)]
+/// Material swap (Fig. 10): each photo's object with the other's predicted material (or its
+/// own, where [`Given`] holds it), into `out/a` and `out/b`.
 pub fn swap(
     model: &Path,
-    a: (&Path, Option<&Path>),
-    b: (&Path, Option<&Path>),
-    known: [Option<&str>; 2],
+    a: Given,
+    b: Given,
     optimize: Option<&post_optimisation::Eq6Config>,
     how: Composite,
     out: &Path,
@@ -145,14 +183,14 @@ pub fn swap(
     let t0 = Instant::now();
     let (out_a, out_b) = (out.join("a"), out.join("b"));
     for o in [&out_a, &out_b] {
-        output::refuse_overwriting_inputs(o, &[Some(a.0), a.1, Some(b.0), b.1])?;
+        refuse_overwriting(o, [&a, &b])?;
     }
     let model = Model::load(model)?;
-    let (read_a, read_b) = (read_photo(a.0, a.1, None)?, read_photo(b.0, b.1, None)?);
-    let [light_a, light_b] = own_materials(known, optimize, ["--a-material", "--b-material"])?;
+    let (read_a, read_b) = (read_photo(a.photo, a.mask, None)?, read_photo(b.photo, b.mask, None)?);
+    let [light_a, light_b] = light_options([(&a, &read_a), (&b, &read_b)], optimize, ["a", "b"])?;
     let t_load = t0.elapsed().as_secs_f64();
-    let ua = understand(&model, read_a, a.0, optimize, &light_a, None)?;
-    let ub = understand(&model, read_b, b.0, optimize, &light_b, None)?;
+    let ua = understand(&model, read_a, a.photo, optimize, &light_a, None)?;
+    let ub = understand(&model, read_b, b.photo, optimize, &light_b, None)?;
     let (ta, tb) = (source_material(&ua)?, source_material(&ub)?);
     let ra = finish(&model, ua, &[tb], None, None, how, &out_a, t0, t_load, None)?;
     let rb = finish(&model, ub, &[ta], None, None, how, &out_b, t0, t_load, None)?;

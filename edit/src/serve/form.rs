@@ -139,12 +139,6 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
     let work = match (source, f.material) {
         (Some(_), Some(_)) => bail!("give either a material or a photo to transfer from, not both"),
         (None, None) => bail!("no material: pick a library material or a photo to transfer from"),
-        (Some(_), None) if f.input_material.is_some() => {
-            bail!("the object's own material is for an edit to a library material, not a transfer")
-        }
-        (Some(_), None) if normals.is_some() => {
-            bail!("the object's normals are for an edit to a library material, not a transfer")
-        }
         (None, Some(spec)) => {
             upload::check_material(&spec)?;
             if source_mask.is_some() {
@@ -170,6 +164,8 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
             Work::Transfer {
                 from: (source, source_mask),
                 to: (photo, mask),
+                to_material: f.input_material,
+                to_normals: normals,
                 optimize,
                 composite,
             }

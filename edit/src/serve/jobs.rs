@@ -4,7 +4,7 @@
 
 use super::upload::name_uploads;
 use crate::progress::Progress;
-use crate::{Composite, EditReport, EditRequest, Model, edit_with, transfer_with};
+use crate::{Composite, EditReport, EditRequest, Given, Model, edit_with, transfer_with};
 use matedit_trainer::post_optimisation::Eq6Config;
 use matedit_trainer::post_optimisation::watcher::{Cancelled, Watcher as _};
 use serde_json::{Value, json};
@@ -24,6 +24,10 @@ pub enum Work {
         from: (PathBuf, Option<PathBuf>),
         /// Photo and mask that receive it.
         to: (PathBuf, Option<PathBuf>),
+        /// The receiving object's own material, when known (a spec).
+        to_material: Option<String>,
+        /// The receiving object's normals, when known (a saved upload).
+        to_normals: Option<PathBuf>,
         /// Eq. 6 on both, when asked for.
         optimize: Option<Eq6Config>,
         /// How O' goes back into the photo.
@@ -416,13 +420,18 @@ fn run(model: &Model, job: &Job) -> anyhow::Result<EditReport> {
         Work::Transfer {
             from,
             to,
+            to_material,
+            to_normals,
             optimize,
             composite,
         } => transfer_with(
             model,
-            (&from.0, from.1.as_deref()),
-            (&to.0, to.1.as_deref()),
-            [None, None],
+            Given::photo(&from.0, from.1.as_deref()),
+            Given {
+                material: to_material.as_deref(),
+                normals: to_normals.as_deref(),
+                ..Given::photo(&to.0, to.1.as_deref())
+            },
             optimize.as_ref(),
             *composite,
             &out,

@@ -10,7 +10,7 @@
 //! | `GET /` | the page |
 //! | `GET /api/info` | the model and the server's limits |
 //! | `GET /api/library`, `GET /api/library/{name}/sphere.png` | library materials and their spheres |
-//! | `POST /api/edit` (multipart) | queue an edit: `photo`, `mask`?, `material` or `source` (+ `source_mask`), `input_material`?, `normals`? (a file), `optimize`?, `composite`? |
+//! | `POST /api/edit` (multipart) | queue an edit: `photo`, `mask`?, `material` or `source` (+ `source_mask`), `input_material`?, `normals`? (a file; both of `photo`, in a transfer too), `optimize`?, `composite`? |
 //! | `GET /api/jobs/{id}` | its state: place in the queue, phase, Eq. 6 energies, files, report |
 //! | `POST /api/jobs/{id}/cancel` | cancel it, waiting or running |
 //! | `GET /api/jobs/{id}/files/{name}` | a file its report lists (`?download` to save it) |

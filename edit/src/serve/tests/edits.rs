@@ -121,6 +121,39 @@ fn a_transfer_takes_the_material_of_the_other_photo() {
 }
 
 #[test]
+fn a_transfer_takes_the_receiving_objects_own_material_and_normals() {
+    let rt = runtime();
+    let server = rt.block_on(start(config(2))).unwrap();
+    let (photo, mask) = photo_and_mask();
+    let facing = png(image::RgbImage::from_pixel(60, 40, image::Rgb([128, 128, 255])));
+    let (s, v) = post_edit(
+        server.addr,
+        &[
+            ("photo", Some("to.png"), &photo),
+            ("mask", Some("to-mask.png"), &mask),
+            ("source", Some("from.png"), &photo),
+            ("source_mask", Some("from-mask.png"), &mask),
+            ("input_material", None, b"plastic:0.1:0.6,0.1,0.1"),
+            ("normals", Some("to-normals.png"), &facing),
+        ],
+    );
+    assert_eq!(s, 202, "{v}");
+    let done = wait_for(server.addr, v["url"].as_str().unwrap(), &["done", "failed"]);
+    assert_eq!(done["state"], "done", "{done}");
+    let report = &done["report"];
+    assert_eq!(report["regions"][0]["spec"], "m' of source “from.png”", "{report}");
+    assert_eq!(report["input_material"], "plastic:0.1:0.6,0.1,0.1", "{report}");
+    assert_eq!(report["light_level"]["source"], "input material", "{report}");
+    assert_eq!(report["composite"], "ratio", "{report}");
+    assert_eq!(report["normals"]["detail_pixels_kept"], 0, "{report}");
+    assert!(
+        report["normals"]["path"].as_str().unwrap().contains("to-normals.png"),
+        "{report}"
+    );
+    rt.block_on(server.stop());
+}
+
+#[test]
 fn the_queue_is_bounded_shows_places_and_cancels_waiting_and_running_edits() {
     let rt = runtime();
     let mut cfg = config(1);

@@ -23,8 +23,6 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
     let crc = crc32(&huge[12..29]);
     huge[29..33].copy_from_slice(&crc.to_be_bytes());
     let truncated = photo[..photo.len() / 2].to_vec();
-    // A normal map facing the camera everywhere, as (n + 1) / 2.
-    let facing = png(image::RgbImage::from_pixel(60, 40, image::Rgb([128, 128, 255])));
     // An EXR photo of many channels (each would be decoded in full).
     let many = {
         let p = dir("exr").join("many.exr");
@@ -147,10 +145,10 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
                 ("photo", Some("p.png"), &photo),
                 ("mask", Some("m.png"), &mask),
                 ("source", Some("s.png"), &photo),
-                ("normals", Some("n.png"), &facing),
+                ("normals", Some("n.png"), &other_size),
             ],
             422,
-            "the object's normals are for an edit to a library material, not a transfer",
+            "n.png",
         ),
         (
             vec![
@@ -247,9 +245,10 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
                 ("mask", Some("m.png"), &mask),
                 ("source", Some("s.png"), &photo),
                 ("input_material", None, b"lambert:0.2,0.2,0.2"),
+                ("optimize", None, b"on"),
             ],
             422,
-            "not a transfer",
+            "Eq. 6 would change it",
         ),
         (
             vec![
