@@ -59,6 +59,7 @@ Usage:
     python3 scripts/photo_bench.py all --out out/photobench --matedit BIN --model MODEL
     python3 scripts/photo_bench.py levels --out out/photobench --methods detail   # after `score`
     python3 scripts/photo_bench.py ceiling --out out/photobench   # a perfect edit's scores
+    python3 scripts/photo_bench.py normals --out out/photobench --methods detail  # n*'s angle to the truth
 Oracles for methods (`{scene}/...` in --methods): sceneNN/light.exr (the true light in the
 camera's frame, for `--light`), sceneNN/normals.exr (the true shading normals in the camera's
 frame, for `--normals`), `{input}` (the project spec nearest the input material).
@@ -1009,6 +1010,56 @@ def cmd_levels(args):
     write_atomic(json_path, lambda p: p.write_text(json.dumps(report, indent=1)))
     print(f"Command: `{report['command']}`; per-case results: {json_path}")
 
+def sample_framed(grid, framing, xs, ys):
+    """An edit's `[size, size, 3]` normals (written over its framing square) at photo pixels
+    (xs, ys), bilinearly, renormalised: what the detail path starts from at each pixel."""
+    size = grid.shape[0]
+    u = np.clip((xs + 0.5 - framing["x0"]) / framing["side"] * size - 0.5, 0, size - 1)
+    v = np.clip((ys + 0.5 - framing["y0"]) / framing["side"] * size - 0.5, 0, size - 1)
+    u0, v0 = np.minimum(np.floor(u).astype(int), size - 2), np.minimum(np.floor(v).astype(int), size - 2)
+    fu, fv = (u - u0)[:, None], (v - v0)[:, None]
+    n = ((1 - fu) * (1 - fv) * grid[v0, u0] + fu * (1 - fv) * grid[v0, u0 + 1]
+         + (1 - fu) * fv * grid[v0 + 1, u0] + fu * fv * grid[v0 + 1, u0 + 1])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+
+
+def cmd_normals(args):
+    """How far each method's n* (its `normals.exr`, at the network's resolution over the edit's
+    framing) is from the scene's path-traced normals (`normals.exr` of `render`): the median
+    angle over each object's pixels, and the mean of those medians. n* does not depend on the
+    target, so the first target's edit is read."""
+    mi = mitsuba()
+    out = Path(args.out)
+    scenes = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]
+    target = args.targets.split(",")[0]
+    report = {"command": shlex.join([Path(sys.executable).name] + sys.argv), "target": target, "methods": {}}
+    truths = []
+    for rec in scenes:
+        d = out / rec["name"]
+        obj = rgb8(d / "mask.png")[..., 0] > 127
+        ys, xs = np.nonzero(obj)
+        truth = np.array(mi.Bitmap(str(d / "normals.exr")), dtype=np.float64)[..., :3][ys, xs]
+        truth /= np.maximum(np.linalg.norm(truth, axis=1, keepdims=True), 1e-12)
+        truths.append((rec["name"], xs, ys, truth))
+    for m in args.methods:
+        medians = {}
+        for name, xs, ys, truth in truths:
+            d = out / "edits" / m / f"{name}-{target}"
+            if not (d / "normals.exr").exists():
+                raise SystemExit(f"{d / 'normals.exr'}: missing; run `score` with the method {m} first")
+            framing = json.loads((d / "report.json").read_text())["framing"]
+            grid = np.array(mi.Bitmap(str(d / "normals.exr")), dtype=np.float64)[..., :3]
+            n = sample_framed(grid, framing, xs, ys)
+            angles = np.degrees(np.arccos(np.clip((n * truth).sum(axis=1), -1.0, 1.0)))
+            medians[name] = float(np.median(angles))
+        mean = float(np.mean(list(medians.values())))
+        report["methods"][m] = {"median_deg": medians, "mean_of_medians_deg": mean}
+        print(f"{m}: median angle per object {' '.join(f'{a:.1f}' for a in medians.values())}; "
+              f"mean {mean:.1f}°", flush=True)
+    json_path = Path(args.json) if args.json else out / "normals.json"
+    write_atomic(json_path, lambda p: p.write_text(json.dumps(report, indent=1)))
+    print(f"Command: `{report['command']}`; per-object results: {json_path}")
+
 # ---------------------------------------------------------------------------------------------
 
 
@@ -1059,6 +1110,12 @@ def main():
                         help="methods whose edits `score` wrote (DIR/edits/NAME/)")
     levels.add_argument("--targets", default=",".join(TARGETS), help="comma-separated targets of " + ", ".join(TARGETS))
     levels.add_argument("--json", help="per-case results (default DIR/levels.json)")
+    normals = sub.add_parser("normals", parents=[common],
+                             help="each method's n* against the scene's path-traced normals (median angle)")
+    normals.add_argument("--methods", nargs="+", required=True, metavar="NAME",
+                         help="methods whose edits `score` wrote (DIR/edits/NAME/)")
+    normals.add_argument("--targets", default=",".join(TARGETS), help="the first of these is read")
+    normals.add_argument("--json", help="per-object results (default DIR/normals.json)")
     args = parser.parse_args()
     if args.command in ("render", "all"):
         cmd_render(args)
@@ -1068,6 +1125,8 @@ def main():
         cmd_perspective(args)
     if args.command == "lights":
         cmd_lights(args)
+    if args.command == "normals":
+        cmd_normals(args)
     if args.command == "levels":
         cmd_levels(args)
     if args.command == "ceiling":

@@ -415,6 +415,46 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     screenshot(&c, "serve-eq6.png").await;
     let mask = mask.unwrap_or_else(|| alpha_mask(&photo));
 
+    // A transfer from another photo, with the receiving object's normals given on the page: they
+    // reach the transfer (report.json says none of n' was kept).
+    let facing = root().join("facing-normals.png");
+    let (w, h) = want.dimensions();
+    image::RgbImage::from_pixel(w, h, image::Rgb([128, 128, 255]))
+        .save(&facing)
+        .unwrap();
+    c.goto(&url).await.unwrap();
+    set_file(&c, "photo", &photo).await;
+    set_file(&c, "mask", &mask).await;
+    c.find(Locator::Css(r#"input[name="target-mode"][value="transfer"]"#))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    set_file(&c, "source", &photo).await;
+    set_file(&c, "source-mask", &mask).await;
+    set_file(&c, "normals", &facing).await;
+    let (s, _) = run_edit(&c, "done|error", 300).await;
+    assert_eq!(s, "done", "the transfer failed: {}", text(&c, "error").await);
+    screenshot(&c, "serve-transfer-normals.png").await;
+    let report = c
+        .execute_async(
+            "const done = arguments[0];
+             const a = [...document.querySelectorAll('#downloads a')].find(a => a.textContent === 'report.json');
+             fetch(a.href).then(r => r.json()).then(done).catch(e => done(String(e)));",
+            vec![],
+        )
+        .await
+        .unwrap();
+    assert_eq!(report["normals"]["detail_pixels_kept"], 0, "{report}");
+    assert!(
+        report["regions"][0]["spec"]
+            .as_str()
+            .unwrap_or("")
+            .starts_with("m' of source"),
+        "{report}"
+    );
+
     // Bad uploads: a text file named like a photo, a mask of another size, nothing painted.
     let junk = root().join("not-a-photo.png");
     std::fs::write(&junk, "hello, I am text").unwrap();
