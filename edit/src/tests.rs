@@ -504,6 +504,14 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     // The material rendered on the target is the source's m', as an edit of the source writes it.
     let src = d.join("src");
     edit(model(), &request(&p, &m, "lambert:0.5,0.5,0.5"), &src).unwrap();
+    // m' as written is a material `--material dsbrdf:PATH` takes.
+    let written = src.join("material.dsbrdf.json");
+    edit(
+        model(),
+        &request(&q, &m, &format!("dsbrdf:{}", written.display())),
+        &d.join("m-prime"),
+    )
+    .unwrap();
     assert_eq!(
         std::fs::read_to_string(src.join("material.dsbrdf.json")).unwrap(),
         std::fs::read_to_string(out.join("target.dsbrdf.json")).unwrap()

@@ -60,6 +60,20 @@ impl LobeParam {
             LobeParam::Gamma => GAMMA_RANGE,
         }
     }
+
+    /// The value of normalised `x`, clamped to [−1, 1]: ±0.95 are the raw range's ends, ±1
+    /// slightly beyond them (a tanh output that saturates).
+    fn denormalised(self, x: f64) -> f64 {
+        let (lo, hi) = self.range();
+        let t = (x.clamp(-1.0, 1.0) + NORMALISED_BOUND) / (2.0 * NORMALISED_BOUND);
+        (lo.ln() + t * (hi.ln() - lo.ln())).exp()
+    }
+
+    /// What a material may hold: the raw range widened to what normalised values in [−1, 1] map
+    /// to, so that every m' a network predicts (its `material.dsbrdf.json`) reads back.
+    pub fn accepted(self) -> (f64, f64) {
+        (self.denormalised(-1.0), self.denormalised(1.0))
+    }
 }
 
 /// Flat index of one parameter.
@@ -148,14 +162,15 @@ pub struct Dsbrdf {
 pub type LobesAt = [[(f64, f64); LOBES]; CHANNELS];
 
 impl Dsbrdf {
-    /// From raw parameters in the documented order; every value must lie in its raw range.
+    /// From raw parameters in the documented order; every value must lie in its accepted range
+    /// ([`LobeParam::accepted`]: the raw range and what a network's normalised ±1 maps to).
     pub fn from_params(params: &[f64]) -> Result<Self, DsbrdfError> {
         if params.len() != PARAMS {
             return Err(DsbrdfError::Length(params.len()));
         }
         let mut out = [0.0; PARAMS];
         for (i, &v) in params.iter().enumerate() {
-            let (lo, hi) = param_meaning(i).2.range();
+            let (lo, hi) = param_meaning(i).2.accepted();
             if !(v >= lo && v <= hi) {
                 return Err(DsbrdfError::OutOfRange {
                     name: param_name(i),
@@ -232,9 +247,7 @@ impl Dsbrdf {
             if xi.is_nan() {
                 return Err(DsbrdfError::NormalisedNan(i));
             }
-            let (lo, hi) = param_meaning(i).2.range();
-            let t = (xi.clamp(-1.0, 1.0) + NORMALISED_BOUND) / (2.0 * NORMALISED_BOUND);
-            params[i] = (lo.ln() + t * (hi.ln() - lo.ln())).exp();
+            params[i] = param_meaning(i).2.denormalised(xi);
         }
         Ok(Self { params })
     }
@@ -425,6 +438,61 @@ mod tests {
             Dsbrdf::from_normalised(&[0.0; 3]),
             Err(DsbrdfError::Length(3))
         ));
+    }
+
+    #[test]
+    fn every_material_a_network_predicts_is_written_and_read_back() {
+        // Normalised values over the whole tanh range and beyond (clamped): the ends ±1, the
+        // raw range's ends ±0.95, values between, in a deterministic scatter over all 108.
+        let grid: Vec<f64> = (0..=400).map(|k| -1.2 + 2.4 * k as f64 / 400.0).collect();
+        for shift in 0..grid.len() {
+            let x: Vec<f64> = (0..PARAMS).map(|i| grid[(i * 37 + shift * 11) % grid.len()]).collect();
+            let m = Dsbrdf::from_normalised(&x).unwrap();
+            let back = Dsbrdf::from_json(&m.to_json(), "m'.json").unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(back, m);
+        }
+        for p in [LobeParam::Kappa, LobeParam::Gamma] {
+            let (lo, hi) = p.accepted();
+            let (raw_lo, raw_hi) = p.range();
+            assert!(lo < raw_lo && hi > raw_hi && lo > 0.0 && hi.is_finite());
+            // Just outside what ±1 gives: refused, naming the parameter and the accepted range.
+            for (bad, k) in [(lo * (1.0 - 1e-9), 0), (hi * (1.0 + 1e-9), 5)] {
+                let mut params = *sample().params();
+                params[param_index(2, 1, p, k)] = bad;
+                let e = Dsbrdf::from_params(&params).unwrap_err().to_string();
+                let name = if p == LobeParam::Kappa { "kappa" } else { "gamma" };
+                assert!(
+                    e.contains(&format!("{name}[2][1][{k}]")) && e.contains(&hi.to_string()),
+                    "{e}"
+                );
+            }
+        }
+        // The widened extremes evaluate finite and non-negative, peak and grazing alike.
+        let (k_hi, g_lo, g_hi) = (
+            LobeParam::Kappa.accepted().1,
+            LobeParam::Gamma.accepted().0,
+            LobeParam::Gamma.accepted().1,
+        );
+        for (kappa, gamma) in [(k_hi, g_lo), (k_hi, g_hi), (LobeParam::Kappa.accepted().0, g_lo)] {
+            let params: Vec<f64> = (0..PARAMS)
+                .map(|i| {
+                    if param_meaning(i).2 == LobeParam::Kappa {
+                        kappa
+                    } else {
+                        gamma
+                    }
+                })
+                .collect();
+            let m = Dsbrdf::from_params(&params).unwrap();
+            for (cos_h, theta_d) in [(1.0, 0.0), (0.5, 1.0), (1e-9, 1.5), (0.0, std::f64::consts::FRAC_PI_2)] {
+                for ch in m.eval_half(cos_h, theta_d) {
+                    assert!(
+                        ch.is_finite() && ch >= 0.0 && ch <= 3.0 * k_hi.exp_m1() * 1.000001,
+                        "{ch}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]
