@@ -5,9 +5,20 @@ mod common;
 use glam::DVec3;
 use matedit_assets::envmaps::builtin;
 use matedit_physics::EnvMap;
-use matedit_physics::brdf::dsbrdf::{GAMMA_RANGE, KAPPA_RANGE};
+use matedit_physics::brdf::dsbrdf::LobeParam;
 use matedit_physics::brdf::{BrdfModel, Dsbrdf, Fresnel, Ggx, Lambert, Plastic};
 use matedit_physics::shading::{Quality, Shader, make_shader};
+
+/// The whole range a material may hold (`LobeParam::accepted`: the raw range and what a
+/// network's normalised ±1 maps to).
+fn kappa_range() -> (f64, f64) {
+    LobeParam::Kappa.accepted()
+}
+
+/// As [`kappa_range`], for γ.
+fn gamma_range() -> (f64, f64) {
+    LobeParam::Gamma.accepted()
+}
 
 fn brdfs() -> Vec<(&'static str, BrdfModel)> {
     vec![
@@ -38,9 +49,9 @@ fn brdfs() -> Vec<(&'static str, BrdfModel)> {
             "dsbrdf-extremes",
             BrdfModel::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
                 [[
-                    (KAPPA_RANGE.1, GAMMA_RANGE.1),
-                    (KAPPA_RANGE.0, GAMMA_RANGE.0),
-                    (KAPPA_RANGE.1 * 0.5, GAMMA_RANGE.0),
+                    (kappa_range().1, gamma_range().1),
+                    (kappa_range().0, gamma_range().0),
+                    (kappa_range().1 * 0.5, gamma_range().0),
                 ]; 3],
             ))),
         ),
@@ -157,7 +168,7 @@ fn garbage_normals_shade_to_black_without_nan() {
 fn huge_radiance_never_produces_inf_or_nan_in_an_image() {
     let env = EnvMap::constant(8, [3e37, 3e37, 3e37]);
     let brdf = BrdfModel::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
-        [[(KAPPA_RANGE.1, GAMMA_RANGE.0); 3]; 3],
+        [[(kappa_range().1, gamma_range().0); 3]; 3],
     )));
     let s = make_shader(&brdf, &env, Quality::Fast);
     let normals = vec![[0.0, 0.0, 1.0], [0.5, 0.5, 0.7]];

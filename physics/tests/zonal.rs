@@ -8,12 +8,23 @@ use common::*;
 use glam::DVec3;
 use matedit_assets::envmaps::builtin;
 use matedit_physics::EnvMap;
-use matedit_physics::brdf::dsbrdf::{GAMMA_RANGE, KAPPA_RANGE};
+use matedit_physics::brdf::dsbrdf::LobeParam;
 use matedit_physics::brdf::{BrdfModel, Dsbrdf, Fresnel, Ggx, Lambert, Plastic};
 use matedit_physics::camera::unit_sphere_normals;
 use matedit_physics::shading::exact::ExactShader;
 use matedit_physics::shading::zonal::{PolarNormals, ZonalEnv, ZonalGrid, ZonalKernel, shade_image_zonal};
 use matedit_physics::shading::{Quality, VisibilityFn, shade_image, shade_with};
+
+/// The whole range a material may hold (`LobeParam::accepted`: the raw range and what a
+/// network's normalised ±1 maps to).
+fn kappa_range() -> (f64, f64) {
+    LobeParam::Kappa.accepted()
+}
+
+/// As [`kappa_range`], for γ.
+fn gamma_range() -> (f64, f64) {
+    LobeParam::Gamma.accepted()
+}
 
 /// Materials the grid resolves (their sharpest energetic lobe is at least ~2 grid spacings
 /// wide at the 128-row cap), with the relative RMSE each may have against the exact path.
@@ -135,10 +146,10 @@ fn hard_normals_and_extreme_lobes_stay_finite_and_non_negative() {
     }
     let mask = vec![1.0; normals.len()];
     let extremes = [
-        [(KAPPA_RANGE.1, GAMMA_RANGE.1); 3],
-        [(KAPPA_RANGE.1, GAMMA_RANGE.0); 3],
-        [(KAPPA_RANGE.0, GAMMA_RANGE.1); 3],
-        [(KAPPA_RANGE.0, GAMMA_RANGE.0); 3],
+        [(kappa_range().1, gamma_range().1); 3],
+        [(kappa_range().1, gamma_range().0); 3],
+        [(kappa_range().0, gamma_range().1); 3],
+        [(kappa_range().0, gamma_range().0); 3],
     ];
     let env = EnvMap::from_fn(16, |d| if d.y > 0.99 { [1e6; 3] } else { [1e-3; 3] });
     let pixels = PolarNormals::new(&normals, &mask);
@@ -162,7 +173,7 @@ fn hard_normals_and_extreme_lobes_stay_finite_and_non_negative() {
     // Radiance near f32::MAX: clamped and counted, never Inf or NaN.
     let env = EnvMap::constant(8, [3e37; 3]);
     let brdf = BrdfModel::Dsbrdf(Box::new(Dsbrdf::isotropic_in_theta_d(
-        [[(KAPPA_RANGE.1, GAMMA_RANGE.0); 3]; 3],
+        [[(kappa_range().1, gamma_range().0); 3]; 3],
     )));
     let (img, bad) = shade_with(&brdf, &env, Quality::Zonal, &normals[..2], &mask[..2], None);
     assert!(img.iter().flatten().all(|v| v.is_finite()), "{img:?}");
@@ -233,18 +244,19 @@ impl Stream {
     }
 }
 
-/// Materials over the whole documented DSBRDF range: the four (κ, γ) corners on every lobe;
-/// lobes log-uniform in κ and γ and constant in θ_d; lobes whose κ and γ rise towards grazing
+/// Materials over the whole documented DSBRDF range: the four (κ, γ) corners of the accepted
+/// range on every lobe (beyond the raw range: the zonal route refuses them and shades per pixel);
+/// inside the raw range, lobes log-uniform in κ and γ and constant in θ_d; lobes whose κ and γ rise towards grazing
 /// (fits of metals and specular paints); and every parameter drawn independently (κ and γ jump
 /// between knots). Each is named so a failure can be reproduced.
 fn range_materials(count: usize) -> Vec<(String, BrdfModel)> {
     use matedit_physics::brdf::dsbrdf::{KNOTS, LobeParam, PARAMS, param_index};
     let mut out = Vec::new();
-    let corners = [KAPPA_RANGE.0, KAPPA_RANGE.1]
+    let corners = [kappa_range().0, kappa_range().1]
         .into_iter()
-        .flat_map(|k| [GAMMA_RANGE.0, GAMMA_RANGE.1].map(|g| (k, g)));
+        .flat_map(|k| [gamma_range().0, gamma_range().1].map(|g| (k, g)));
     for (k, g) in corners {
-        let m = Dsbrdf::isotropic_in_theta_d([[(0.2, 1e-3), (k, g), (KAPPA_RANGE.0, GAMMA_RANGE.1)]; 3]);
+        let m = Dsbrdf::isotropic_in_theta_d([[(0.2, 1e-3), (k, g), (kappa_range().0, gamma_range().1)]; 3]);
         out.push((
             format!("corner κ {k:e} γ {g:e} over a matte base"),
             BrdfModel::Dsbrdf(Box::new(m)),
@@ -256,7 +268,10 @@ fn range_materials(count: usize) -> Vec<(String, BrdfModel)> {
         let mut p = [0.0; PARAMS];
         for c in 0..3 {
             for k in 0..3 {
-                let (kappa, gamma) = (rng.log_uniform(KAPPA_RANGE), rng.log_uniform(GAMMA_RANGE));
+                let (kappa, gamma) = (
+                    rng.log_uniform(LobeParam::Kappa.range()),
+                    rng.log_uniform(LobeParam::Gamma.range()),
+                );
                 // How much κ and γ grow from θ_d = 0 to grazing in the "sharpening" kind.
                 let (rise_k, rise_g) = (1.0 + 19.0 * rng.next(), 1.0 + 9.0 * rng.next());
                 for j in 0..KNOTS {
@@ -264,10 +279,15 @@ fn range_materials(count: usize) -> Vec<(String, BrdfModel)> {
                     let (kk, gg) = match kind {
                         0 => (kappa, gamma),
                         1 => (kappa / rise_k.powf(1.0 - t * t), gamma / rise_g.powf(1.0 - t)),
-                        _ => (rng.log_uniform(KAPPA_RANGE), rng.log_uniform(GAMMA_RANGE)),
+                        _ => (
+                            rng.log_uniform(LobeParam::Kappa.range()),
+                            rng.log_uniform(LobeParam::Gamma.range()),
+                        ),
                     };
-                    p[param_index(c, k, LobeParam::Kappa, j)] = kk.clamp(KAPPA_RANGE.0, KAPPA_RANGE.1);
-                    p[param_index(c, k, LobeParam::Gamma, j)] = gg.clamp(GAMMA_RANGE.0, GAMMA_RANGE.1);
+                    p[param_index(c, k, LobeParam::Kappa, j)] =
+                        kk.clamp(LobeParam::Kappa.range().0, LobeParam::Kappa.range().1);
+                    p[param_index(c, k, LobeParam::Gamma, j)] =
+                        gg.clamp(LobeParam::Gamma.range().0, LobeParam::Gamma.range().1);
                 }
             }
         }

@@ -94,7 +94,8 @@ pub fn param_meaning(index: usize) -> (usize, usize, LobeParam, usize) {
     (channel, lobe, p, knot)
 }
 
-fn param_name(index: usize) -> String {
+/// How a material file names a parameter: `kappa[c][k][j]` or `gamma[c][k][j]`.
+pub fn param_name(index: usize) -> String {
     let (c, k, p, j) = param_meaning(index);
     let p = match p {
         LobeParam::Kappa => "kappa",
@@ -184,14 +185,15 @@ impl Dsbrdf {
         Ok(Self { params: out })
     }
 
-    /// The same (κ, γ) at every knot: `lobes[channel][lobe] = (κ, γ)`, clamped to the ranges.
+    /// The same (κ, γ) at every knot: `lobes[channel][lobe] = (κ, γ)`, clamped to the accepted
+    /// ranges ([`LobeParam::accepted`]).
     pub fn isotropic_in_theta_d(lobes: LobesAt) -> Self {
         let mut params = [0.0; PARAMS];
         for (c, ch) in lobes.iter().enumerate() {
             for (k, &(kappa, gamma)) in ch.iter().enumerate() {
                 for j in 0..KNOTS {
-                    params[param_index(c, k, LobeParam::Kappa, j)] = clamp_param(kappa, KAPPA_RANGE);
-                    params[param_index(c, k, LobeParam::Gamma, j)] = clamp_param(gamma, GAMMA_RANGE);
+                    params[param_index(c, k, LobeParam::Kappa, j)] = clamp_param(kappa, LobeParam::Kappa.accepted());
+                    params[param_index(c, k, LobeParam::Gamma, j)] = clamp_param(gamma, LobeParam::Gamma.accepted());
                 }
             }
         }

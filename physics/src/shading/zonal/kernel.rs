@@ -38,6 +38,15 @@ pub enum ZonalRefusal {
         /// The cap.
         max_rows: usize,
     },
+    /// A DSBRDF parameter beyond its raw range (a network's saturated output, which a material
+    /// file may hold): the grid and its probe check are validated on the raw range only.
+    #[error("{} = {value} is beyond the range the zonal grid was validated on", param_name(*index))]
+    BeyondRange {
+        /// The parameter's flat index ([`param_name`] names it as a material file does).
+        index: usize,
+        /// Its value.
+        value: f64,
+    },
     /// Even the finest grid misses its probe budget ([`ZonalKernel::probe_budget`]) on a probe
     /// map (e.g. lobes that change too fast with θ_d for the environment rows).
     #[error("{:.2} % off under the {map} probe map on {rows} rows > {:.2} %", 100.0 * error, 100.0 * budget)]
@@ -123,6 +132,14 @@ impl ZonalKernel {
     /// [`CHECKED_BEYOND_CAP`] times the cap, and materials no grid up to the cap holds within
     /// [`probe_budget`](ZonalKernel::probe_budget) (callers shade those per pixel).
     pub fn checked(brdf: &BrdfModel, params: &ZonalParams) -> Result<Self, ZonalRefusal> {
+        if let BrdfModel::Dsbrdf(m) = brdf
+            && let Some((i, &value)) = m.params().iter().enumerate().find(|&(i, v)| {
+                let (lo, hi) = param_meaning(i).2.range();
+                !(lo..=hi).contains(v)
+            })
+        {
+            return Err(ZonalRefusal::BeyondRange { index: i, value });
+        }
         let mut grid = match ZonalPlan::for_brdf_with(brdf, params) {
             ZonalPlan::Grid(g) => g,
             ZonalPlan::Unresolved { rows_needed, max_rows } => {

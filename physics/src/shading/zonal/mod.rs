@@ -41,7 +41,7 @@
 //! the plan, the parameters and the per-image entry points.
 
 use super::{catmull_rom, sanitize, shading_normal};
-use crate::brdf::dsbrdf::{KNOTS, THETA_D_KNOTS_DEG};
+use crate::brdf::dsbrdf::{KNOTS, THETA_D_KNOTS_DEG, param_meaning, param_name};
 use crate::brdf::{Brdf, BrdfModel, Dsbrdf};
 use crate::envmap::{EnvMap, texel_direction, texel_solid_angle};
 use crate::fastmath;

@@ -335,10 +335,11 @@ fn point_texels_are_the_bright_ones_behind_at_most_the_cap_brightest_first() {
 
 #[test]
 fn refined_grids_stay_bounded_at_the_corners_of_the_range() {
-    use crate::brdf::dsbrdf::{GAMMA_RANGE, KAPPA_RANGE, LobeParam, param_index};
-    let corners = [KAPPA_RANGE.0, KAPPA_RANGE.1]
+    use crate::brdf::dsbrdf::{LobeParam, param_index};
+    let (kappa_range, gamma_range) = (LobeParam::Kappa.accepted(), LobeParam::Gamma.accepted());
+    let corners = [kappa_range.0, kappa_range.1]
         .into_iter()
-        .flat_map(|k| [GAMMA_RANGE.0, GAMMA_RANGE.1].map(|g| (k, g)));
+        .flat_map(|k| [gamma_range.0, gamma_range.1].map(|g| (k, g)));
     let corners: Vec<(f64, f64)> = corners.collect();
     // Every pair of corners, switching from one to the other at each knot.
     for &(k0, g0) in &corners {
@@ -362,5 +363,27 @@ fn refined_grids_stay_bounded_at_the_corners_of_the_range() {
                 let _ = ZonalPlan::for_brdf(&brdf);
             }
         }
+    }
+}
+
+#[test]
+fn a_material_beyond_the_raw_range_is_left_to_the_per_pixel_path() {
+    use crate::brdf::dsbrdf::{LobeParam, param_index};
+    let inside = Dsbrdf::isotropic_in_theta_d([[(0.2, 1e-3), (2.0, 50.0), (1e-5, 1e4)]; 3]);
+    let brdf = |m: Dsbrdf| BrdfModel::Dsbrdf(Box::new(m));
+    assert!(ZonalKernel::checked(&brdf(inside.clone()), &ZonalParams::default()).is_ok());
+    // A saturated network output on one knot of one lobe: κ or γ at what x = ±1 maps to.
+    for (p, value) in [
+        (LobeParam::Kappa, LobeParam::Kappa.accepted().1),
+        (LobeParam::Gamma, LobeParam::Gamma.accepted().0),
+    ] {
+        let mut params = *inside.params();
+        params[param_index(1, 1, p, 4)] = value;
+        let m = Dsbrdf::from_params(&params).expect("accepted");
+        let Err(e) = ZonalKernel::checked(&brdf(m), &ZonalParams::default()) else {
+            panic!("a material beyond the raw range was put on the zonal grid")
+        };
+        assert!(matches!(e, ZonalRefusal::BeyondRange { .. }), "{e:?}");
+        assert!(e.to_string().contains("[1][1][4]"), "{e}");
     }
 }
