@@ -580,25 +580,23 @@ fn finish(
 /// written when any input is bad.
 pub fn edit(model: &Path, req: &EditRequest, out: &Path) -> Result<EditReport> {
     let t0 = Instant::now();
-    check_request(req)?;
-    output::refuse_overwriting_inputs(
-        out,
-        &[
-            Some(&req.photo),
-            req.mask.as_deref(),
-            req.regions.as_deref(),
-            req.normals.as_deref(),
-        ],
-    )?;
+    check_request(req, out)?;
     let model = Model::load(model)?;
     edit_checked(&model, req, out, None, t0)
 }
 
-fn check_request(req: &EditRequest) -> Result<()> {
+/// Refuses a request with nothing to do, or whose output folder holds one of its inputs.
+fn check_request(req: &EditRequest, out: &Path) -> Result<()> {
     if req.materials.is_empty() && req.relight.is_none() {
         bail!("nothing to do: give --material (the edit) and/or --relight (another illumination)");
     }
-    Ok(())
+    let inputs = [
+        Some(req.photo.as_path()),
+        req.mask.as_deref(),
+        req.regions.as_deref(),
+        req.normals.as_deref(),
+    ];
+    output::refuse_overwriting_inputs(out, &inputs)
 }
 
 /// [`edit`] with a loaded model (what `matedit serve` runs for every request), its phases and
@@ -610,16 +608,7 @@ pub fn edit_with(
     watcher: Option<&Arc<Progress>>,
     t0: Instant,
 ) -> Result<EditReport> {
-    check_request(req)?;
-    output::refuse_overwriting_inputs(
-        out,
-        &[
-            Some(&req.photo),
-            req.mask.as_deref(),
-            req.regions.as_deref(),
-            req.normals.as_deref(),
-        ],
-    )?;
+    check_request(req, out)?;
     edit_checked(model, req, out, watcher, t0)
 }
 
