@@ -376,6 +376,11 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     assert_eq!(s, "done", "the edit failed: {}", text(&c, "error").await);
     eprintln!("upload to shown result: {secs:.2} s");
     screenshot(&c, "serve-result.png").await;
+    let caption = c
+        .execute("return document.getElementById('result-normals').alt", vec![])
+        .await
+        .unwrap();
+    assert_eq!(caption, "n′", "no normals were given");
     let got = image::load_from_memory(&image_bytes(&c, "result-edited").await)
         .unwrap()
         .to_rgb8();
@@ -437,6 +442,11 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     let (s, _) = run_edit(&c, "done|error", 300).await;
     assert_eq!(s, "done", "the transfer failed: {}", text(&c, "error").await);
     screenshot(&c, "serve-transfer-normals.png").await;
+    let caption = c
+        .execute("return document.getElementById('result-normals').alt", vec![])
+        .await
+        .unwrap();
+    assert_eq!(caption, "n — the given normals (n′ where they have none)");
     let report = c
         .execute_async(
             "const done = arguments[0];
