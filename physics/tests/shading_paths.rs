@@ -2,23 +2,12 @@
 //! and extreme lobes, a sun far brighter than the sky, shadows, and garbage normals.
 
 mod common;
+use common::{gamma_range, kappa_range};
 use glam::DVec3;
 use matedit_assets::envmaps::builtin;
 use matedit_physics::EnvMap;
-use matedit_physics::brdf::dsbrdf::LobeParam;
 use matedit_physics::brdf::{BrdfModel, Dsbrdf, Fresnel, Ggx, Lambert, Plastic};
 use matedit_physics::shading::{Quality, Shader, make_shader};
-
-/// The whole range a material may hold (`LobeParam::accepted`: the raw range and what a
-/// network's normalised ±1 maps to).
-fn kappa_range() -> (f64, f64) {
-    LobeParam::Kappa.accepted()
-}
-
-/// As [`kappa_range`], for γ.
-fn gamma_range() -> (f64, f64) {
-    LobeParam::Gamma.accepted()
-}
 
 fn brdfs() -> Vec<(&'static str, BrdfModel)> {
     vec![

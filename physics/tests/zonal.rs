@@ -8,23 +8,12 @@ use common::*;
 use glam::DVec3;
 use matedit_assets::envmaps::builtin;
 use matedit_physics::EnvMap;
-use matedit_physics::brdf::dsbrdf::LobeParam;
+use matedit_physics::brdf::dsbrdf::{GAMMA_RANGE, KAPPA_RANGE};
 use matedit_physics::brdf::{BrdfModel, Dsbrdf, Fresnel, Ggx, Lambert, Plastic};
 use matedit_physics::camera::unit_sphere_normals;
 use matedit_physics::shading::exact::ExactShader;
 use matedit_physics::shading::zonal::{PolarNormals, ZonalEnv, ZonalGrid, ZonalKernel, shade_image_zonal};
 use matedit_physics::shading::{Quality, VisibilityFn, shade_image, shade_with};
-
-/// The whole range a material may hold (`LobeParam::accepted`: the raw range and what a
-/// network's normalised ±1 maps to).
-fn kappa_range() -> (f64, f64) {
-    LobeParam::Kappa.accepted()
-}
-
-/// As [`kappa_range`], for γ.
-fn gamma_range() -> (f64, f64) {
-    LobeParam::Gamma.accepted()
-}
 
 /// Materials the grid resolves (their sharpest energetic lobe is at least ~2 grid spacings
 /// wide at the 128-row cap), with the relative RMSE each may have against the exact path.
@@ -268,10 +257,7 @@ fn range_materials(count: usize) -> Vec<(String, BrdfModel)> {
         let mut p = [0.0; PARAMS];
         for c in 0..3 {
             for k in 0..3 {
-                let (kappa, gamma) = (
-                    rng.log_uniform(LobeParam::Kappa.range()),
-                    rng.log_uniform(LobeParam::Gamma.range()),
-                );
+                let (kappa, gamma) = (rng.log_uniform(KAPPA_RANGE), rng.log_uniform(GAMMA_RANGE));
                 // How much κ and γ grow from θ_d = 0 to grazing in the "sharpening" kind.
                 let (rise_k, rise_g) = (1.0 + 19.0 * rng.next(), 1.0 + 9.0 * rng.next());
                 for j in 0..KNOTS {
@@ -279,15 +265,10 @@ fn range_materials(count: usize) -> Vec<(String, BrdfModel)> {
                     let (kk, gg) = match kind {
                         0 => (kappa, gamma),
                         1 => (kappa / rise_k.powf(1.0 - t * t), gamma / rise_g.powf(1.0 - t)),
-                        _ => (
-                            rng.log_uniform(LobeParam::Kappa.range()),
-                            rng.log_uniform(LobeParam::Gamma.range()),
-                        ),
+                        _ => (rng.log_uniform(KAPPA_RANGE), rng.log_uniform(GAMMA_RANGE)),
                     };
-                    p[param_index(c, k, LobeParam::Kappa, j)] =
-                        kk.clamp(LobeParam::Kappa.range().0, LobeParam::Kappa.range().1);
-                    p[param_index(c, k, LobeParam::Gamma, j)] =
-                        gg.clamp(LobeParam::Gamma.range().0, LobeParam::Gamma.range().1);
+                    p[param_index(c, k, LobeParam::Kappa, j)] = kk.clamp(KAPPA_RANGE.0, KAPPA_RANGE.1);
+                    p[param_index(c, k, LobeParam::Gamma, j)] = gg.clamp(GAMMA_RANGE.0, GAMMA_RANGE.1);
                 }
             }
         }

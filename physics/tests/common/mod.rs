@@ -43,3 +43,14 @@ pub fn eval_assets() -> Option<PathBuf> {
         .unwrap_or_else(|| workspace.join("../shared/eval-assets"));
     p.is_dir().then_some(p)
 }
+
+/// The whole range a material may hold (`LobeParam::accepted`: the raw range and what a
+/// network's normalised ±1 maps to).
+pub fn kappa_range() -> (f64, f64) {
+    matedit_physics::brdf::dsbrdf::LobeParam::Kappa.accepted()
+}
+
+/// As [`kappa_range`], for γ.
+pub fn gamma_range() -> (f64, f64) {
+    matedit_physics::brdf::dsbrdf::LobeParam::Gamma.accepted()
+}
