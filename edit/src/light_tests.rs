@@ -42,9 +42,8 @@ fn a_given_light_replaces_l_prime_at_the_level_asked_for() {
         let k = env[0] / studio[0];
         assert!(k.is_finite() && k > 0.0);
         if level == LevelFrom::Given {
-            // The map's own level: only the photo's exposure (linear photo → network units).
-            let exposure = r.exposure as f32;
-            assert!((k - exposure).abs() <= 1e-5 * exposure, "{k} vs {exposure}");
+            // The map's own level, written in the photo's units as it was given.
+            assert!((k - 1.0).abs() <= 1e-5, "{k}");
             assert_eq!(r.light_level.scale, 1.0);
         }
         for (a, b) in env.iter().zip(&studio) {
@@ -78,6 +77,46 @@ fn a_given_light_replaces_l_prime_at_the_level_asked_for() {
     let e = edit(model(), &with(LevelFrom::Auto, Some("builtin:nope")), &out).unwrap_err();
     assert!(format!("{e:#}").contains("nope"), "{e:#}");
     assert!(!out.exists());
+}
+
+#[test]
+fn an_edits_light_given_back_at_its_own_level_renders_the_same_edit() {
+    // env.exr is L' in the photo's linear units: the map `--light-level given` reads. Given
+    // back, it is the same light, so the edit and the map written are the same again.
+    let d = dir("light-again");
+    let (p, m, _) = write_photo(&d);
+    let first = d.join("first");
+    let a = edit(model(), &request(&p, &m, "library:gold-polished"), &first).unwrap();
+    let again = d.join("again");
+    let req = EditRequest {
+        light: Some(first.join("env.exr").to_str().unwrap().to_string()),
+        light_level: LevelFrom::Given,
+        ..request(&p, &m, "library:gold-polished")
+    };
+    let b = edit(model(), &req, &again).unwrap();
+    assert_eq!((b.light_level.source.as_str(), b.light_level.scale), ("given", 1.0));
+    assert!(
+        a.exposure > 1.01 || a.exposure < 0.99,
+        "the test needs a photo not at the training exposure"
+    );
+    let close = |x: &[f32], y: &[f32], what: &str| {
+        assert_eq!(x.len(), y.len());
+        for (u, v) in x.iter().zip(y) {
+            assert!((u - v).abs() <= 1e-5 * u.abs().max(1e-3), "{what}: {u} vs {v}");
+        }
+    };
+    close(&env_of(&first), &env_of(&again), "env.exr");
+    close(
+        &rgb_exr(&first.join("edited.exr")),
+        &rgb_exr(&again.join("edited.exr")),
+        "edited.exr",
+    );
+    // An exposure that cannot convert the light is refused, not written as NaN or infinity.
+    let l = env_of(&first);
+    assert_eq!(super::output::light_in_photo_units(&l, 2.0).unwrap()[0], l[0] / 2.0);
+    for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        assert!(super::output::light_in_photo_units(&l, bad).is_err(), "{bad}");
+    }
 }
 
 #[test]

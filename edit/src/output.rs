@@ -6,7 +6,7 @@
 //! | `relit.png`, `relit.exr` | the same with R(n', m', L_new) (`--relight`) |
 //! | `input`, `i_prime`, `o_prime`, `relit_prime` `.png/.exr` | I (the framed photo the network saw), I', O', the relit render, at the network's resolution and the training exposure |
 //! | `normals.exr`, `normals.png` | n' (camera space; PNG as (n + 1)/2) |
-//! | `env.exr`, `env.png` | L' (camera space, linear; PNG tone-mapped) |
+//! | `env.exr`, `env.png` | L' (camera space, linear, in the photo's linear units: `--light env.exr --light-level given` renders under it again; PNG tone-mapped) |
 //! | `material.dsbrdf.json` (`material-K` per region) | m', which `datagen render --brdf dsbrdf:FILE` renders |
 //! | `target.dsbrdf.json` (`target-K` per region) | m_t as rendered (a fitted DSBRDF where the spec was not one) |
 //! | `sheet.png` | I, I', O', relit, n', L', and spheres of m' and m_t under L', labelled |
@@ -267,6 +267,14 @@ impl Drop for Staging {
     }
 }
 
+/// `env` (network units) in the photo's linear units: divided by the edit's `exposure`.
+pub(crate) fn light_in_photo_units(env: &[f32], exposure: f64) -> Result<Vec<f32>> {
+    if !(exposure.is_finite() && exposure > 0.0) {
+        bail!("the edit's exposure {exposure} cannot bring L' to the photo's units");
+    }
+    Ok(env.iter().map(|&v| (v as f64 / exposure) as f32).collect())
+}
+
 /// Writes every output of an edit but the report; returns the file names.
 pub fn write_all(
     out: &Path,
@@ -311,14 +319,17 @@ pub fn write_all(
     files.extend(["normals.exr".to_string(), "normals.png".to_string()]);
     let (he, we) = (pred.env_height, 2 * pred.env_height);
     let ehw = he * we;
+    // L' renders in the network's units (the photo's linear values times the exposure); written
+    // in the photo's, it is what `--light` reads, so an edit's light can be given again as it is.
+    let env = light_in_photo_units(&pred.env, prep.exposure)?;
     write_exr_channels(
         &out.join("env.exr"),
         we,
         he,
         vec![
-            ("R", planar(&pred.env, 0, ehw)),
-            ("G", planar(&pred.env, 1, ehw)),
-            ("B", planar(&pred.env, 2, ehw)),
+            ("R", planar(&env, 0, ehw)),
+            ("G", planar(&env, 1, ehw)),
+            ("B", planar(&env, 2, ehw)),
         ],
     )?;
     let all = vec![1.0_f32; ehw];
