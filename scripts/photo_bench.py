@@ -60,9 +60,12 @@ Usage:
     python3 scripts/photo_bench.py levels --out out/photobench --methods detail   # after `score`
     python3 scripts/photo_bench.py ceiling --out out/photobench   # a perfect edit's scores
     python3 scripts/photo_bench.py normals --out out/photobench --methods detail  # n*'s angle to the truth
+    python3 scripts/photo_bench.py lprime --out out/photobench --method detail    # L' variants for --light
+    python3 scripts/photo_bench.py combine --out out/photobench --methods A B --how mean|fit|truth
 Oracles for methods (`{scene}/...` in --methods): sceneNN/light.exr (the true light in the
 camera's frame, for `--light`), sceneNN/normals.exr (the true shading normals in the camera's
-frame, for `--normals`), `{input}` (the project spec nearest the input material).
+frame, for `--normals`), `{input}` (the project spec nearest the input material); `lprime` writes
+sceneNN/lprime_METHOD_VARIANT.exr, not oracles: a method's own L' changed (`--light-level given`).
 Outputs: DIR/sceneNN/{photo,mask,truth_green,truth_chrome,truth_gold}.png (+ .exr), DIR/scenes.json,
 DIR/contact.png; DIR/edits/METHOD/sceneNN-TARGET/, DIR/edits/sheet.png, DIR/results.json.
 """
@@ -896,6 +899,105 @@ def cmd_lights(args):
         print(f"{rec['name']}: {', '.join(LIGHT_VARIANTS)}", flush=True)
 
 
+LPRIME_VARIANTS = ("same", "grey", "rows", "rows_grey", "rot90", "rot180", "rot270")
+
+
+def cmd_lprime(args):
+    """Writes variants of a method's L' (its edits' `env.exr`, in the photo's linear units, so
+    that `--light FILE --light-level given` renders under the same light) next to each scene's
+    files, as `lprime_METHOD_VARIANT.exr` (LPRIME_VARIANTS): the light as written; its mean colour
+    made neutral; averaged around the vertical axis (+y, the map's rows); both; rotated about +y
+    by 90, 180, 270 degrees (whole columns). L' does not depend on the target, so the first
+    target's edit is read. Prints how far each scene's L' (scaled to mean 1) is from the mean of
+    them all, beside the same for the scenes' true lights: whether the network answers one
+    layout for every photo."""
+    mi = mitsuba()
+    out = Path(args.out)
+    records = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]
+    target = args.targets.split(",")[0]
+    ours, truths = [], []
+    for rec in records:
+        d = out / rec["name"]
+        env = out / "edits" / args.method / f"{rec['name']}-{target}" / "env.exr"
+        if not env.exists():
+            raise SystemExit(f"{env}: missing; run `score` with the method {args.method} first")
+        light = np.array(mi.Bitmap(str(env)), dtype=np.float64)[..., :3]
+        w = light.shape[1]
+        rows = np.repeat(light.mean(axis=1, keepdims=True), w, 1)
+        neutral = lambda x: x * (x.mean() / np.maximum(x.reshape(-1, 3).mean(0), 1e-30))
+        variants = {"same": light, "grey": neutral(light), "rows": rows, "rows_grey": neutral(rows),
+                    "rot90": np.roll(light, w // 4, 1), "rot180": np.roll(light, w // 2, 1),
+                    "rot270": np.roll(light, 3 * w // 4, 1)}
+        for name in LPRIME_VARIANTS:
+            write_exr(mi, d / f"lprime_{args.method}_{name}.exr", variants[name])
+        ours.append(light / max(light.mean(), 1e-30))
+        true = np.array(mi.Bitmap(str(d / "light.exr")), dtype=np.float64)[..., :3]
+        truths.append(true / max(true.mean(), 1e-30))
+    for label, maps in [(f"L' of {args.method}", np.array(ours)), ("the true lights", np.array(truths))]:
+        mean = maps.mean(0)
+        dev = np.sqrt(((maps - mean) ** 2).mean(axis=(1, 2, 3))) / np.sqrt((mean ** 2).mean())
+        print(f"{label}: RMS distance of each scene's map (mean 1) from their mean, relative: "
+              f"{' '.join(f'{v:.3f}' for v in dev)}", flush=True)
+    print(f"wrote {', '.join(f'lprime_{args.method}_{v}.exr' for v in LPRIME_VARIANTS)} in each scene")
+
+
+def cmd_combine(args):
+    """Scores combinations of methods' edits already written by `score`. `--how mean`: each
+    case's edits averaged in linear light and encoded to 8 bits again (an ensemble); `fit`: per
+    scene, the method whose I' = R(n', m', L') is closest to the framed photo I (`i_prime.exr`
+    against `input.exr`, the first target's edit; what an edit could choose without the truth);
+    `truth`: per scene, the method with the lowest mean L2 over the targets (an upper bound)."""
+    out = Path(args.out)
+    scenes = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]
+    targets = [t for t in args.targets.split(",") if t]
+    mi = mitsuba() if args.how == "fit" else None
+    cases = []
+    for rec in scenes:
+        d = out / rec["name"]
+        obj = rgb8(d / "mask.png")[..., 0] > 127
+        photo = rgb8(d / "photo.png")
+        edits, per = {}, {}
+        for m in args.methods:
+            for t in targets:
+                path = out / "edits" / m / f"{rec['name']}-{t}" / "edited.png"
+                if not path.exists():
+                    raise SystemExit(f"{path}: missing; run `score` with the method {m} first")
+                edits[m, t] = rgb8(path)
+        truth = {t: rgb8(d / f"truth_{t}.png") for t in targets}
+        tg = {t: grad_magnitude(truth[t]) for t in targets}
+        if args.how == "fit":
+            def misfit(m):
+                e = out / "edits" / m / f"{rec['name']}-{targets[0]}"
+                i = np.array(mi.Bitmap(str(e / "input.exr")), dtype=np.float64)[..., :3]
+                ip = np.array(mi.Bitmap(str(e / "i_prime.exr")), dtype=np.float64)[..., :3]
+                inside = i.sum(-1) > 0
+                return float(((ip - i)[inside] ** 2).mean())
+            chosen = min(args.methods, key=misfit)
+        elif args.how == "truth":
+            chosen = min(args.methods, key=lambda m: np.mean([scores(edits[m, t], truth[t], obj, tg[t])["l2"]
+                                                            for t in targets]))
+        for t in targets:
+            if args.how == "mean":
+                lin = np.mean([srgb_decode(edits[m, t] / 255.0) for m in args.methods], axis=0)
+                edit = srgb8(lin).astype(np.float64)
+            else:
+                edit = edits[chosen, t]
+            s, base = scores(edit, truth[t], obj, tg[t]), scores(photo, truth[t], obj, tg[t])
+            cases.append({"scene": rec["name"], "target": t, "method": args.how,
+                          "chosen": None if args.how == "mean" else chosen, "error": None, "seconds": None,
+                          **s, "beats": s["l2"] < base["l2"] and s["ssim"] > base["ssim"]})
+        if args.how != "mean":
+            print(f"{rec['name']}: {chosen}", flush=True)
+    row = summarise(cases, [args.how])[args.how]
+    print(f"{args.how} of {' '.join(args.methods)}: L2 {row['l2']:.1f}  SSIM {row['ssim']:.4f}  "
+          f"grad {row['grad_corr']:.3f}  beats unchanged {row['beats_unchanged']} / {row['cases']}")
+    report = {"command": shlex.join([Path(sys.executable).name] + sys.argv), "how": args.how,
+              "methods": args.methods, "means": row, "cases": cases}
+    json_path = Path(args.json) if args.json else out / "combine.json"
+    write_atomic(json_path, lambda p: p.write_text(json.dumps(report, indent=1)))
+    print(f"Command: `{report['command']}`; per-case results: {json_path}")
+
+
 def cmd_score(args):
     out = Path(args.out)
     scenes = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]  # None: all
@@ -1116,6 +1218,17 @@ def main():
                          help="methods whose edits `score` wrote (DIR/edits/NAME/)")
     normals.add_argument("--targets", default=",".join(TARGETS), help="the first of these is read")
     normals.add_argument("--json", help="per-object results (default DIR/normals.json)")
+    lprime = sub.add_parser("lprime", parents=[common],
+                            help="variants of a method's L' (neutral, without azimuth, rotated) for --light")
+    lprime.add_argument("--method", required=True, help="a method whose edits `score` wrote (DIR/edits/NAME/)")
+    lprime.add_argument("--targets", default=",".join(TARGETS), help="the first of these is read")
+    combine = sub.add_parser("combine", parents=[common],
+                             help="score methods' edits combined: averaged, or one chosen per scene")
+    combine.add_argument("--methods", nargs="+", required=True, metavar="NAME",
+                         help="methods whose edits `score` wrote (DIR/edits/NAME/)")
+    combine.add_argument("--how", choices=("mean", "fit", "truth"), default="mean")
+    combine.add_argument("--targets", default=",".join(TARGETS), help="comma-separated targets of " + ", ".join(TARGETS))
+    combine.add_argument("--json", help="per-case results (default DIR/combine.json)")
     args = parser.parse_args()
     if args.command in ("render", "all"):
         cmd_render(args)
@@ -1131,6 +1244,10 @@ def main():
         cmd_levels(args)
     if args.command == "ceiling":
         cmd_ceiling(args)
+    if args.command == "lprime":
+        cmd_lprime(args)
+    if args.command == "combine":
+        cmd_combine(args)
 
 
 if __name__ == "__main__":
