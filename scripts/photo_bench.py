@@ -899,7 +899,33 @@ def cmd_lights(args):
         print(f"{rec['name']}: {', '.join(LIGHT_VARIANTS)}", flush=True)
 
 
-LPRIME_VARIANTS = ("same", "grey", "rows", "rows_grey", "rot90", "rot180", "rot270")
+LPRIME_VARIANTS = ("same", "grey", "rows", "rows_grey", "rot90", "rot180", "rot270", "background",
+                   "background_colour")
+
+
+def wrapped_background(photo, obj, shape, sigma=3.0):
+    """The photo's background wrapped around the sphere as Khan et al. 2006 do, `[h, w, 4]` (linear
+    RGB and luminance) on a map of `shape`: the far hemisphere (z < 0, seen behind the object) is
+    the photo stretched over azimuth and elevation +-90 deg, the near one its mirror image; the
+    object's hole filled by a normalised Gaussian blur of the background; the map blurred by
+    `sigma` texels."""
+    from scipy.ndimage import gaussian_filter
+    h, w = shape
+    bg = (~obj).astype(np.float64)
+    src = np.concatenate([photo, luminance709(photo)[..., None]], -1)
+    s = max(photo.shape[:2]) / 16
+    num = np.stack([gaussian_filter(src[..., c] * bg, s) for c in range(4)], -1)
+    den = gaussian_filter(bg, s)[..., None]
+    filled = np.where(bg[..., None] > 0, src, num / np.maximum(den, 1e-6))
+    dirs, _ = texel_grid(h, w)
+    far_z = -np.abs(dirs[..., 2])
+    az = np.arctan2(dirs[..., 0], -far_z)
+    el = np.arcsin(np.clip(dirs[..., 1], -1, 1))
+    ph, pw = photo.shape[:2]
+    x = np.clip((az / np.pi + 0.5) * (pw - 1), 0, pw - 1).astype(int)
+    y = np.clip((0.5 - el / np.pi) * (ph - 1), 0, ph - 1).astype(int)
+    wrapped = filled[y, x]
+    return np.stack([gaussian_filter(wrapped[..., c], sigma, mode="wrap") for c in range(4)], -1)
 
 
 def cmd_lprime(args):
@@ -907,7 +933,9 @@ def cmd_lprime(args):
     that `--light FILE --light-level given` renders under the same light) next to each scene's
     files, as `lprime_METHOD_VARIANT.exr` (LPRIME_VARIANTS): the light as written; its mean colour
     made neutral; averaged around the vertical axis (+y, the map's rows); both; rotated about +y
-    by 90, 180, 270 degrees (whole columns). L' does not depend on the target, so the first
+    by 90, 180, 270 degrees (whole columns); times the photo's background wrapped around the
+    sphere (`wrapped_background`), its luminance or (with L''s luminance) its colour, L''s mean
+    kept. L' does not depend on the target, so the first
     target's edit is read. Prints how far each scene's L' (scaled to mean 1) is from the mean of
     them all, beside the same for the scenes' true lights: whether the network answers one
     layout for every photo."""
@@ -925,9 +953,14 @@ def cmd_lprime(args):
         w = light.shape[1]
         rows = np.repeat(light.mean(axis=1, keepdims=True), w, 1)
         neutral = lambda x: x * (x.mean() / np.maximum(x.reshape(-1, 3).mean(0), 1e-30))
+        photo = srgb_decode(rgb8(d / "photo.png") / 255.0)
+        wrapped = wrapped_background(photo, rgb8(d / "mask.png")[..., 0] > 127, light.shape[:2])
+        keep_mean = lambda x: x * (light.mean() / max(x.mean(), 1e-30))
         variants = {"same": light, "grey": neutral(light), "rows": rows, "rows_grey": neutral(rows),
                     "rot90": np.roll(light, w // 4, 1), "rot180": np.roll(light, w // 2, 1),
-                    "rot270": np.roll(light, 3 * w // 4, 1)}
+                    "rot270": np.roll(light, 3 * w // 4, 1),
+                    "background": keep_mean(light * wrapped[..., 3:]),
+                    "background_colour": keep_mean(light.mean(-1, keepdims=True) * wrapped[..., :3])}
         for name in LPRIME_VARIANTS:
             write_exr(mi, d / f"lprime_{args.method}_{name}.exr", variants[name])
         ours.append(light / max(light.mean(), 1e-30))
