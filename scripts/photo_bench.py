@@ -935,10 +935,9 @@ def cmd_lprime(args):
     made neutral; averaged around the vertical axis (+y, the map's rows); both; rotated about +y
     by 90, 180, 270 degrees (whole columns); times the photo's background wrapped around the
     sphere (`wrapped_background`), its luminance or (with L''s luminance) its colour, L''s mean
-    kept. L' does not depend on the target, so the first
-    target's edit is read. Prints how far each scene's L' (scaled to mean 1) is from the mean of
-    them all, beside the same for the scenes' true lights: whether the network answers one
-    layout for every photo."""
+    kept. L' does not depend on the target, so the first target's edit is read. Prints how far
+    each scene's L' (scaled to mean 1) is from the mean of them all, beside the same for the
+    scenes' true lights: whether the network answers one layout for every photo."""
     mi = mitsuba()
     out = Path(args.out)
     records = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]
@@ -989,7 +988,7 @@ def cmd_combine(args):
         d = out / rec["name"]
         obj = rgb8(d / "mask.png")[..., 0] > 127
         photo = rgb8(d / "photo.png")
-        edits, per = {}, {}
+        edits = {}
         for m in args.methods:
             for t in targets:
                 path = out / "edits" / m / f"{rec['name']}-{t}" / "edited.png"

@@ -91,6 +91,25 @@ pub fn light_at_own_level(l: &[f32], exposure: f64) -> Result<Vec<f32>> {
     Ok(scaled)
 }
 
+/// The inverse of [`light_at_own_level`]: `env` (network units) in the photo's linear units,
+/// divided by the edit's `exposure`, as `env.exr` holds it. Refused
+/// where that is not a finite map (a photo so bright that its L' passes f32), never written as
+/// infinity.
+pub fn light_in_photo_units(env: &[f32], exposure: f64) -> Result<Vec<f32>> {
+    if !(exposure.is_finite() && exposure > 0.0) {
+        bail!("the edit's exposure {exposure} cannot bring L' to the photo's units");
+    }
+    let l: Vec<f32> = env.iter().map(|&v| (v as f64 / exposure) as f32).collect();
+    if let Some(v) = env.iter().zip(&l).find(|(_, w)| !w.is_finite()) {
+        bail!(
+            "L' in the photo's linear units (a texel of {:.3e} divided by the exposure {exposure:.3e}) \
+             is beyond what an EXR holds: the photo is too bright to write its light",
+            v.0
+        );
+    }
+    Ok(l)
+}
+
 /// An illumination `l` (`[3, He, 2He]`) at the level that explains the photo best through
 /// `x`'s normals and material: the scale k minimising Σ (k·R(n', m', l) − I)² over the object (a
 /// map's exposure is arbitrary). Refused where no light explains the photo: a black render, or

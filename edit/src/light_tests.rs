@@ -113,11 +113,11 @@ fn an_edits_light_given_back_at_its_own_level_renders_the_same_edit() {
     );
     // An exposure that cannot convert the light is refused, not written as NaN or infinity.
     let l = env_of(&first);
-    assert_eq!(super::output::light_in_photo_units(&l, 2.0).unwrap()[0], l[0] / 2.0);
+    assert_eq!(light::light_in_photo_units(&l, 2.0).unwrap()[0], l[0] / 2.0);
     for bad in [0.0, -1.0, f64::NAN, f64::INFINITY, 1e-300] {
-        assert!(super::output::light_in_photo_units(&[1e6, 1.0], bad).is_err(), "{bad}");
+        assert!(light::light_in_photo_units(&[1e6, 1.0], bad).is_err(), "{bad}");
     }
-    assert!(super::output::light_in_photo_units(&[f32::NAN], 1.0).is_err());
+    assert!(light::light_in_photo_units(&[f32::NAN], 1.0).is_err());
 }
 
 #[test]

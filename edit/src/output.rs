@@ -267,24 +267,6 @@ impl Drop for Staging {
     }
 }
 
-/// `env` (network units) in the photo's linear units: divided by the edit's `exposure`. Refused
-/// where that is not a finite map (a photo so bright that its L' passes f32), never written as
-/// infinity.
-pub(crate) fn light_in_photo_units(env: &[f32], exposure: f64) -> Result<Vec<f32>> {
-    if !(exposure.is_finite() && exposure > 0.0) {
-        bail!("the edit's exposure {exposure} cannot bring L' to the photo's units");
-    }
-    let l: Vec<f32> = env.iter().map(|&v| (v as f64 / exposure) as f32).collect();
-    if let Some(v) = env.iter().zip(&l).find(|(_, w)| !w.is_finite()) {
-        bail!(
-            "L' in the photo's linear units (a texel of {:.3e} divided by the exposure {exposure:.3e}) \
-             is beyond what an EXR holds: the photo is too bright to write its light",
-            v.0
-        );
-    }
-    Ok(l)
-}
-
 /// Writes every output of an edit but the report; returns the file names.
 pub fn write_all(
     out: &Path,
@@ -331,7 +313,7 @@ pub fn write_all(
     let ehw = he * we;
     // L' renders in the network's units (the photo's linear values times the exposure); written
     // in the photo's, it is what `--light` reads, so an edit's light can be given again as it is.
-    let env = light_in_photo_units(&pred.env, prep.exposure)?;
+    let env = super::light::light_in_photo_units(&pred.env, prep.exposure)?;
     write_exr_channels(
         &out.join("env.exr"),
         we,
