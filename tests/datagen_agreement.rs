@@ -6,6 +6,8 @@
 //! The dataset goes through the trainer's own reader (checksums, EXR decoding, the material
 //! table's normalised parameters), so this is the path training takes.
 
+mod common;
+
 use matedit_fixtures::{Sources, render_dataset};
 use matedit_physics::brdf::Dsbrdf;
 use matedit_trainer::data::{Dataset, Loader, LoaderConfig};
@@ -86,10 +88,10 @@ fn relative_rmse(got: &[f32], want: &[f32], mask: &[f32], pixels: usize) -> f64 
     (err / norm.max(1e-30)).sqrt()
 }
 
-/// Renders the test dataset into a fresh temporary folder named by `tag`: (root, dataset).
-fn make_dataset(tag: &str) -> (std::path::PathBuf, std::path::PathBuf) {
-    let root = std::env::temp_dir().join(format!("matedit-trainer-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&root);
+/// Renders the test dataset into a fresh scratch folder named by `tag`: (that folder, removed when
+/// it is dropped; the dataset in it).
+fn make_dataset(tag: &str) -> (common::Scratch, std::path::PathBuf) {
+    let root = common::Scratch::new(&format!("trainer-{tag}"));
     let materials = [
         material([0.7, 0.2, 0.1], (0.3, 8.0), (1.5, 120.0)),
         material([0.1, 0.4, 0.6], (0.05, 30.0), (3.0, 600.0)),
@@ -107,7 +109,7 @@ fn make_dataset(tag: &str) -> (std::path::PathBuf, std::path::PathBuf) {
 
 #[test]
 fn ground_truth_n_m_l_reproduce_datagens_exact_images() {
-    let (root, out) = make_dataset("agreement");
+    let (_root, out) = make_dataset("agreement");
     let ds = Arc::new(Dataset::open(&out).unwrap());
     let layer = RenderingLayer::new(64);
     let mut worst = 0.0f64;
@@ -149,7 +151,6 @@ fn ground_truth_n_m_l_reproduce_datagens_exact_images() {
     // Per split 2 shapes × 2 materials × 2 environments × 1 view, I and O each.
     assert_eq!(images, 2 * 8 * 2);
     eprintln!("{images} images, worst relative RMSE {worst:.2e}");
-    let _ = std::fs::remove_dir_all(&root);
 }
 
 /// Eq. 6 on datagen's own samples (the round trip of the editing issue): from the true n, m, L
@@ -159,7 +160,7 @@ fn ground_truth_n_m_l_reproduce_datagens_exact_images() {
 fn eq6_on_datagen_samples_stays_at_the_truth_and_returns_from_a_perturbed_material() {
     use matedit_trainer::model::prediction::Prediction;
     use matedit_trainer::post_optimisation::{Eq6Config, Problem, post_optimise};
-    let (root, out) = make_dataset("eq6");
+    let (_root, out) = make_dataset("eq6");
     let ds = Arc::new(Dataset::open(&out).unwrap());
     let layer = RenderingLayer::new(64);
     let mut loader = Loader::new(ds, "test", LoaderConfig::evaluation(2)).unwrap();
@@ -242,5 +243,4 @@ fn eq6_on_datagen_samples_stays_at_the_truth_and_returns_from_a_perturbed_materi
             err(&back.point.materials)
         );
     }
-    let _ = std::fs::remove_dir_all(&root);
 }

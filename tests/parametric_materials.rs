@@ -137,7 +137,6 @@ fn a_seed_is_one_material_in_every_dataset_and_splits_never_share_one() {
             "{n}"
         );
     }
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
@@ -188,5 +187,4 @@ fn bad_parametric_entries_are_refused_with_field_and_line() {
         let e = format!("{:#}", load(&p).err().unwrap_or_else(|| panic!("{entry}: accepted")));
         assert!(e.contains("bad.toml:") && e.contains(needle), "{entry}: {e}");
     }
-    let _ = std::fs::remove_dir_all(&d);
 }

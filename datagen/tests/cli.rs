@@ -1,21 +1,23 @@
 //! `datagen render` as a user runs it: outputs, messages and failure behaviour.
 
-use std::path::PathBuf;
 use std::process::Command;
 
 fn datagen() -> Command {
     Command::new(env!("CARGO_BIN_EXE_datagen"))
 }
 
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("matedit-cli-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch folder of one test, removed when the test ends.
+fn scratch(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("matedit-cli-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 #[test]
 fn render_writes_an_exr_with_radiance_normals_and_mask_and_a_png() {
-    let d = scratch("ok");
+    let tmp = scratch("ok");
+    let d = tmp.path();
     let (exr, png, env) = (d.join("s.exr"), d.join("s.png"), d.join("env.exr"));
     let out = datagen()
         .args([
@@ -56,7 +58,8 @@ fn render_writes_an_exr_with_radiance_normals_and_mask_and_a_png() {
 
 #[test]
 fn bad_arguments_name_the_problem_and_leave_existing_output_alone() {
-    let d = scratch("bad");
+    let tmp = scratch("bad");
+    let d = tmp.path();
     let exr = d.join("keep.exr");
     std::fs::write(&exr, b"previous").unwrap();
     let cases: &[(&[&str], &str)] = &[
@@ -146,7 +149,8 @@ fn bad_arguments_name_the_problem_and_leave_existing_output_alone() {
 
 #[test]
 fn a_dsbrdf_material_file_renders_and_nan_in_an_hdr_is_refused_by_name() {
-    let d = scratch("files");
+    let tmp = scratch("files");
+    let d = tmp.path();
     let mat = d.join("m.json");
     let m = matedit_physics::brdf::Dsbrdf::near_lambertian([0.5, 0.4, 0.3]);
     std::fs::write(&mat, m.to_json()).unwrap();
@@ -194,7 +198,8 @@ fn a_dsbrdf_material_file_renders_and_nan_in_an_hdr_is_refused_by_name() {
 
 #[test]
 fn assets_envmaps_writes_deterministic_exrs_and_a_contact_sheet() {
-    let (a, b) = (scratch("env-a"), scratch("env-b"));
+    let (ta, tb) = (scratch("env-a"), scratch("env-b"));
+    let (a, b) = (ta.path(), tb.path());
     for d in [&a, &b] {
         let out = datagen()
             .args([
@@ -237,10 +242,11 @@ fn assets_envmaps_writes_deterministic_exrs_and_a_contact_sheet() {
 
 #[test]
 fn assets_shapes_writes_region_tagged_objs_that_render() {
-    let d = scratch("shapes");
+    let tmp = scratch("shapes");
+    let d = tmp.path();
     let out = datagen()
         .args(["assets", "shapes", "--count", "2", "--seed", "9", "--out"])
-        .arg(&d)
+        .arg(d)
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -302,7 +308,8 @@ fn assets_shapes_writes_region_tagged_objs_that_render() {
 
 #[test]
 fn fit_writes_a_renderable_material_and_a_report() {
-    let d = scratch("fit");
+    let tmp = scratch("fit");
+    let d = tmp.path();
     let out = datagen()
         .args(["fit", "--brdf", "plastic:0.3:0.6,0.2,0.1", "--out"])
         .arg(d.join("m.json"))
@@ -323,7 +330,8 @@ fn fit_writes_a_renderable_material_and_a_report() {
 
 #[test]
 fn every_quality_renders_and_the_table_qualities_stay_close_to_fast() {
-    let d = scratch("qualities");
+    let tmp = scratch("qualities");
+    let d = tmp.path();
     let render = |quality: &str| {
         let exr = d.join(format!("{quality}.exr"));
         let out = datagen()

@@ -8,13 +8,14 @@ use matedit_contract::records::SampleRecord;
 use matedit_datagen::dataset::inspect::{COLUMNS, TILE, caption, inspect, pick};
 use matedit_datagen::dataset::run::{RunOptions, load, run};
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("matedit-inspect-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch folder of one test, removed when the test ends.
+fn scratch(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("matedit-inspect-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 /// Two shapes × two materials × three environments × two views per split. The index lists
@@ -67,8 +68,9 @@ fn every_kth(n: usize, count: usize) -> Vec<usize> {
 
 #[test]
 fn the_sheet_covers_more_shapes_materials_and_environments_than_every_kth_sample_and_is_deterministic() {
-    let dir = scratch("coverage");
-    let all = dataset(&dir);
+    let tmp = scratch("coverage");
+    let dir = tmp.path();
+    let all = dataset(dir);
     let train: Vec<SampleRecord> = all.iter().filter(|r| r.split == "train").cloned().collect();
     let envs = all.iter().map(|r| &r.env_id).collect::<BTreeSet<_>>().len();
     assert!(envs >= 3, "the manifest should give several environments, got {envs}");
@@ -101,8 +103,9 @@ fn the_sheet_covers_more_shapes_materials_and_environments_than_every_kth_sample
 
 #[test]
 fn inspect_writes_the_same_labelled_sheet_twice_and_names_the_rows_it_shows() {
-    let dir = scratch("sheet");
-    let records = dataset(&dir);
+    let tmp = scratch("sheet");
+    let dir = tmp.path();
+    let records = dataset(dir);
     let data = dir.join("data");
     let (a, b) = (dir.join("a.png"), dir.join("b.png"));
     let ids = inspect(&data, &a, 5, None).unwrap();
@@ -141,6 +144,4 @@ fn inspect_writes_the_same_labelled_sheet_twice_and_names_the_rows_it_shows() {
             .count();
         assert!(lit > 0, "column {c} ({name}) has no name in the header");
     }
-
-    let _ = std::fs::remove_dir_all(&dir);
 }

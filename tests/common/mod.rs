@@ -58,11 +58,46 @@ pub fn datagen() -> PathBuf {
     bin
 }
 
-/// A scratch directory unique to this test process.
-pub fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("matedit-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).expect("scratch dir");
-    d
+/// A scratch directory of one test, removed when it goes out of scope, so that a test run leaves
+/// nothing behind; a failing test's is kept (and its path printed) to look into.
+pub struct Scratch(Option<tempfile::TempDir>);
+
+impl Scratch {
+    pub fn new(name: &str) -> Scratch {
+        let d = tempfile::Builder::new()
+            .prefix(&format!("matedit-{name}-"))
+            .tempdir()
+            .expect("scratch dir");
+        Scratch(Some(d))
+    }
+}
+
+impl std::ops::Deref for Scratch {
+    type Target = std::path::Path;
+    fn deref(&self) -> &std::path::Path {
+        self.0.as_ref().expect("a scratch directory until dropped").path()
+    }
+}
+
+impl AsRef<std::path::Path> for Scratch {
+    fn as_ref(&self) -> &std::path::Path {
+        self
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        if std::thread::panicking()
+            && let Some(d) = self.0.take()
+        {
+            eprintln!("the failing test's scratch directory is kept: {}", d.keep().display());
+        }
+    }
+}
+
+/// A fresh scratch directory of one test (see [`Scratch`]).
+pub fn scratch(name: &str) -> Scratch {
+    Scratch::new(name)
 }
 
 /// Writes a UV sphere OBJ (no normals in the file) of `stacks × slices` quads.

@@ -22,11 +22,8 @@ mod materials;
 mod shapes;
 use common::{datagen, run_to};
 
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("matedit-content-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+fn scratch(name: &str) -> common::Scratch {
+    common::Scratch::new(&format!("content-{name}"))
 }
 
 /// An OBJ file of `mesh` after `map` (a transform of each position), with its vertices in the

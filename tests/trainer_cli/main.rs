@@ -84,7 +84,15 @@ fn main() -> ExitCode {
             })
         })
         .collect();
-    libtest_mimic::run(&args, trials).exit_code()
+    let conclusion = libtest_mimic::run(&args, trials);
+    // The tests share one folder (its dataset is rendered once): removed after a passing run, kept
+    // to look into after a failing one.
+    if conclusion.has_failed() {
+        eprintln!("the failing run's folder is kept: {}", root().display());
+    } else {
+        let _ = std::fs::remove_dir_all(root());
+    }
+    conclusion.exit_code()
 }
 
 const DATASET: &str = include_str!("../fixtures/manifests/trainer-cli.toml");

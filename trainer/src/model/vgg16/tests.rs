@@ -133,10 +133,9 @@ fn write_pth(path: &Path, sd: &[(String, Vec<usize>, Vec<f32>)]) {
     zip.finish().unwrap();
 }
 
-fn dir() -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("matedit-vgg16-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch folder of one test (its weight files are 50 MB), removed when the test ends.
+fn dir() -> tempfile::TempDir {
+    tempfile::Builder::new().prefix("matedit-vgg16-").tempdir().unwrap()
 }
 
 fn values(t: Tensor<4>) -> Vec<f32> {
@@ -170,7 +169,8 @@ fn assert_loaded(net: &Vgg16, sd: &[(String, Vec<usize>, Vec<f32>)]) {
 fn torchvision_checkpoints_and_safetensors_load_into_the_right_layers() {
     let device = Device::flex();
     let sd = state_dict(None);
-    let d = dir();
+    let tmp = dir();
+    let d = tmp.path();
     let (pth, st) = (d.join("vgg16.pth"), d.join("vgg16.safetensors"));
     write_pth(&pth, &sd);
     write_safetensors(&st, &sd);
@@ -185,7 +185,8 @@ fn torchvision_checkpoints_and_safetensors_load_into_the_right_layers() {
 #[test]
 fn a_file_without_a_vgg16_tensor_is_refused_naming_it() {
     let device = Device::flex();
-    let d = dir();
+    let tmp = dir();
+    let d = tmp.path();
     let sd = state_dict(Some("features.19.weight"));
     let (pth, st) = (d.join("partial.pth"), d.join("partial.safetensors"));
     write_pth(&pth, &sd);
@@ -258,7 +259,8 @@ fn metadata(preprocessing: &str) -> Option<std::collections::HashMap<String, Str
 fn caffe_preprocessing_is_read_from_the_metadata_and_applied() {
     let device = Device::flex();
     let sd = state_dict(None);
-    let d = dir();
+    let tmp = dir();
+    let d = tmp.path();
     let (caffe, tv, bad) = (
         d.join("caffe.safetensors"),
         d.join("tv.safetensors"),
