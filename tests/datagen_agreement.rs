@@ -91,7 +91,7 @@ fn relative_rmse(got: &[f32], want: &[f32], mask: &[f32], pixels: usize) -> f64 
 /// Renders the test dataset into a fresh scratch folder named by `tag`: (that folder, removed when
 /// it is dropped; the dataset in it).
 fn make_dataset(tag: &str) -> (common::Scratch, std::path::PathBuf) {
-    let root = common::Scratch::new(&format!("trainer-{tag}"));
+    let root = common::scratch(&format!("trainer-{tag}"));
     let materials = [
         material([0.7, 0.2, 0.1], (0.3, 8.0), (1.5, 120.0)),
         material([0.1, 0.4, 0.6], (0.05, 30.0), (3.0, 600.0)),

@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn scratch(name: &str) -> common::Scratch {
-    common::Scratch::new(&format!("dataset-{name}"))
+    common::scratch(&format!("dataset-{name}"))
 }
 
 /// A small manifest with mixed categories, per-region materials and rotations. Cheap shading:

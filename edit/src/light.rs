@@ -92,9 +92,8 @@ pub fn light_at_own_level(l: &[f32], exposure: f64) -> Result<Vec<f32>> {
 }
 
 /// The inverse of [`light_at_own_level`]: `env` (network units) in the photo's linear units,
-/// divided by the edit's `exposure`, as `env.exr` holds it. Refused
-/// where that is not a finite map (a photo so bright that its L' passes f32), never written as
-/// infinity.
+/// divided by the edit's `exposure`, as `env.exr` holds it. Refused where that is not a finite
+/// map (a photo so bright that its L' passes f32), never written as infinity.
 pub fn light_in_photo_units(env: &[f32], exposure: f64) -> Result<Vec<f32>> {
     if !(exposure.is_finite() && exposure > 0.0) {
         bail!("the edit's exposure {exposure} cannot bring L' to the photo's units");

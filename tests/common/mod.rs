@@ -62,16 +62,6 @@ pub fn datagen() -> PathBuf {
 /// nothing behind; a failing test's is kept (and its path printed) to look into.
 pub struct Scratch(Option<tempfile::TempDir>);
 
-impl Scratch {
-    pub fn new(name: &str) -> Scratch {
-        let d = tempfile::Builder::new()
-            .prefix(&format!("matedit-{name}-"))
-            .tempdir()
-            .expect("scratch dir");
-        Scratch(Some(d))
-    }
-}
-
 impl std::ops::Deref for Scratch {
     type Target = std::path::Path;
     fn deref(&self) -> &std::path::Path {
@@ -95,9 +85,13 @@ impl Drop for Scratch {
     }
 }
 
-/// A fresh scratch directory of one test (see [`Scratch`]).
+/// A fresh scratch directory of one test, `matedit-{name}-…` (see [`Scratch`]).
 pub fn scratch(name: &str) -> Scratch {
-    Scratch::new(name)
+    let d = tempfile::Builder::new()
+        .prefix(&format!("matedit-{name}-"))
+        .tempdir()
+        .expect("scratch dir");
+    Scratch(Some(d))
 }
 
 /// Writes a UV sphere OBJ (no normals in the file) of `stacks × slices` quads.

@@ -23,7 +23,7 @@ mod shapes;
 use common::{datagen, run_to};
 
 fn scratch(name: &str) -> common::Scratch {
-    common::Scratch::new(&format!("content-{name}"))
+    common::scratch(&format!("content-{name}"))
 }
 
 /// An OBJ file of `mesh` after `map` (a transform of each position), with its vertices in the
