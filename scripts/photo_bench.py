@@ -928,6 +928,14 @@ def wrapped_background(photo, obj, shape, sigma=3.0):
     return np.stack([gaussian_filter(wrapped[..., c], sigma, mode="wrap") for c in range(4)], -1)
 
 
+def light_direction(light):
+    """A map's luminance-weighted mean direction d = int Y w dW / int Y dW (`[h, w, 3]` linear RGB;
+    |d| <= 1, 0 for light alike from every side), as the trainer's `light_direction` loss takes it."""
+    dirs, dw = texel_grid(*light.shape[:2])
+    y = np.maximum(luminance709(light), 0) * dw
+    return (y[..., None] * dirs).sum((0, 1)) / max(y.sum(), 1e-30)
+
+
 def cmd_lprime(args):
     """Writes variants of a method's L' (its edits' `env.exr`, in the photo's linear units, so
     that `--light FILE --light-level given` renders under the same light) next to each scene's
@@ -935,9 +943,10 @@ def cmd_lprime(args):
     made neutral; averaged around the vertical axis (+y, the map's rows); both; rotated about +y
     by 90, 180, 270 degrees (whole columns); times the photo's background wrapped around the
     sphere (`wrapped_background`), its luminance or (with L''s luminance) its colour, L''s mean
-    kept. L' does not depend on the target, so the first target's edit is read. Prints how far
-    each scene's L' (scaled to mean 1) is from the mean of them all, beside the same for the
-    scenes' true lights: whether the network answers one layout for every photo."""
+    kept. L' does not depend on the target, so the first target's edit is read. Prints each
+    scene's key light (`light_direction`) of L' and of the true light and the angle between them,
+    and how far each scene's L' (scaled to mean 1) is from the mean of them all, beside the same
+    for the scenes' true lights: whether the network answers one layout for every photo."""
     mi = mitsuba()
     out = Path(args.out)
     records = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]
@@ -965,6 +974,17 @@ def cmd_lprime(args):
         ours.append(light / max(light.mean(), 1e-30))
         true = np.array(mi.Bitmap(str(d / "light.exr")), dtype=np.float64)[..., :3]
         truths.append(true / max(true.mean(), 1e-30))
+    angles = []
+    for rec, lp, true in zip(records, ours, truths):
+        a, b = light_direction(lp), light_direction(true)
+        cos = a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-30)
+        angles.append(np.degrees(np.arccos(np.clip(cos, -1, 1))))
+        print(f"{rec['name']}: key light (luminance-weighted mean direction) of L' "
+              f"({a[0]:+.2f}, {a[1]:+.2f}, {a[2]:+.2f}) |d| {np.linalg.norm(a):.2f}, of the true light "
+              f"({b[0]:+.2f}, {b[1]:+.2f}, {b[2]:+.2f}) |d| {np.linalg.norm(b):.2f}: {angles[-1]:.0f} deg apart",
+              flush=True)
+    print(f"key light's direction, L' against the true light: median {np.median(angles):.0f} deg, "
+          f"mean {np.mean(angles):.0f} deg", flush=True)
     for label, maps in [(f"L' of {args.method}", np.array(ours)), ("the true lights", np.array(truths))]:
         mean = maps.mean(0)
         dev = np.sqrt(((maps - mean) ** 2).mean(axis=(1, 2, 3))) / np.sqrt((mean ** 2).mean())

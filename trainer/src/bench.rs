@@ -414,6 +414,7 @@ fn loss_terms(w: &LossWeights) -> String {
         ("illumination", w.illumination),
         ("ssim", w.ssim),
         ("light_energy", w.light_energy),
+        ("light_direction", w.light_direction),
     ]
     .into_iter()
     .filter(|(_, v)| *v != 0.0)

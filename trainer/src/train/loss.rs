@@ -20,7 +20,8 @@ use crate::metrics::{SSIM_C1, SSIM_C2, SSIM_RADIUS, SSIM_SIGMA};
 use burn::tensor::module::{avg_pool2d, conv2d};
 use burn::tensor::ops::{AvgPoolOptions, ConvOptions};
 use burn::tensor::{Tensor, TensorData};
-use matedit_physics::envmap::texel_solid_angle;
+use matedit_physics::LUMINANCE_WEIGHTS;
+use matedit_physics::envmap::{texel_direction, texel_solid_angle};
 
 /// The sum of each row of `x` (`[B, N]` → `[B]`). On a CubeCL device Burn 0.22.1's reduction
 /// kernels are wrong once a reduction spans more than 65,535 workgroups (measured on lavapipe:
@@ -178,6 +179,51 @@ pub fn light_energy_loss(pred: Tensor<4>, truth: Tensor<4>) -> Tensor<1> {
     };
     let ratio = energy(pred) / energy(truth.detach());
     mean(ratio.log().powi_scalar(2))
+}
+
+/// The loss on where the predicted light comes from (an option, not in the paper): the mean over
+/// images of |d' − d|², where d = ∫ Y(ω) ω dΩ / ∫ Y(ω) dΩ is a map's mean direction weighted
+/// by its luminance Y (Rec. 709; |d| ≤ 1: 0 for light alike from every side, 1 for a point).
+/// Free of the map's scale, like [`light_energy_loss`]. [`illumination_loss`] compares the maps
+/// texel by texel after a tone map that clips the sun or the lamp, so a module that cannot place
+/// the key light answers the mean over the light's rotations at little cost (measured: one
+/// layout for every photo, docs/PERFORMANCE.md); that mean has d near 0 and costs |d|² here.
+pub fn light_direction_loss(pred: Tensor<4>, truth: Tensor<4>) -> Tensor<1> {
+    mean(
+        (light_direction(pred) - light_direction(truth.detach()))
+            .powi_scalar(2)
+            .sum_dim(1),
+    )
+}
+
+/// Each map's luminance-weighted mean direction d (`[B, 3, He, We]` → `[B, 3]`), the map's
+/// convention (`texel_direction`); negative texels count as black.
+pub fn light_direction(x: Tensor<4>) -> Tensor<2> {
+    let [b, _, h, w] = x.dims();
+    let device = x.device();
+    let lum = TensorData::new(LUMINANCE_WEIGHTS.map(|v| v as f32).to_vec(), [1, 3, 1, 1]);
+    let y = (x.clamp(0.0, 1e30) * Tensor::<4>::from_data(lum, &device))
+        .sum_dim(1)
+        .reshape([b, h * w]);
+    // Solid angle over 4π, times 1 or a component of the texel's direction.
+    let weights = |component: Option<usize>| {
+        let v: Vec<f32> = (0..h * w)
+            .map(|t| {
+                let (row, col) = (t / w, t % w);
+                let d = texel_direction(col, row, w, h).to_array();
+                let o = texel_solid_angle(row, w, h) / (4.0 * std::f64::consts::PI);
+                (o * component.map_or(1.0, |c| d[c])) as f32
+            })
+            .collect();
+        Tensor::<2>::from_data(TensorData::new(v, [1, h * w]), &device)
+    };
+    let energy = row_sums(y.clone() * weights(None))
+        .add_scalar(LIGHT_ENERGY_FLOOR)
+        .reshape([b, 1]);
+    let moments: Vec<Tensor<2>> = (0..3)
+        .map(|c| row_sums(y.clone() * weights(Some(c))).reshape([b, 1]))
+        .collect();
+    Tensor::cat(moments, 1) / energy
 }
 
 /// The fallback perceptual loss between a rendered image and the ground truth (`[B, 3, H, W]`,

@@ -1,6 +1,6 @@
-//! The losses on their own (`loss.rs`): the fallback's tone map and perceptual loss, the direct
-//! and energy losses on L', the structural loss, against the metrics, closed forms and central
-//! differences, on hard inputs.
+//! The losses on their own (`loss.rs`): the fallback's tone map and perceptual loss, the direct,
+//! energy and direction losses on L', the structural loss, against the metrics, closed forms and
+//! central differences, on hard inputs.
 
 use burn::tensor::Device;
 
@@ -379,4 +379,103 @@ fn descending_the_ssim_loss_raises_the_metrics_ssim() {
     }
     let after = ssim(&pred, &truth, &mask, h, w);
     assert!(after > before + 0.1, "SSIM {before} → {after}");
+}
+
+/// The optional loss on where L' comes from, against closed forms: a clamped-cosine light about
+/// a has d = 2a/3 (∫ cos·ω dΩ = 2πa/3 over the hemisphere, ∫ cos dΩ = π); a single texel's d
+/// is its direction; light alike from every side has d = 0, so the mean over a light's rotations
+/// costs |d|²; blind to either map's scale; finite on hard maps; its gradient equal to central
+/// differences.
+#[test]
+fn the_light_direction_loss_matches_its_closed_forms() {
+    use super::loss::{light_direction, light_direction_loss};
+    use matedit_physics::envmap::texel_direction;
+    let device = Device::flex().autodiff();
+    let (h, w) = (32, 64);
+    let n = 3 * h * w;
+    let value = |t: burn::tensor::Tensor<1>| t.into_data().try_to_vec::<f32>().unwrap()[0] as f64;
+    let map = |f: &dyn Fn(usize, usize) -> f32| -> Vec<f32> { (0..n).map(|i| f((i / w) % h, i % w)).collect() };
+    let direction = |m: &[f32]| -> Vec<f32> {
+        light_direction(tensor4(m.to_vec(), [1, 3, h, w], &device))
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap()
+    };
+    let loss = |p: &[f32], t: &[f32]| {
+        value(light_direction_loss(
+            tensor4(p.to_vec(), [1, 3, h, w], &device),
+            tensor4(t.to_vec(), [1, 3, h, w], &device),
+        ))
+    };
+    let a = glam::DVec3::new(0.3, 0.8, -0.52).normalize();
+    let cosine = map(&|row, col| texel_direction(col, row, w, h).dot(a).max(0.0) as f32);
+    let d = direction(&cosine);
+    for (got, want) in d.iter().zip(a.to_array().map(|v| 2.0 * v / 3.0)) {
+        assert!((*got as f64 - want).abs() < 5e-3, "{d:?} vs 2a/3 = {:?}", a * 2.0 / 3.0);
+    }
+    let (row, col) = (9, 40);
+    let point = map(&|r, c| if (r, c) == (row, col) { 1e4 } else { 0.0 });
+    let t = texel_direction(col, row, w, h).to_array();
+    for (got, want) in direction(&point).iter().zip(t) {
+        assert!((*got as f64 - want).abs() < 1e-5);
+    }
+    let uniform = vec![0.6; n];
+    assert!(
+        direction(&uniform).iter().all(|v| v.abs() < 1e-5),
+        "{:?}",
+        direction(&uniform)
+    );
+    assert!(
+        (loss(&uniform, &point) - 1.0).abs() < 1e-4,
+        "{}",
+        loss(&uniform, &point)
+    );
+    assert_eq!(loss(&cosine, &cosine), 0.0);
+    // The cosine light turned half way about +y (columns shifted by w/2: x and z negated):
+    // |d − Rd|² = (4/9)·4(a_x² + a_z²), at any scale of either map.
+    let turned = |k: f32| map(&|r, c| k * cosine[r * w + (c + w / 2) % w]);
+    let want = 16.0 / 9.0 * (a.x * a.x + a.z * a.z);
+    for k in [1e-3f32, 1.0, 1e3] {
+        let got = loss(&turned(k), &cosine);
+        assert!((got - want).abs() < 2e-2 * want, "k {k}: {got} vs {want}");
+        let big: Vec<f32> = cosine.iter().map(|v| v * 1e4).collect();
+        assert!((loss(&turned(k), &big) - got).abs() < 1e-4 * got);
+    }
+    // Hard maps: zero, tiny, huge and negative texels give a finite loss and gradient.
+    let hard: Vec<f32> = (0..n).map(|i| [0.0, 1e-30, 3e38, -1.0][i % 4]).collect();
+    for (p, t) in [(&hard, &cosine), (&cosine, &hard), (&vec![0.0; n], &vec![0.0; n])] {
+        let p = tensor4(p.clone(), [1, 3, h, w], &device).require_grad();
+        let l = light_direction_loss(p.clone(), tensor4(t.clone(), [1, 3, h, w], &device));
+        assert!(value(l.clone()).is_finite());
+        assert!(gradient(&p, l).iter().all(|v| v.is_finite()), "finite gradient");
+    }
+    // The gradient against central differences at a few texels of a noisy 4 × 8 map (a texel of
+    // a larger map moves the f32 loss by less than its rounding).
+    let (h, w) = (4, 8);
+    let n = 3 * h * w;
+    let small = |p: &[f32], t: &[f32]| {
+        value(light_direction_loss(
+            tensor4(p.to_vec(), [1, 3, h, w], &device),
+            tensor4(t.to_vec(), [1, 3, h, w], &device),
+        ))
+    };
+    let truth: Vec<f32> = (0..n).map(|i| if i % (h * w) == 9 { 5.0 } else { 0.2 }).collect();
+    let pred: Vec<f32> = noise(n, 5).iter().map(|r| 0.1 + r).collect();
+    let p = tensor4(pred.clone(), [1, 3, h, w], &device).require_grad();
+    let g = gradient(
+        &p,
+        light_direction_loss(p.clone(), tensor4(truth.clone(), [1, 3, h, w], &device)),
+    );
+    for i in [3, 9, h * w + 13, n - 2] {
+        let step = pred[i] * 1e-2;
+        let (mut up, mut down) = (pred.clone(), pred.clone());
+        up[i] += step;
+        down[i] -= step;
+        let fd = (small(&up, &truth) - small(&down, &truth)) / (up[i] as f64 - down[i] as f64);
+        assert!(
+            (g[i] as f64 - fd).abs() <= 2e-2 * fd.abs().max(1e-5),
+            "texel {i}: {} vs {fd}",
+            g[i]
+        );
+    }
 }

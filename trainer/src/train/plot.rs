@@ -17,7 +17,7 @@ pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Resul
         let root = BitMapBackend::new(&tmp, (960, 540)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
         type Series<'a> = (&'static str, RGBColor, Box<dyn Fn(&MetricsLine) -> f64 + 'a>);
-        let series: [Series; 7] = [
+        let series: [Series; 8] = [
             ("total (Eq. 5)", BLACK, Box::new(|l| l.losses.total)),
             (
                 "w_n · normal",
@@ -48,6 +48,11 @@ pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Resul
                 "w_E · light energy",
                 RGBColor(140, 86, 75),
                 Box::new(|l| w.light_energy * l.losses.light_energy),
+            ),
+            (
+                "w_D · light direction",
+                RGBColor(227, 119, 194),
+                Box::new(|l| w.light_direction * l.losses.light_direction),
             ),
         ];
         let positive = |v: f64| v.is_finite() && v > 0.0;
@@ -165,6 +170,7 @@ mod tests {
                 let illumination = 300.0 / (i as f64).powf(0.2);
                 let ssim = if joint { 0.3 * wobble } else { 0.0 };
                 let light_energy = 0.4 / (i as f64).powf(0.5);
+                let light_direction = 0.2 / (i as f64).powf(0.4);
                 MetricsLine {
                     stage: if joint { "joint" } else { "pretrain" }.into(),
                     step: if joint { i - 200 } else { i },
@@ -176,13 +182,15 @@ mod tests {
                             + perceptual
                             + illumination
                             + 1e4 * ssim
-                            + 1e3 * light_energy,
+                            + 1e3 * light_energy
+                            + 1e3 * light_direction,
                         normal,
                         material,
                         perceptual,
                         illumination,
                         ssim,
                         light_energy,
+                        light_direction,
                     },
                 }
             })
@@ -192,6 +200,7 @@ mod tests {
             illumination: 1.0,
             ssim: 1e4,
             light_energy: 1e3,
+            light_direction: 1e3,
             ..LossWeights::default()
         };
         loss_curves(&lines, &path, &weights).unwrap();
@@ -205,6 +214,7 @@ mod tests {
             [148, 103, 189],
             [214, 39, 40],
             [140, 86, 75],
+            [227, 119, 194],
         ] {
             let n = img.pixels().filter(|p| p.0 == colour).count();
             assert!(n > 300, "colour {colour:?}: {n} pixels");

@@ -3,7 +3,7 @@
 //! l = w_n·l_normal + w_m·l_material + w_p·l_perceptual (Eq. 5).
 
 use super::batch::TensorBatch;
-use super::loss::{illumination_loss, light_energy_loss, material_loss, normal_loss, ssim_loss};
+use super::loss::{illumination_loss, light_direction_loss, light_energy_loss, material_loss, normal_loss, ssim_loss};
 use super::perceptual::Perceptual;
 use crate::data;
 use crate::model::network::Net;
@@ -109,6 +109,11 @@ pub struct LossWeights {
     /// the direct loss clips away. See [`super::loss::light_energy_loss`].
     #[serde(default, skip_serializing_if = "is_zero")]
     pub light_energy: f64,
+    /// w_D, a loss on where L' comes from (not in the paper; 0, the default, leaves it out): the
+    /// key light's side, which the direct loss lets a module average away. See
+    /// [`super::loss::light_direction_loss`].
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub light_direction: f64,
 }
 
 fn is_zero(v: &f64) -> bool {
@@ -134,6 +139,7 @@ impl LossWeights {
         illumination: 0.0,
         ssim: 0.0,
         light_energy: 0.0,
+        light_direction: 0.0,
     };
 }
 
@@ -146,6 +152,7 @@ impl Default for LossWeights {
             illumination: 0.0,
             ssim: 0.0,
             light_energy: 0.0,
+            light_direction: 0.0,
         }
     }
 }
@@ -171,6 +178,9 @@ pub struct Losses {
     /// without it log what they always logged).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub light_energy: f64,
+    /// The loss on where L' comes from (0 unless its weight is set; not written then).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub light_direction: f64,
 }
 
 /// What every step of a run shares.
@@ -239,7 +249,7 @@ pub fn train_step(
     let (w, device) = (ctx.weights, ctx.device);
     let b = host_batch.to_device(device);
     let rw = step.render_with;
-    let direct_light = w.illumination > 0.0 || w.light_energy > 0.0;
+    let direct_light = w.illumination > 0.0 || w.light_energy > 0.0 || w.light_direction > 0.0;
     let light = (step.joint() && rw.illumination.reads_prediction()) || direct_light;
     let p = net.predict(&b.input, &b.mask, &b.region_masks, light);
     let ln = normal_loss(p.normals.clone(), b.normals.clone(), b.mask.clone());
@@ -259,6 +269,11 @@ pub fn train_step(
         let le = light_energy_loss(env.clone(), b.env.clone());
         losses.light_energy = scalar(&le);
         total = total + le.mul_scalar(w.light_energy);
+    }
+    if let (true, Some(env)) = (w.light_direction > 0.0, &p.env) {
+        let ld = light_direction_loss(env.clone(), b.env.clone());
+        losses.light_direction = scalar(&ld);
+        total = total + ld.mul_scalar(w.light_direction);
     }
     if step.joint() {
         let inputs = LayerInputs {
@@ -283,7 +298,8 @@ pub fn train_step(
         + w.perceptual * losses.perceptual
         + w.illumination * losses.illumination
         + w.ssim * losses.ssim
-        + w.light_energy * losses.light_energy;
+        + w.light_energy * losses.light_energy
+        + w.light_direction * losses.light_direction;
     if !losses.total.is_finite() {
         anyhow::bail!("the loss is not finite ({losses:?}) on batch {:?}", host_batch.ids);
     }

@@ -112,6 +112,9 @@ pub struct LossSection {
     /// w_E of a loss on the energy of L' (not in the paper; default 0: none).
     #[serde(default = "default_wl")]
     pub light_energy: Spanned<f64>,
+    /// w_D of a loss on the direction L' comes from (not in the paper; default 0: none).
+    #[serde(default = "default_wl")]
+    pub light_direction: Spanned<f64>,
     /// Pretrained VGG16 weights (torchvision `.pth`/`.pt`, or safetensors) for the perceptual
     /// loss; without, the documented fallback is used and the log says so.
     #[serde(default)]
@@ -146,6 +149,7 @@ impl Default for LossSection {
             illumination: default_wl(),
             ssim: default_wl(),
             light_energy: default_wl(),
+            light_direction: default_wl(),
             vgg16: None,
             vgg16_layers: default_layers(),
         }
@@ -505,6 +509,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         ("loss.illumination", &l.illumination),
         ("loss.ssim", &l.ssim),
         ("loss.light_energy", &l.light_energy),
+        ("loss.light_direction", &l.light_direction),
     ] {
         if !(0.0..=1e6).contains(v.get_ref()) {
             return Err(bad(
@@ -560,6 +565,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         illumination: *l.illumination.get_ref(),
         ssim: *l.ssim.get_ref(),
         light_energy: *l.light_energy.get_ref(),
+        light_direction: *l.light_direction.get_ref(),
     };
     Ok(TrainPlan {
         path: path.to_path_buf(),

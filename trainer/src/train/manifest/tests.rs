@@ -52,6 +52,12 @@ fn fields_outside_their_ranges_are_refused_naming_the_field() {
         ("ssim = 1e4", "ssim = -1.0", "loss.ssim"),
         ("ssim = 1e4", "ssim = 1e4\nlight_energy = 2e6", "loss.light_energy"),
         ("ssim = 1e4", "ssim = 1e4\nlight_energy = nan", "loss.light_energy"),
+        ("ssim = 1e4", "ssim = 1e4\nlight_direction = -1", "loss.light_direction"),
+        (
+            "ssim = 1e4",
+            "ssim = 1e4\nlight_direction = inf",
+            "loss.light_direction",
+        ),
         ("[0, 1e-3]", "[0, 1e300]", "learning_rate"),
         ("[0, 1e-3]", "[0, 0.0]", "learning_rate"),
         ("workers = 2", "workers = 100000", "data.workers"),
