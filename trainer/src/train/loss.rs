@@ -187,7 +187,8 @@ pub fn light_energy_loss(pred: Tensor<4>, truth: Tensor<4>) -> Tensor<1> {
 /// Free of the map's scale, like [`light_energy_loss`]. [`illumination_loss`] compares the maps
 /// texel by texel after a tone map that clips the sun or the lamp, so a module that cannot place
 /// the key light answers the mean over the light's rotations at little cost (measured: one
-/// layout for every photo, docs/PERFORMANCE.md); that mean has d near 0 and costs |d|² here.
+/// layout for every photo, docs/PERFORMANCE.md); the mean over turns about the vertical keeps
+/// only d's vertical part, and here costs the horizontal part's |d|².
 pub fn light_direction_loss(pred: Tensor<4>, truth: Tensor<4>) -> Tensor<1> {
     mean(
         (light_direction(pred) - light_direction(truth.detach()))
