@@ -2,7 +2,7 @@
 """Real furniture and vehicle meshes for training, from Debian's Sweet Home 3D furniture libraries.
 
 The procedural shapes are built from boxes, tubes and lathed profiles; real objects have bevels,
-cushions, wheels arches and screens' bezels. Debian's `sweethome3d-furniture` package (five
+cushions, wheel arches and screens' bezels. Debian's `sweethome3d-furniture` package (five
 libraries, 820 models, Blend Swap CC-0 and CC-BY, KatorLegaz, Reallusion and Scopia; their
 licences are inside each `.sh3f`) ships real meshes in OBJ. This script picks the cars, chairs,
 sofas and monitors among them by the catalogue's own names and writes one folder per category,
@@ -23,7 +23,6 @@ no car of the benchmark has a namesake in training).
 """
 
 import argparse
-import io
 import os
 import re
 import sys
@@ -81,7 +80,7 @@ def geometry_only(obj_text: str, rot):
     """The OBJ's vertices, normals, groups and faces (texture coordinates and materials dropped;
     faces keep their position and normal indices, so `f a/b/c` becomes `f a//c`)."""
     out = []
-    for line in io.StringIO(obj_text):
+    for line in obj_text.splitlines():
         line = line.strip()
         if line.startswith(("v ", "vn ")):
             out.append(rotate(line, rot) if rot else line)

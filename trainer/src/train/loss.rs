@@ -190,11 +190,11 @@ pub fn light_energy_loss(pred: Tensor<4>, truth: Tensor<4>) -> Tensor<1> {
 /// layout for every photo, docs/PERFORMANCE.md); the mean over turns about the vertical keeps
 /// only d's vertical part, and here costs the horizontal part's |d|².
 pub fn light_direction_loss(pred: Tensor<4>, truth: Tensor<4>) -> Tensor<1> {
-    mean(
-        (light_direction(pred) - light_direction(truth.detach()))
-            .powi_scalar(2)
-            .sum_dim(1),
-    )
+    // Both maps in one batch: the direction weights are built and summed once.
+    let b = pred.dims()[0];
+    let d = light_direction(Tensor::cat(vec![pred, truth.detach()], 0));
+    let [n, _] = d.dims();
+    mean((d.clone().slice([0..b]) - d.slice([b..n])).powi_scalar(2).sum_dim(1))
 }
 
 /// Each map's luminance-weighted mean direction d (`[B, 3, He, We]` → `[B, 3]`), the map's
@@ -206,25 +206,21 @@ pub fn light_direction(x: Tensor<4>) -> Tensor<2> {
     let y = (x.clamp(0.0, 1e30) * Tensor::<4>::from_data(lum, &device))
         .sum_dim(1)
         .reshape([b, h * w]);
-    // Solid angle over 4π, times 1 or a component of the texel's direction.
-    let weights = |component: Option<usize>| {
-        let v: Vec<f32> = (0..h * w)
-            .map(|t| {
-                let (row, col) = (t / w, t % w);
-                let d = texel_direction(col, row, w, h).to_array();
-                let o = texel_solid_angle(row, w, h) / (4.0 * std::f64::consts::PI);
-                (o * component.map_or(1.0, |c| d[c])) as f32
-            })
-            .collect();
-        Tensor::<2>::from_data(TensorData::new(v, [1, h * w]), &device)
-    };
-    let energy = row_sums(y.clone() * weights(None))
-        .add_scalar(LIGHT_ENERGY_FLOOR)
-        .reshape([b, 1]);
-    let moments: Vec<Tensor<2>> = (0..3)
-        .map(|c| row_sums(y.clone() * weights(Some(c))).reshape([b, 1]))
-        .collect();
-    Tensor::cat(moments, 1) / energy
+    // Each texel's solid angle over 4π, and that times each component of its direction.
+    let mut rows: [Vec<f32>; 4] = std::array::from_fn(|_| Vec::with_capacity(h * w));
+    for t in 0..h * w {
+        let (row, col) = (t / w, t % w);
+        let o = texel_solid_angle(row, w, h) / (4.0 * std::f64::consts::PI);
+        let d = texel_direction(col, row, w, h).to_array();
+        for (r, v) in rows.iter_mut().zip([1.0, d[0], d[1], d[2]]) {
+            r.push((o * v) as f32);
+        }
+    }
+    let [energy, moments @ ..] = rows.map(|r| {
+        let weights = Tensor::<2>::from_data(TensorData::new(r, [1, h * w]), &device);
+        row_sums(y.clone() * weights).reshape([b, 1])
+    });
+    Tensor::cat(moments.to_vec(), 1) / energy.add_scalar(LIGHT_ENERGY_FLOOR)
 }
 
 /// The fallback perceptual loss between a rendered image and the ground truth (`[B, 3, H, W]`,
