@@ -193,8 +193,11 @@ pub fn light_direction_loss(pred: Tensor<4>, truth: Tensor<4>) -> Tensor<1> {
     // Both maps in one batch: the direction weights are built and summed once.
     let b = pred.dims()[0];
     let d = light_direction(Tensor::cat(vec![pred, truth.detach()], 0));
-    let [n, _] = d.dims();
-    mean((d.clone().slice([0..b]) - d.slice([b..n])).powi_scalar(2).sum_dim(1))
+    mean(
+        (d.clone().narrow(0, 0, b) - d.narrow(0, b, b))
+            .powi_scalar(2)
+            .sum_dim(1),
+    )
 }
 
 /// Each map's luminance-weighted mean direction d (`[B, 3, He, We]` → `[B, 3]`), the map's
