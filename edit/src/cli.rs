@@ -3,7 +3,7 @@
 
 use crate::serve::{ServeConfig, serve};
 use crate::target::parse_material_arg;
-use crate::{Composite, EditRequest, Given, LevelFrom, edit, swap, transfer};
+use crate::{Composite, EditRequest, Given, LevelFrom, Look, Range, edit, swap, transfer};
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use matedit_contract::args::{count_in, finite_in};
@@ -91,6 +91,12 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// `detail` otherwise (the best measured for each, docs/PERFORMANCE.md).
         #[arg(long, value_enum)]
         composite: Option<Composite>,
+        /// What the edited object's level is held to in an 8- or 16-bit photo: `photo` scales it
+        /// down until no more of the object is above white than in the photo (at least 2 %) and
+        /// brings what still is into range with its hue; `clip` keeps the rendered level and
+        /// clips each channel at white (docs/PERFORMANCE.md, "The photo's range").
+        #[arg(long, value_enum, default_value_t)]
+        range: Range,
         /// Refine n', m', L' with the paper's post-optimisation (Eq. 6) first; `--optimize` is the
         /// same flag (its earlier name).
         #[arg(long = "eq6", visible_alias = "optimize")]
@@ -257,6 +263,9 @@ struct Finish {
     /// own material is given, `detail` otherwise (the best measured for each).
     #[arg(long, value_enum)]
     composite: Option<Composite>,
+    /// What the edited object's level is held to (as `edit --range`).
+    #[arg(long, value_enum, default_value_t)]
+    range: Range,
     /// Output folder.
     #[arg(long)]
     out: PathBuf,
@@ -312,6 +321,7 @@ fn run(cli: Cli) -> Result<()> {
             input_material,
             normals,
             composite,
+            range,
             optimize,
             eq6_a,
             eq6_b,
@@ -330,6 +340,7 @@ fn run(cli: Cli) -> Result<()> {
                 light_level,
                 fov_deg: fov,
                 composite: composite.unwrap_or_else(|| Composite::best_for(input_material.is_some())),
+                range,
                 input_material,
                 normals,
                 optimize: optimize.then(|| Eq6Config {
@@ -375,6 +386,7 @@ fn run(cli: Cli) -> Result<()> {
             finish: Finish {
                 optimize,
                 composite,
+                range,
                 out,
             },
         } => {
@@ -392,7 +404,10 @@ fn run(cli: Cli) -> Result<()> {
                     ..Given::photo(&to, to_mask.as_deref())
                 },
                 cfg.as_ref(),
-                composite.unwrap_or(Composite::best_for(to_material.is_some())),
+                Look {
+                    composite: composite.unwrap_or(Composite::best_for(to_material.is_some())),
+                    range,
+                },
                 &out,
             )?;
             println!(
@@ -415,6 +430,7 @@ fn run(cli: Cli) -> Result<()> {
             finish: Finish {
                 optimize,
                 composite,
+                range,
                 out,
             },
         } => {
@@ -433,7 +449,10 @@ fn run(cli: Cli) -> Result<()> {
                     ..Given::photo(&b, b_mask.as_deref())
                 },
                 cfg.as_ref(),
-                composite.unwrap_or(Composite::best_for(both_known)),
+                Look {
+                    composite: composite.unwrap_or(Composite::best_for(both_known)),
+                    range,
+                },
                 &out,
             )?;
             println!(

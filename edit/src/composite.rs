@@ -104,8 +104,9 @@ fn box_pass(
     }
 }
 
-/// The photo with `render` (`[3, S, S]`, at the training exposure) composited into the object.
-/// `i_prime` is the re-rendered input, used by every composite but [`Composite::Render`].
+/// The photo with `render` (`[3, S, S]`, at the training exposure) composited into the object,
+/// as rendered ([`crate::range::Range::Clip`]). `i_prime` is the re-rendered input, used by every
+/// composite but [`Composite::Render`].
 pub fn composite(
     p: &Photo,
     coverage: &[f32],
@@ -114,13 +115,47 @@ pub fn composite(
     i_prime: &[f32],
     how: Composite,
 ) -> Vec<[f32; 3]> {
+    blend(p, coverage, &object_values(p, coverage, prep, render, i_prime, how), |v| v)
+}
+
+/// The photo with the edited object's `values` ([`object_values`]) blended in by the soft
+/// coverage, each through `hold` (the photo's range, [`crate::range`]); the photo where a value
+/// is `None` or comes out non-finite.
+pub fn blend(
+    p: &Photo,
+    coverage: &[f32],
+    values: &[Option<[f32; 3]>],
+    hold: impl Fn([f32; 3]) -> [f32; 3],
+) -> Vec<[f32; 3]> {
+    let mut out = p.rgb.clone();
+    for ((o, &c), v) in out.iter_mut().zip(coverage).zip(values) {
+        let Some(new) = v.map(&hold) else {
+            continue;
+        };
+        for ch in 0..3 {
+            let v = c * new[ch] + (1.0 - c) * o[ch];
+            o[ch] = if v.is_finite() { v.max(0.0) } else { o[ch] };
+        }
+    }
+    out
+}
+
+/// The edited object's value at every photo pixel of the object (`None` outside it, or where no
+/// rendered pixel lies near), in the photo's linear units, before it is blended by the coverage.
+pub fn object_values(
+    p: &Photo,
+    coverage: &[f32],
+    prep: &Prepared,
+    render: &[f32],
+    i_prime: &[f32],
+    how: Composite,
+) -> Vec<Option<[f32; 3]>> {
     let n = prep.size;
     let back = (1.0 / prep.exposure) as f32;
-    let mut out = p.rgb.clone();
+    let mut out = vec![None; p.rgb.len()];
     let detail = (how == Composite::Detail).then(|| detail_gain(p, coverage, prep, i_prime));
     for (k, o) in out.iter_mut().enumerate() {
-        let c = coverage[k];
-        if c <= 0.0 {
+        if coverage[k] <= 0.0 {
             continue;
         }
         let (x, y) = ((k % p.width) as f64 + 0.5, (k / p.width) as f64 + 0.5);
@@ -164,10 +199,7 @@ pub fn composite(
                 p.rgb[k][ch] * ratio
             }),
         };
-        for ch in 0..3 {
-            let v = c * new[ch] + (1.0 - c) * o[ch];
-            o[ch] = if v.is_finite() { v.max(0.0) } else { o[ch] };
-        }
+        *o = Some(new);
     }
     out
 }

@@ -29,6 +29,8 @@ pub mod output;
 pub mod photo;
 pub mod predict;
 pub mod progress;
+pub mod range;
+pub use range::Range;
 pub use photo::{Prepared, prepare, prepare_framed};
 pub use predict::{Predicted, network_prediction, render_all};
 pub mod serve;
@@ -86,6 +88,25 @@ impl Composite {
     }
 }
 
+/// How the re-rendered object goes back into the photo: the composite, and the range the edit
+/// is held to. A composite alone holds the edit to the photo's range (the default).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Look {
+    /// How O' goes back into the photo.
+    pub composite: Composite,
+    /// What the edited object's level is held to.
+    pub range: Range,
+}
+
+impl From<Composite> for Look {
+    fn from(composite: Composite) -> Self {
+        Self {
+            composite,
+            range: Range::default(),
+        }
+    }
+}
+
 /// What to edit, as the command line gives it.
 #[derive(Clone, Debug, Default)]
 pub struct EditRequest {
@@ -113,6 +134,8 @@ pub struct EditRequest {
     pub normals: Option<PathBuf>,
     /// How to composite (the command line picks [`Composite::best_for`] when none is given).
     pub composite: Composite,
+    /// What the edited object's level is held to ([`range`]).
+    pub range: Range,
     /// Refine n', m', L' with Eq. 6 before rendering.
     pub optimize: Option<post_optimisation::Eq6Config>,
 }
@@ -201,6 +224,8 @@ pub struct EditReport {
     pub light_level: background::LightLevel,
     /// How O' went back into the photo.
     pub composite: Composite,
+    /// How each composited image was held to the photo's range ([`range`]).
+    pub range: Vec<range::RangeReport>,
     /// Eq. 6, when asked for.
     pub eq6: Option<Eq6Report>,
     /// Seconds per phase.
@@ -462,7 +487,7 @@ fn finish(
     targets: &[(Dsbrdf, target::RegionTarget)],
     relight: Option<(&str, Vec<f32>)>,
     light_spec: Option<&str>,
-    how: Composite,
+    look: Look,
     out: &Path,
     t0: Instant,
     t_load: f64,
@@ -517,12 +542,13 @@ fn finish(
     let t_eq6 = eq6.as_ref().map_or(0.0, |e| e.seconds);
     let t2 = Instant::now();
     let mut composites = Vec::new();
+    let mut ranges = Vec::new();
     for (name, img) in [("edited", &fine.o_prime), ("relit", &fine.relit)] {
         if let Some(img) = img {
-            composites.push((
-                name,
-                composite::composite(&p, &coverage, &detail.prep, img, &fine.i_prime, how),
-            ));
+            let values = composite::object_values(&p, &coverage, &detail.prep, img, &fine.i_prime, look.composite);
+            let held = range::fit(&p, &coverage, &values, look.range, name);
+            composites.push((name, composite::blend(&p, &coverage, &values, |v| range::apply(v, &held))));
+            ranges.push(held);
         }
     }
     let t_composite = t2.elapsed().as_secs_f64();
@@ -545,7 +571,8 @@ fn finish(
         input_material,
         normals,
         light_level,
-        composite: how,
+        composite: look.composite,
+        range: ranges,
         eq6,
         seconds: output::Timings {
             load: t_load,
@@ -656,7 +683,10 @@ fn edit_checked(
         &targets,
         relight,
         req.light.as_deref(),
-        req.composite,
+        Look {
+            composite: req.composite,
+            range: req.range,
+        },
         out,
         t0,
         t_load,

@@ -2,7 +2,7 @@
 //! another photo's object, under that photo's light, through the same steps as [`crate::edit`].
 
 use super::{
-    Composite, EditReport, LightOptions, Model, ReadPhoto, Understood, finish, known_material, normals, output,
+    EditReport, Look, LightOptions, Model, ReadPhoto, Understood, finish, known_material, normals, output,
     read_photo, target, understand,
 };
 use crate::progress::{Progress, enter};
@@ -55,13 +55,13 @@ pub fn transfer(
     from: Given,
     to: Given,
     optimize: Option<&post_optimisation::Eq6Config>,
-    how: Composite,
+    how: impl Into<Look>,
     out: &Path,
 ) -> Result<EditReport> {
     let t0 = Instant::now();
     refuse_overwriting(out, [&from, &to])?;
     let model = Model::load(model)?;
-    transfer_checked(&model, from, to, optimize, how, out, None, t0)
+    transfer_checked(&model, from, to, optimize, how.into(), out, None, t0)
 }
 
 /// [`transfer`] with a loaded model, watched as [`crate::edit_with`].
@@ -71,13 +71,13 @@ pub fn transfer_with(
     from: Given,
     to: Given,
     optimize: Option<&post_optimisation::Eq6Config>,
-    how: Composite,
+    how: impl Into<Look>,
     out: &Path,
     watcher: Option<&Arc<Progress>>,
     t0: Instant,
 ) -> Result<EditReport> {
     refuse_overwriting(out, [&from, &to])?;
-    transfer_checked(model, from, to, optimize, how, out, watcher, t0)
+    transfer_checked(model, from, to, optimize, how.into(), out, watcher, t0)
 }
 
 /// Refuses an output folder that holds any input of the two photos.
@@ -93,7 +93,7 @@ fn transfer_checked(
     from: Given,
     to: Given,
     optimize: Option<&post_optimisation::Eq6Config>,
-    how: Composite,
+    how: Look,
     out: &Path,
     watcher: Option<&Arc<Progress>>,
     t0: Instant,
@@ -177,9 +177,10 @@ pub fn swap(
     a: Given,
     b: Given,
     optimize: Option<&post_optimisation::Eq6Config>,
-    how: Composite,
+    how: impl Into<Look>,
     out: &Path,
 ) -> Result<[EditReport; 2]> {
+    let how = how.into();
     let t0 = Instant::now();
     let (out_a, out_b) = (out.join("a"), out.join("b"));
     for o in [&out_a, &out_b] {
