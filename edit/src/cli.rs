@@ -383,12 +383,13 @@ fn run(cli: Cli) -> Result<()> {
             to_material,
             from_normals,
             to_normals,
-            finish: Finish {
-                optimize,
-                composite,
-                range,
-                out,
-            },
+            finish:
+                Finish {
+                    optimize,
+                    composite,
+                    range,
+                    out,
+                },
         } => {
             let cfg = optimize.then(Eq6Config::default);
             let r = transfer(
@@ -427,12 +428,13 @@ fn run(cli: Cli) -> Result<()> {
             b_material,
             a_normals,
             b_normals,
-            finish: Finish {
-                optimize,
-                composite,
-                range,
-                out,
-            },
+            finish:
+                Finish {
+                    optimize,
+                    composite,
+                    range,
+                    out,
+                },
         } => {
             let cfg = optimize.then(Eq6Config::default);
             let both_known = a_material.is_some() && b_material.is_some();

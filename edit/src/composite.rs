@@ -115,7 +115,12 @@ pub fn composite(
     i_prime: &[f32],
     how: Composite,
 ) -> Vec<[f32; 3]> {
-    blend(p, coverage, &object_values(p, coverage, prep, render, i_prime, how), |v| v)
+    blend(
+        p,
+        coverage,
+        &object_values(p, coverage, prep, render, i_prime, how),
+        |v| v,
+    )
 }
 
 /// The photo with the edited object's `values` ([`object_values`]) blended in by the soft

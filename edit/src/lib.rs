@@ -30,9 +30,9 @@ pub mod photo;
 pub mod predict;
 pub mod progress;
 pub mod range;
-pub use range::Range;
 pub use photo::{Prepared, prepare, prepare_framed};
 pub use predict::{Predicted, network_prediction, render_all};
+pub use range::Range;
 pub mod serve;
 pub mod target;
 #[cfg(test)]
@@ -547,7 +547,10 @@ fn finish(
         if let Some(img) = img {
             let values = composite::object_values(&p, &coverage, &detail.prep, img, &fine.i_prime, look.composite);
             let held = range::fit(&p, &coverage, &values, look.range, name);
-            composites.push((name, composite::blend(&p, &coverage, &values, |v| range::apply(v, &held))));
+            composites.push((
+                name,
+                composite::blend(&p, &coverage, &values, |v| range::apply(v, &held)),
+            ));
             ranges.push(held);
         }
     }

@@ -88,10 +88,18 @@ pub fn fit(p: &Photo, coverage: &[f32], values: &[Option<[f32; 3]>], range: Rang
             edit.push(m);
         }
     }
-    let photo_share = if object > 0 { at_white as f64 / object as f64 } else { 0.0 };
+    let photo_share = if object > 0 {
+        at_white as f64 / object as f64
+    } else {
+        0.0
+    };
     let allowed = photo_share.max(MIN_SHARE);
     let above = edit.iter().filter(|&&m| m > 1.0).count();
-    let rendered_share = if edit.is_empty() { 0.0 } else { above as f64 / edit.len() as f64 };
+    let rendered_share = if edit.is_empty() {
+        0.0
+    } else {
+        above as f64 / edit.len() as f64
+    };
     let mut report = RangeReport {
         image: image.to_string(),
         applied: false,
@@ -136,7 +144,9 @@ mod tests {
 
     /// A photo of `n` object pixels with `white` of them stored at white, the rest mid-grey.
     fn photo(n: usize, white: usize, encoding: Encoding) -> (Photo, Vec<f32>) {
-        let rgb = (0..n).map(|k| if k < white { [1.0, 0.8, 1.0] } else { [0.2; 3] }).collect();
+        let rgb = (0..n)
+            .map(|k| if k < white { [1.0, 0.8, 1.0] } else { [0.2; 3] })
+            .collect();
         let p = Photo {
             width: n,
             height: 1,
@@ -188,7 +198,10 @@ mod tests {
         for v in vals.iter().flatten() {
             let o = apply(*v, &r);
             // The hue is kept: the channels' ratios are the input's.
-            assert!((o[1] / o[0] - 0.6).abs() < 1e-5 && (o[2] / o[0] - 0.2).abs() < 1e-5, "{o:?}");
+            assert!(
+                (o[1] / o[0] - 0.6).abs() < 1e-5 && (o[2] / o[0] - 0.2).abs() < 1e-5,
+                "{o:?}"
+            );
         }
     }
 
@@ -251,12 +264,70 @@ mod tests {
         for v in vals.iter().flatten() {
             let o = apply(*v, &r);
             if v.iter().all(|c| c.is_finite()) {
-                assert!(o.iter().all(|c| c.is_finite() && (0.0..=1.0).contains(c)), "{v:?} → {o:?}");
+                assert!(
+                    o.iter().all(|c| c.is_finite() && (0.0..=1.0).contains(c)),
+                    "{v:?} → {o:?}"
+                );
             }
         }
         // No object at all: nothing to hold.
         let (p, _) = photo(8, 0, Encoding::Srgb8);
         let r = fit(&p, &[0.0; 8], &vals, Range::Photo, "edited");
         assert!(!r.applied && r.scale == 1.0);
+    }
+
+    /// The whole edit: a lambertian target under a given light forty times the photo's white.
+    #[test]
+    fn an_edit_brighter_than_the_photo_is_held_to_its_range_and_keeps_its_hue() {
+        use crate::tests::{dir, model, request, write_photo};
+        let d = dir("range");
+        let (p, m, _) = write_photo(&d);
+        let light = d.join("bright.exr");
+        exr::prelude::write_rgb_file(&light, 16, 8, |_, _| (40.0_f32, 40.0_f32, 40.0_f32)).unwrap();
+        let req = |range| crate::EditRequest {
+            light: Some(light.display().to_string()),
+            light_level: crate::LevelFrom::Given,
+            range,
+            ..request(&p, &m, "lambert:0.8,0.4,0.1")
+        };
+        let held = crate::edit(model(), &req(Range::Photo), &d.join("photo")).unwrap();
+        let clipped = crate::edit(model(), &req(Range::Clip), &d.join("clip")).unwrap();
+        let (h, c) = (&held.range[0], &clipped.range[0]);
+        assert!(
+            c.rendered_share_above_white > 0.5 && !c.applied && c.scale == 1.0,
+            "{c:?}"
+        );
+        assert!(h.applied && h.scale < 1.0 && h.scale >= MIN_SCALE, "{h:?}");
+        assert_eq!(h.rendered_share_above_white, c.rendered_share_above_white);
+        assert_eq!((h.photo_share_at_white, h.allowed_share), (0.0, MIN_SHARE));
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(d.join("photo/report.json")).unwrap()).unwrap();
+        assert_eq!(report["range"][0]["scale"].as_f64(), Some(h.scale));
+
+        let read = |o: &str| image::open(d.join(o).join("edited.png")).unwrap().to_rgb8();
+        let (hp, cp) = (read("photo"), read("clip"));
+        let photo = image::open(&p).unwrap().to_rgb8();
+        let mask = image::open(&m).unwrap().to_luma8();
+        let lin = |b: u8| srgb_decode(b as f32 / 255.0);
+        let (mut object, mut white) = (0, 0);
+        for (x, y, q) in photo.enumerate_pixels() {
+            if mask.get_pixel(x, y)[0] == 0 {
+                assert_eq!(
+                    (hp.get_pixel(x, y), cp.get_pixel(x, y)),
+                    (q, q),
+                    "background ({x}, {y})"
+                );
+                continue;
+            }
+            object += 1;
+            white += usize::from(cp.get_pixel(x, y).0 == [255; 3]);
+            let [r, g, b] = hp.get_pixel(x, y).0.map(lin);
+            assert!(r > 0.05, "({x}, {y}) black: {:?}", hp.get_pixel(x, y));
+            assert!(
+                (g / r - 0.5).abs() < 0.03 && (b / r - 0.125).abs() < 0.02,
+                "({x}, {y}) hue lost: {r} {g} {b}"
+            );
+        }
+        assert!(white * 2 > object, "clipped: {white} of {object} pixels white");
     }
 }

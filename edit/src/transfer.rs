@@ -2,8 +2,8 @@
 //! another photo's object, under that photo's light, through the same steps as [`crate::edit`].
 
 use super::{
-    EditReport, Look, LightOptions, Model, ReadPhoto, Understood, finish, known_material, normals, output,
-    read_photo, target, understand,
+    EditReport, LightOptions, Look, Model, ReadPhoto, Understood, finish, known_material, normals, output, read_photo,
+    target, understand,
 };
 use crate::progress::{Progress, enter};
 use anyhow::{Context, Result, bail};
