@@ -94,9 +94,10 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// What the edited object's level is held to in an 8- or 16-bit photo: `photo` scales it
         /// down until no more of the object is above white than in the photo (at least 2 %) and
         /// brings what still is into range with its hue; `clip` keeps the rendered level and
-        /// clips each channel at white (docs/PERFORMANCE.md, "The photo's range").
-        #[arg(long, value_enum, default_value_t)]
-        range: Range,
+        /// clips each channel at white. Default: `clip` with --input-material or --light (the
+        /// level is known), `photo` otherwise (docs/PERFORMANCE.md, "The photo's range").
+        #[arg(long, value_enum)]
+        range: Option<Range>,
         /// Refine n', m', L' with the paper's post-optimisation (Eq. 6) first; `--optimize` is the
         /// same flag (its earlier name).
         #[arg(long = "eq6", visible_alias = "optimize")]
@@ -263,9 +264,10 @@ struct Finish {
     /// own material is given, `detail` otherwise (the best measured for each).
     #[arg(long, value_enum)]
     composite: Option<Composite>,
-    /// What the edited object's level is held to (as `edit --range`).
-    #[arg(long, value_enum, default_value_t)]
-    range: Range,
+    /// What the edited object's level is held to (as `edit --range`). Default: `clip` where
+    /// every receiving object's own material is given, `photo` otherwise.
+    #[arg(long, value_enum)]
+    range: Option<Range>,
     /// Output folder.
     #[arg(long)]
     out: PathBuf,
@@ -353,6 +355,14 @@ fn run(cli: Cli) -> Result<()> {
                 }),
             };
             let report = edit(&model, &req, &out)?;
+            for r in report.range.iter().filter(|r| r.applied) {
+                println!(
+                    "{}: held to the photo's range: × {:.2} ({:.0} % of the object was above white as rendered; --range clip keeps it)",
+                    r.image,
+                    r.scale,
+                    100.0 * r.rendered_share_above_white
+                );
+            }
             if let Some(e) = &report.eq6 {
                 println!(
                     "Eq. 6: E {:.4e} → {:.4e} ({:.0} % lower) in {:.2} s, {} L-BFGS iterations (energy.png)",
@@ -407,7 +417,7 @@ fn run(cli: Cli) -> Result<()> {
                 cfg.as_ref(),
                 Look {
                     composite: composite.unwrap_or(Composite::best_for(to_material.is_some())),
-                    range,
+                    range: range.unwrap_or(Range::best_for(to_material.is_some())),
                 },
                 &out,
             )?;
@@ -453,7 +463,7 @@ fn run(cli: Cli) -> Result<()> {
                 cfg.as_ref(),
                 Look {
                     composite: composite.unwrap_or(Composite::best_for(both_known)),
-                    range,
+                    range: range.unwrap_or(Range::best_for(both_known)),
                 },
                 &out,
             )?;
@@ -541,6 +551,13 @@ mod tests {
         };
         assert_eq!(composite(&["--input-material", "library:red-plastic"]), None);
         assert_eq!(composite(&["--composite", "render"]), Some(Composite::Render));
+        let range = |args: &[&str]| match parse(args).map(|c| c.command) {
+            Ok(Command::Edit { range, .. }) => range,
+            _ => panic!("{args:?} not parsed"),
+        };
+        assert_eq!(range(&[]), None);
+        assert_eq!(range(&["--range", "clip"]), Some(Range::Clip));
+        assert!(parse(&["--range", "hdr"]).is_err());
         assert_eq!(
             (Composite::best_for(true), Composite::best_for(false)),
             (Composite::Ratio, Composite::Detail)

@@ -99,10 +99,12 @@ pub struct Look {
 }
 
 impl From<Composite> for Look {
+    /// The composite with the photo's range: the network's level (a known material picks its
+    /// range with [`Range::best_for`]).
     fn from(composite: Composite) -> Self {
         Self {
             composite,
-            range: Range::default(),
+            range: Range::Photo,
         }
     }
 }
@@ -134,8 +136,9 @@ pub struct EditRequest {
     pub normals: Option<PathBuf>,
     /// How to composite (the command line picks [`Composite::best_for`] when none is given).
     pub composite: Composite,
-    /// What the edited object's level is held to ([`range`]).
-    pub range: Range,
+    /// What the edited object's level is held to ([`range`]; `None`: [`Range::best_for`] the
+    /// request, the rendered level where `input_material` or `light` makes it known).
+    pub range: Option<Range>,
     /// Refine n', m', L' with Eq. 6 before rendering.
     pub optimize: Option<post_optimisation::Eq6Config>,
 }
@@ -678,6 +681,10 @@ fn edit_checked(
             .map(|n| normals::load_normals(n, read.photo.width, read.photo.height, &read.coverage))
             .transpose()?,
     };
+    // The level is known where the object's material sets it or a given map keeps its own or the
+    // background's (not where the network's fit scales it).
+    let level_known =
+        light.input_material.is_some() || (light.given.is_some() && light.level_from() != LevelFrom::Network);
     let t_load = t0.elapsed().as_secs_f64();
     let u = understand(model, read, &req.photo, req.optimize.as_ref(), &light, watcher)?;
     finish(
@@ -688,7 +695,7 @@ fn edit_checked(
         req.light.as_deref(),
         Look {
             composite: req.composite,
-            range: req.range,
+            range: req.range.unwrap_or(Range::best_for(level_known)),
         },
         out,
         t0,

@@ -28,12 +28,23 @@ pub const MIN_SCALE: f64 = 1.0 / 16.0;
 #[serde(rename_all = "snake_case")]
 pub enum Range {
     /// The photo's: the edit scaled down until no more of the object exceeds white than in the
-    /// photo (at least 2 %), what still does scaled into range with its hue (the default; the
-    /// best measured on the photo benchmark).
+    /// photo (at least 2 %), what still does scaled into range with its hue (the default with
+    /// the network's light level; the best measured on the photo benchmark).
     #[default]
     Photo,
-    /// The edit as rendered; each channel clipped at white when an 8- or 16-bit photo is written.
+    /// The edit as rendered; each channel clipped at white when an 8- or 16-bit photo is written
+    /// (the default when the light's level is known).
     Clip,
+}
+
+impl Range {
+    /// The range measured best on the photo benchmark: the photo's while the edit's level is the
+    /// network's guess, the rendered one when it is known — the object's own material or the
+    /// scene's light given — since a known level that puts a mirror's sky above white is right
+    /// (docs/PERFORMANCE.md, "The photo's range").
+    pub fn best_for(level_known: bool) -> Self {
+        if level_known { Self::Clip } else { Self::Photo }
+    }
 }
 
 /// What [`fit`] found and did, for `report.json`.
@@ -290,8 +301,11 @@ mod tests {
             range,
             ..request(&p, &m, "lambert:0.8,0.4,0.1")
         };
-        let held = crate::edit(model(), &req(Range::Photo), &d.join("photo")).unwrap();
-        let clipped = crate::edit(model(), &req(Range::Clip), &d.join("clip")).unwrap();
+        let held = crate::edit(model(), &req(Some(Range::Photo)), &d.join("photo")).unwrap();
+        let clipped = crate::edit(model(), &req(Some(Range::Clip)), &d.join("clip")).unwrap();
+        // Unasked, a light at its own level is a known level: kept as rendered.
+        let known = crate::edit(model(), &req(None), &d.join("known")).unwrap();
+        assert_eq!(known.range, clipped.range);
         let (h, c) = (&held.range[0], &clipped.range[0]);
         assert!(
             c.rendered_share_above_white > 0.5 && !c.applied && c.scale == 1.0,
@@ -329,5 +343,12 @@ mod tests {
             );
         }
         assert!(white * 2 > object, "clipped: {white} of {object} pixels white");
+    }
+
+    #[test]
+    fn the_range_is_the_photos_only_while_the_level_is_the_networks_guess() {
+        assert_eq!(Range::best_for(false), Range::Photo);
+        assert_eq!(Range::best_for(true), Range::Clip);
+        assert_eq!(crate::Look::from(crate::Composite::Render).range, Range::Photo);
     }
 }

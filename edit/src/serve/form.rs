@@ -156,7 +156,7 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
                 input_material: f.input_material,
                 normals,
                 composite,
-                range: Default::default(),
+                range: None,
                 optimize,
             })
         }
