@@ -95,7 +95,7 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// down until no more of the object is above white than in the photo (at least 2 %) and
         /// brings what still is into range with its hue; `clip` keeps the rendered level and
         /// clips each channel at white. Default: `clip` with --input-material or --light (the
-        /// level is known), `photo` otherwise (docs/PERFORMANCE.md, "The photo's range").
+        /// level is known; not with --light-level network), `photo` otherwise (docs/PERFORMANCE.md, "The photo's range").
         #[arg(long, value_enum)]
         range: Option<Range>,
         /// Refine n', m', L' with the paper's post-optimisation (Eq. 6) first; `--optimize` is the
