@@ -123,13 +123,15 @@ pub fn fit(p: &Photo, coverage: &[f32], values: &[Option<[f32; 3]>], range: Rang
     if range == Range::Clip || !display_referred || edit.is_empty() {
         return report;
     }
-    // At most ⌊allowed·n⌋ pixels may stay above white: the next brightest is brought to it.
+    // At most ⌊allowed·n⌋ pixels may stay above white: the next brightest is brought to it (a
+    // photo whose whole object is at white allows the whole edit there).
     let n = edit.len();
-    let keep_above = ((allowed * n as f64).floor() as usize).min(n - 1);
-    let idx = n - 1 - keep_above;
-    let (_, &mut bound, _) = edit.select_nth_unstable_by(idx, f32::total_cmp);
-    if bound > 1.0 {
-        report.scale = (1.0 / bound as f64).max(MIN_SCALE);
+    let keep_above = (allowed * n as f64).floor() as usize;
+    if keep_above < n {
+        let (_, &mut bound, _) = edit.select_nth_unstable_by(n - 1 - keep_above, f32::total_cmp);
+        if bound > 1.0 {
+            report.scale = (1.0 / bound as f64).max(MIN_SCALE);
+        }
     }
     report.applied = report.scale < 1.0 || above > 0;
     report
@@ -225,6 +227,15 @@ mod tests {
         assert!((r.allowed_share - 0.3).abs() < 1e-9);
         // 30 may stay above: the 31st brightest (1.40) comes to white.
         assert!((r.scale - 1.0 / 1.4).abs() < 1e-6, "{}", r.scale);
+    }
+
+    #[test]
+    fn a_photo_all_at_white_allows_the_whole_edit_there_in_its_hue() {
+        let (p, cov) = photo(10, 10, Encoding::Srgb8);
+        let vals = values(&[2.0; 10]);
+        let r = fit(&p, &cov, &vals, Range::Photo, "edited");
+        assert_eq!((r.allowed_share, r.scale, r.applied), (1.0, 1.0, true));
+        assert_eq!(apply(vals[0].unwrap(), &r), [1.0, 0.6, 0.2]);
     }
 
     #[test]
