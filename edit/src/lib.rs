@@ -32,7 +32,7 @@ pub mod progress;
 pub mod range;
 pub use photo::{Prepared, prepare, prepare_framed};
 pub use predict::{Predicted, network_prediction, render_all};
-pub use range::Range;
+pub use range::{Look, Range};
 pub mod serve;
 pub mod target;
 #[cfg(test)]
@@ -85,27 +85,6 @@ impl Composite {
     /// (docs/PERFORMANCE.md, "The object's own material, given").
     pub fn best_for(known_material: bool) -> Self {
         if known_material { Self::Ratio } else { Self::Detail }
-    }
-}
-
-/// How the re-rendered object goes back into the photo: the composite, and the range the edit
-/// is held to. A composite alone holds the edit to the photo's range (the default).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Look {
-    /// How O' goes back into the photo.
-    pub composite: Composite,
-    /// What the edited object's level is held to.
-    pub range: Range,
-}
-
-impl From<Composite> for Look {
-    /// The composite with the photo's range: the network's level (a known material picks its
-    /// range with [`Range::best_for`]).
-    fn from(composite: Composite) -> Self {
-        Self {
-            composite,
-            range: Range::Photo,
-        }
     }
 }
 

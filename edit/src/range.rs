@@ -47,6 +47,27 @@ impl Range {
     }
 }
 
+/// How the re-rendered object goes back into the photo: the composite, and the range the edit
+/// is held to. A composite alone holds the edit to the photo's range (the default).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Look {
+    /// How O' goes back into the photo.
+    pub composite: crate::Composite,
+    /// What the edited object's level is held to.
+    pub range: Range,
+}
+
+impl From<crate::Composite> for Look {
+    /// The composite with the photo's range: the network's level (a known material picks its
+    /// range with [`Range::best_for`]).
+    fn from(composite: crate::Composite) -> Self {
+        Self {
+            composite,
+            range: Range::Photo,
+        }
+    }
+}
+
 /// What [`fit`] found and did, for `report.json`.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct RangeReport {
