@@ -95,7 +95,8 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// down until no more of the object is above white than in the photo (at least 2 %) and
         /// brings what still is into range with its hue; `clip` keeps the rendered level and
         /// clips each channel at white. Default: `clip` with --input-material or --light (the
-        /// level is known; not with --light-level network), `photo` otherwise (docs/PERFORMANCE.md, "The photo's range").
+        /// level is known; not with --light-level network), `photo` otherwise
+        /// (docs/PERFORMANCE.md, "The photo's range").
         #[arg(long, value_enum)]
         range: Option<Range>,
         /// Refine n', m', L' with the paper's post-optimisation (Eq. 6) first; `--optimize` is the
@@ -415,10 +416,7 @@ fn run(cli: Cli) -> Result<()> {
                     ..Given::photo(&to, to_mask.as_deref())
                 },
                 cfg.as_ref(),
-                Look {
-                    composite: composite.unwrap_or(Composite::best_for(to_material.is_some())),
-                    range: range.unwrap_or(Range::best_for(to_material.is_some())),
-                },
+                Look::chosen(composite, range, to_material.is_some()),
                 &out,
             )?;
             println!(
@@ -461,10 +459,7 @@ fn run(cli: Cli) -> Result<()> {
                     ..Given::photo(&b, b_mask.as_deref())
                 },
                 cfg.as_ref(),
-                Look {
-                    composite: composite.unwrap_or(Composite::best_for(both_known)),
-                    range: range.unwrap_or(Range::best_for(both_known)),
-                },
+                Look::chosen(composite, range, both_known),
                 &out,
             )?;
             println!(

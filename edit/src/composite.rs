@@ -104,25 +104,6 @@ fn box_pass(
     }
 }
 
-/// The photo with `render` (`[3, S, S]`, at the training exposure) composited into the object,
-/// as rendered ([`crate::range::Range::Clip`]). `i_prime` is the re-rendered input, used by every
-/// composite but [`Composite::Render`].
-pub fn composite(
-    p: &Photo,
-    coverage: &[f32],
-    prep: &Prepared,
-    render: &[f32],
-    i_prime: &[f32],
-    how: Composite,
-) -> Vec<[f32; 3]> {
-    blend(
-        p,
-        coverage,
-        &object_values(p, coverage, prep, render, i_prime, how),
-        |v| v,
-    )
-}
-
 /// The photo with the edited object's `values` ([`object_values`]) blended in by the soft
 /// coverage, each through `hold` (the photo's range, [`crate::range`]); the photo where a value
 /// is `None` or comes out non-finite.
@@ -146,7 +127,9 @@ pub fn blend(
 }
 
 /// The edited object's value at every photo pixel of the object (`None` outside it, or where no
-/// rendered pixel lies near), in the photo's linear units, before it is blended by the coverage.
+/// rendered pixel lies near), in the photo's linear units, before [`blend`] puts it into the
+/// photo: `render` (`[3, S, S]`, at the training exposure) composited `how`; `i_prime` is the
+/// re-rendered input, used by every composite but [`Composite::Render`].
 pub fn object_values(
     p: &Photo,
     coverage: &[f32],
@@ -250,6 +233,24 @@ mod tests {
     use crate::photo::{Encoding, Framing};
 
     const N: usize = 8;
+
+    /// The photo with `render` (`[3, S, S]`, at the training exposure) composited into the
+    /// object as rendered (no range held): `i_prime` is the re-rendered input.
+    fn composite(
+        p: &Photo,
+        coverage: &[f32],
+        prep: &Prepared,
+        render: &[f32],
+        i_prime: &[f32],
+        how: Composite,
+    ) -> Vec<[f32; 3]> {
+        blend(
+            p,
+            coverage,
+            &object_values(p, coverage, prep, render, i_prime, how),
+            |v| v,
+        )
+    }
 
     /// An N×N photo whose object is the inner 4×4 (soft coverage ½ on its left column), framed
     /// one network pixel per photo pixel at exposure 2.

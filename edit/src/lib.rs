@@ -660,10 +660,7 @@ fn edit_checked(
             .map(|n| normals::load_normals(n, read.photo.width, read.photo.height, &read.coverage))
             .transpose()?,
     };
-    // The level is known where the object's material sets it or a given map keeps its own or the
-    // background's (not where the network's fit scales it).
-    let level_known =
-        light.input_material.is_some() || (light.given.is_some() && light.level_from() != LevelFrom::Network);
+    let level_known = light.level_known();
     let t_load = t0.elapsed().as_secs_f64();
     let u = understand(model, read, &req.photo, req.optimize.as_ref(), &light, watcher)?;
     finish(

@@ -56,6 +56,13 @@ impl LightOptions {
             _ => LevelFrom::Network,
         }
     }
+
+    /// Whether the light's level is known rather than the network's guess: set by the object's
+    /// own material, or a given map at its own or the background's level (not where the network's
+    /// fit scales it). It picks the edit's range ([`crate::Range::best_for`]).
+    pub(crate) fn level_known(&self) -> bool {
+        self.input_material.is_some() || (self.given.is_some() && self.level_from() != LevelFrom::Network)
+    }
 }
 
 /// `l` times `k`, in f64.

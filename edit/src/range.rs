@@ -57,6 +57,18 @@ pub struct Look {
     pub range: Range,
 }
 
+impl Look {
+    /// The composite and range asked for, each where not given the one measured best
+    /// ([`crate::Composite::best_for`], [`Range::best_for`]) for an object whose own material is
+    /// `known` or not.
+    pub fn chosen(composite: Option<crate::Composite>, range: Option<Range>, known: bool) -> Self {
+        Self {
+            composite: composite.unwrap_or(crate::Composite::best_for(known)),
+            range: range.unwrap_or(Range::best_for(known)),
+        }
+    }
+}
+
 impl From<crate::Composite> for Look {
     /// The composite with the photo's range: the network's level (a known material picks its
     /// range with [`Range::best_for`]).
@@ -382,5 +394,9 @@ mod tests {
         assert_eq!(Range::best_for(false), Range::Photo);
         assert_eq!(Range::best_for(true), Range::Clip);
         assert_eq!(crate::Look::from(crate::Composite::Render).range, Range::Photo);
+        let known = Look::chosen(None, None, true);
+        assert_eq!((known.composite, known.range), (crate::Composite::Ratio, Range::Clip));
+        let asked = Look::chosen(Some(crate::Composite::Render), Some(Range::Photo), true);
+        assert_eq!((asked.composite, asked.range), (crate::Composite::Render, Range::Photo));
     }
 }

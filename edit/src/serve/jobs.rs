@@ -4,7 +4,7 @@
 
 use super::upload::name_uploads;
 use crate::progress::Progress;
-use crate::{Composite, EditReport, EditRequest, Given, Look, Model, Range, edit_with, transfer_with};
+use crate::{Composite, EditReport, EditRequest, Given, Look, Model, edit_with, transfer_with};
 use matedit_trainer::post_optimisation::Eq6Config;
 use matedit_trainer::post_optimisation::watcher::{Cancelled, Watcher as _};
 use serde_json::{Value, json};
@@ -433,10 +433,7 @@ fn run(model: &Model, job: &Job) -> anyhow::Result<EditReport> {
                 ..Given::photo(&to.0, to.1.as_deref())
             },
             optimize.as_ref(),
-            Look {
-                composite: *composite,
-                range: Range::best_for(to_material.is_some()),
-            },
+            Look::chosen(Some(*composite), None, to_material.is_some()),
             &out,
             watcher,
             t0,
