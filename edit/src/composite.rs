@@ -104,29 +104,34 @@ fn box_pass(
     }
 }
 
-/// The photo with the edited object's `values` ([`object_values`]) blended in by the soft
-/// coverage, each through `hold` (the photo's range, [`crate::range`]); the photo where a value
-/// is `None` or comes out non-finite.
+/// The photo with the edited object's `values` ([`object_values`], turned into the result in
+/// place: a photo-sized buffer at a time, as a 25-megapixel edit's memory budget counts) blended
+/// in by the soft coverage, each through `hold` (the photo's range, [`crate::range`]); the photo
+/// where a value is not finite.
 pub fn blend(
     p: &Photo,
     coverage: &[f32],
-    values: &[Option<[f32; 3]>],
+    mut values: Vec<[f32; 3]>,
     hold: impl Fn([f32; 3]) -> [f32; 3],
 ) -> Vec<[f32; 3]> {
-    let mut out = p.rgb.clone();
-    for ((o, &c), v) in out.iter_mut().zip(coverage).zip(values) {
-        let Some(new) = v.map(&hold) else {
+    for ((o, &c), q) in values.iter_mut().zip(coverage).zip(&p.rgb) {
+        if c <= 0.0 {
+            *o = *q;
             continue;
-        };
+        }
+        let new = hold(*o);
         for ch in 0..3 {
-            let v = c * new[ch] + (1.0 - c) * o[ch];
-            o[ch] = if v.is_finite() { v.max(0.0) } else { o[ch] };
+            let v = c * new[ch] + (1.0 - c) * q[ch];
+            o[ch] = if v.is_finite() { v.max(0.0) } else { q[ch] };
         }
     }
-    out
+    values
 }
 
-/// The edited object's value at every photo pixel of the object (`None` outside it, or where no
+/// What [`object_values`] holds where the photo is kept.
+pub const KEEP: [f32; 3] = [f32::NAN; 3];
+
+/// The edited object's value at every photo pixel ([`KEEP`] outside the object, or where no
 /// rendered pixel lies near), in the photo's linear units, before [`blend`] puts it into the
 /// photo: `render` (`[3, S, S]`, at the training exposure) composited `how`; `i_prime` is the
 /// re-rendered input, used by every composite but [`Composite::Render`].
@@ -137,10 +142,10 @@ pub fn object_values(
     render: &[f32],
     i_prime: &[f32],
     how: Composite,
-) -> Vec<Option<[f32; 3]>> {
+) -> Vec<[f32; 3]> {
     let n = prep.size;
     let back = (1.0 / prep.exposure) as f32;
-    let mut out = vec![None; p.rgb.len()];
+    let mut out = vec![KEEP; p.rgb.len()];
     let detail = (how == Composite::Detail).then(|| detail_gain(p, coverage, prep, i_prime));
     for (k, o) in out.iter_mut().enumerate() {
         if coverage[k] <= 0.0 {
@@ -187,7 +192,7 @@ pub fn object_values(
                 p.rgb[k][ch] * ratio
             }),
         };
-        *o = Some(new);
+        *o = new;
     }
     out
 }
@@ -247,7 +252,7 @@ mod tests {
         blend(
             p,
             coverage,
-            &object_values(p, coverage, prep, render, i_prime, how),
+            object_values(p, coverage, prep, render, i_prime, how),
             |v| v,
         )
     }

@@ -531,7 +531,7 @@ fn finish(
             let held = range::fit(&p, &coverage, &values, look.range, name);
             composites.push((
                 name,
-                composite::blend(&p, &coverage, &values, |v| range::apply(v, &held)),
+                composite::blend(&p, &coverage, values, |v| range::apply(v, &held)),
             ));
             ranges.push(held);
         }

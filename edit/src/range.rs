@@ -116,44 +116,41 @@ fn largest(v: [f32; 3]) -> Option<f32> {
     v.iter().all(|c| c.is_finite()).then(|| v[0].max(v[1]).max(v[2]))
 }
 
-/// How `values` (the edit's object pixels in the photo's linear units, `None` where the photo is
-/// kept) are held to the photo's range; `image` names them in the report.
-pub fn fit(p: &Photo, coverage: &[f32], values: &[Option<[f32; 3]>], range: Range, image: &str) -> RangeReport {
+/// How `values` (the edit's object pixels in the photo's linear units, non-finite where the photo
+/// is kept: [`crate::composite::object_values`]) are held to the photo's range; `image` names
+/// them in the report.
+pub fn fit(p: &Photo, coverage: &[f32], values: &[[f32; 3]], range: Range, image: &str) -> RangeReport {
     let white = photo_white();
-    let (mut at_white, mut object) = (0_usize, 0_usize);
+    let display_referred = matches!(p.encoding, Encoding::Srgb8 | Encoding::Srgb16);
+    let held = range == Range::Photo && display_referred;
+    let (mut at_white, mut object, mut rendered, mut above) = (0_usize, 0_usize, 0_usize, 0_usize);
+    // The edit's largest channels, kept only where they are to be held.
     let mut edit: Vec<f32> = Vec::new();
-    for (k, v) in values.iter().enumerate() {
+    for (k, &v) in values.iter().enumerate() {
         if !counted(coverage, k) {
             continue;
         }
         object += 1;
         at_white += usize::from(largest(p.rgb[k]).is_some_and(|m| m >= white));
-        if let Some(m) = v.and_then(largest) {
-            edit.push(m);
+        if let Some(m) = largest(v) {
+            rendered += 1;
+            above += usize::from(m > 1.0);
+            if held {
+                edit.push(m);
+            }
         }
     }
-    let photo_share = if object > 0 {
-        at_white as f64 / object as f64
-    } else {
-        0.0
-    };
-    let allowed = photo_share.max(MIN_SHARE);
-    let above = edit.iter().filter(|&&m| m > 1.0).count();
-    let rendered_share = if edit.is_empty() {
-        0.0
-    } else {
-        above as f64 / edit.len() as f64
-    };
+    let share = |k: usize, of: usize| if of > 0 { k as f64 / of as f64 } else { 0.0 };
+    let allowed = share(at_white, object).max(MIN_SHARE);
     let mut report = RangeReport {
         image: image.to_string(),
         applied: false,
-        photo_share_at_white: photo_share,
+        photo_share_at_white: share(at_white, object),
         allowed_share: allowed,
-        rendered_share_above_white: rendered_share,
+        rendered_share_above_white: share(above, rendered),
         scale: 1.0,
     };
-    let display_referred = matches!(p.encoding, Encoding::Srgb8 | Encoding::Srgb16);
-    if range == Range::Clip || !display_referred || edit.is_empty() {
+    if edit.is_empty() {
         return report;
     }
     // At most ⌊allowed·n⌋ pixels may stay above white: the next brightest is brought to it (a
@@ -203,14 +200,12 @@ mod tests {
         (p, vec![1.0; n])
     }
 
-    fn values(levels: &[f32]) -> Vec<Option<[f32; 3]>> {
-        levels.iter().map(|&m| Some([m, m * 0.6, m * 0.2])).collect()
+    fn values(levels: &[f32]) -> Vec<[f32; 3]> {
+        levels.iter().map(|&m| [m, m * 0.6, m * 0.2]).collect()
     }
 
-    fn above(vals: &[Option<[f32; 3]>], r: &RangeReport) -> usize {
-        vals.iter()
-            .filter(|v| v.is_some_and(|v| apply(v, r).iter().any(|&c| c > 1.0)))
-            .count()
+    fn above(vals: &[[f32; 3]], r: &RangeReport) -> usize {
+        vals.iter().filter(|&&v| apply(v, r).iter().any(|&c| c > 1.0)).count()
     }
 
     #[test]
@@ -220,7 +215,7 @@ mod tests {
         let r = fit(&p, &cov, &vals, Range::Photo, "edited");
         assert!(!r.applied);
         assert_eq!(r.scale, 1.0);
-        for v in vals.iter().flatten() {
+        for v in vals.iter() {
             assert_eq!(apply(*v, &r), *v);
         }
     }
@@ -241,7 +236,7 @@ mod tests {
         let scaled_above = levels.iter().filter(|&&m| m * r.scale as f32 > 1.0).count();
         assert_eq!(scaled_above, 20);
         assert_eq!(above(&vals, &r), 0, "nothing is written above white");
-        for v in vals.iter().flatten() {
+        for v in vals.iter() {
             let o = apply(*v, &r);
             // The hue is kept: the channels' ratios are the input's.
             assert!(
@@ -268,16 +263,16 @@ mod tests {
         let vals = values(&[2.0; 10]);
         let r = fit(&p, &cov, &vals, Range::Photo, "edited");
         assert_eq!((r.allowed_share, r.scale, r.applied), (1.0, 1.0, true));
-        assert_eq!(apply(vals[0].unwrap(), &r), [1.0, 0.6, 0.2]);
+        assert_eq!(apply(vals[0], &r), [1.0, 0.6, 0.2]);
     }
 
     #[test]
     fn the_photo_given_back_is_left_as_it_is() {
         let (p, cov) = photo(50, 10, Encoding::Srgb8);
-        let vals: Vec<Option<[f32; 3]>> = p.rgb.iter().map(|&v| Some(v)).collect();
+        let vals = p.rgb.clone();
         let r = fit(&p, &cov, &vals, Range::Photo, "edited");
         assert!(!r.applied);
-        for (v, q) in vals.iter().flatten().zip(&p.rgb) {
+        for (v, q) in vals.iter().zip(&p.rgb) {
             assert_eq!(apply(*v, &r), *q);
         }
     }
@@ -305,18 +300,18 @@ mod tests {
     fn hard_values_neither_break_the_fit_nor_come_out_non_finite() {
         let (p, cov) = photo(8, 0, Encoding::Srgb8);
         let vals = vec![
-            Some([f32::NAN, 0.5, 0.5]),
-            Some([f32::INFINITY, 1.0, 1.0]),
-            Some([3e38, 3e38, 1.0]),
-            Some([0.0; 3]),
-            Some([1e-30, 0.0, 0.0]),
-            None,
-            Some([2.0, 1.0, 0.5]),
-            Some([0.5; 3]),
+            [f32::NAN, 0.5, 0.5],
+            [f32::INFINITY, 1.0, 1.0],
+            [3e38, 3e38, 1.0],
+            [0.0; 3],
+            [1e-30, 0.0, 0.0],
+            crate::composite::KEEP,
+            [2.0, 1.0, 0.5],
+            [0.5; 3],
         ];
         let r = fit(&p, &cov, &vals, Range::Photo, "edited");
         assert!(r.scale.is_finite() && r.scale >= MIN_SCALE && r.scale <= 1.0, "{r:?}");
-        for v in vals.iter().flatten() {
+        for v in vals.iter() {
             let o = apply(*v, &r);
             if v.iter().all(|c| c.is_finite()) {
                 assert!(
