@@ -1,6 +1,7 @@
 //! The `matedit` command line: material editing of photos with a trained network (Sec. 3.4 of
 //! the paper). The binary's `main` only calls [`main`].
 
+use crate::light_estimate::LightEstimate;
 use crate::serve::{ServeConfig, serve};
 use crate::target::parse_material_arg;
 use crate::{Composite, EditRequest, Given, LevelFrom, Look, Range, edit, swap, transfer};
@@ -70,6 +71,12 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// (background with --light, network otherwise: the best measured).
         #[arg(long, value_enum, default_value_t = LevelFrom::default())]
         light_level: LevelFrom,
+        /// What of the predicted L' to keep: `auto` keeps what the checkpoint reads from a
+        /// picture (measured when it is loaded; report.json's light_estimate) and replaces the
+        /// rest by its expectation (L' averaged around the vertical axis, its colour neutral);
+        /// `network` keeps L' as the network gives it (the paper's).
+        #[arg(long, value_enum, default_value_t = LightEstimate::default())]
+        light_estimate: LightEstimate,
         /// The photo's horizontal field of view in degrees (1–170), for the directions its
         /// background is seen along. Default 40.
         #[arg(long, value_parser = finite_in(1.0, 170.0), allow_negative_numbers = true)]
@@ -320,6 +327,7 @@ fn run(cli: Cli) -> Result<()> {
             relight,
             light,
             light_level,
+            light_estimate,
             fov,
             input_material,
             normals,
@@ -341,6 +349,7 @@ fn run(cli: Cli) -> Result<()> {
                 relight,
                 light,
                 light_level,
+                light_estimate,
                 fov_deg: fov,
                 composite: composite.unwrap_or_else(|| Composite::best_for(input_material.is_some())),
                 range,
@@ -356,6 +365,9 @@ fn run(cli: Cli) -> Result<()> {
                 }),
             };
             let report = edit(&model, &req, &out)?;
+            if let Some(line) = report.light_estimate.as_ref().and_then(|e| e.describe()) {
+                println!("{line}");
+            }
             for r in report.range.iter().filter(|r| r.applied) {
                 println!(
                     "{}: held to the photo's range: × {:.2} ({:.0} % of the object was above white as rendered; --range clip keeps it)",

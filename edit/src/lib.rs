@@ -22,6 +22,7 @@ pub mod cli;
 pub mod composite;
 pub mod detail;
 pub mod light;
+pub mod light_estimate;
 #[cfg(test)]
 mod light_tests;
 pub mod normals;
@@ -40,6 +41,7 @@ mod tests;
 pub mod transfer;
 
 pub use light::{LevelFrom, LightOptions, known_material, light_at_own_level, light_at_photo_level};
+pub use output::{EditReport, Eq6Report};
 pub use transfer::{Given, swap, transfer, transfer_with};
 
 use anyhow::{Context, Result, bail};
@@ -50,10 +52,10 @@ use matedit_trainer::model::prediction::Prediction;
 use matedit_trainer::post_optimisation;
 use matedit_trainer::render::RenderingLayer;
 use matedit_trainer::train::checkpoint;
-use photo::{Framing, Photo, TRAINING_MEAN_LUMINANCE};
+use photo::{Photo, TRAINING_MEAN_LUMINANCE};
 use progress::{Progress, enter};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
 /// How the re-rendered object goes back into the photo.
@@ -105,6 +107,8 @@ pub struct EditRequest {
     pub light: Option<String>,
     /// What sets the light's level.
     pub light_level: LevelFrom,
+    /// What of the network's L' is kept ([`light_estimate`]).
+    pub light_estimate: light_estimate::LightEstimate,
     /// The photo's horizontal field of view in degrees (default [`background::DEFAULT_FOV_DEG`]).
     pub fov_deg: Option<f64>,
     /// The object's own material, when known (a spec, as `--material` takes): used instead of
@@ -120,30 +124,6 @@ pub struct EditRequest {
     pub range: Option<Range>,
     /// Refine n', m', L' with Eq. 6 before rendering.
     pub optimize: Option<post_optimisation::Eq6Config>,
-}
-
-/// What Eq. 6 did, for `report.json` and `energy.png`.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct Eq6Report {
-    /// Weights and lengths as given.
-    pub config: post_optimisation::Eq6Config,
-    /// The light prior's weight the energies below were computed with: b × the ratio of the
-    /// detail square's pixels to the network's (the balance b was tuned for at the network's
-    /// resolution).
-    pub light_weight: f64,
-    /// E at the network's prediction.
-    pub start: post_optimisation::Energy,
-    /// E at the end.
-    pub end: post_optimisation::Energy,
-    /// E after every L-BFGS iteration.
-    pub steps: Vec<post_optimisation::Step>,
-    /// Passes of the rendering layer.
-    pub evaluations: usize,
-    /// The alternation's pixel stride (1: every pixel of the object; k: every k-th of each row
-    /// and column, the whole image's E at the first and last step).
-    pub stride: usize,
-    /// Seconds.
-    pub seconds: f64,
 }
 
 /// The network of a checkpoint folder, or of a run folder's latest checkpoint.
@@ -164,58 +144,6 @@ pub fn load_model(path: &Path) -> Result<(Net, checkpoint::State, PathBuf)> {
     Ok((net, state, dir))
 }
 
-/// Everything [`edit`] measured and decided, for `report.json`.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct EditReport {
-    /// The photo.
-    pub photo: String,
-    /// Its size.
-    pub photo_size: [usize; 2],
-    /// How it was stored.
-    pub encoding: photo::Encoding,
-    /// The mask (or "alpha of the photo").
-    pub mask: String,
-    /// Object pixels in the photo.
-    pub object_pixels: usize,
-    /// The checkpoint used, its stage and network shape.
-    pub checkpoint: String,
-    /// Its stage.
-    pub stage: String,
-    /// Network input side.
-    pub input_size: usize,
-    /// Environment rows.
-    pub env_height: usize,
-    /// Where the input lies in the photo.
-    pub framing: Framing,
-    /// What the photo's linear values were multiplied by (object mean luminance →
-    /// [`TRAINING_MEAN_LUMINANCE`]).
-    pub exposure: f64,
-    /// The target mean luminance.
-    pub training_mean_luminance: f64,
-    /// Per region: its id and target material spec.
-    pub regions: Vec<target::RegionTarget>,
-    /// The other illumination, if any.
-    pub relight: Option<String>,
-    /// The photo's illumination given instead of L', if any.
-    pub light: Option<String>,
-    /// The object's own material given instead of m', if any.
-    pub input_material: Option<String>,
-    /// The normal map given instead of n', if any, and where it had no normal.
-    pub normals: Option<normals::NormalsReport>,
-    /// How the light's level was set.
-    pub light_level: background::LightLevel,
-    /// How O' went back into the photo.
-    pub composite: Composite,
-    /// How each composited image was held to the photo's range ([`range`]).
-    pub range: Vec<range::RangeReport>,
-    /// Eq. 6, when asked for.
-    pub eq6: Option<Eq6Report>,
-    /// Seconds per phase.
-    pub seconds: output::Timings,
-    /// Files written, relative to the output folder.
-    pub files: Vec<String>,
-}
-
 /// A photo read, framed and understood: n', m', L' (refined by Eq. 6 when asked).
 pub struct Understood {
     /// The photo.
@@ -234,6 +162,8 @@ pub struct Understood {
     pub detail: detail::Detail,
     /// Eq. 6, when asked for.
     pub eq6: Option<Eq6Report>,
+    /// What of L' was kept; none when a light was given.
+    pub light_estimate: Option<light_estimate::LightEstimateReport>,
     /// How L*'s level was set (L* above is at that level).
     pub light_level: background::LightLevel,
     /// The object's own material's spec, when it was given instead of m'.
@@ -254,6 +184,8 @@ pub struct Model {
     pub dir: PathBuf,
     /// A rendering layer for its environment size.
     pub layer: RenderingLayer,
+    /// What its L' reads from a picture ([`light_estimate`]), measured when first asked.
+    light_skill: OnceLock<light_estimate::LightSkill>,
 }
 
 impl Model {
@@ -261,7 +193,25 @@ impl Model {
     pub fn load(path: &Path) -> Result<Self> {
         let (net, state, dir) = load_model(path)?;
         let layer = RenderingLayer::new(state.net.env_height);
-        Ok(Self { net, state, dir, layer })
+        let light_skill = OnceLock::new();
+        Ok(Self {
+            net,
+            state,
+            dir,
+            layer,
+            light_skill,
+        })
+    }
+
+    /// What its L' reads from a picture, measured once ([`light_estimate::LightSkill::measure`]).
+    pub fn light_skill(&self) -> Result<light_estimate::LightSkill> {
+        if let Some(s) = self.light_skill.get() {
+            return Ok(*s);
+        }
+        let (size, h) = (self.state.net.input_size, self.state.net.env_height);
+        let s = light_estimate::LightSkill::measure(&self.net, size, h)
+            .with_context(|| format!("checkpoint {}: the light probe", self.dir.display()))?;
+        Ok(*self.light_skill.get_or_init(|| s))
     }
 }
 
@@ -332,6 +282,14 @@ pub fn understand(
     enter(w, "network")?;
     let t = Instant::now();
     let mut x = network_prediction(&model.net, &prep)?;
+    let light_estimate = match light.given {
+        Some(_) => None,
+        None => Some(
+            light
+                .estimate
+                .apply(|| model.light_skill(), &mut x.env, model.state.net.env_height)?,
+        ),
+    };
     let mut normals_report = None;
     if let Some(g) = &light.normals {
         let (n, kept) = g.framed(&prep, &x.normals);
@@ -453,6 +411,7 @@ pub fn understand(
         point: x,
         detail,
         eq6,
+        light_estimate,
         light_level,
         input_material: light.input_material.as_ref().map(|(spec, _)| spec.clone()),
         normals: normals_report,
@@ -493,6 +452,7 @@ fn finish(
         point,
         detail,
         eq6,
+        light_estimate,
         light_level,
         input_material,
         normals,
@@ -555,6 +515,7 @@ fn finish(
         light: light_spec.map(str::to_string),
         input_material,
         normals,
+        light_estimate,
         light_level,
         composite: look.composite,
         range: ranges,
@@ -652,6 +613,7 @@ fn edit_checked(
             .map(|spec| target::relight_env(spec, model.state.net.env_height))
             .transpose()?,
         level: req.light_level,
+        estimate: req.light_estimate,
         fov_deg: req.fov_deg,
         input_material: light::known_material(req.input_material.as_deref(), "--input-material")?,
         normals: req

@@ -33,6 +33,8 @@ pub struct LightOptions {
     pub given: Option<Vec<f32>>,
     /// What sets its level.
     pub level: LevelFrom,
+    /// What of the network's L' is kept ([`crate::light_estimate`]).
+    pub estimate: crate::light_estimate::LightEstimate,
     /// The photo's horizontal field of view in degrees (default
     /// [`crate::background::DEFAULT_FOV_DEG`]).
     pub fov_deg: Option<f64>,

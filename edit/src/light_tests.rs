@@ -291,3 +291,41 @@ fn the_fitted_level_is_the_least_squares_scale_and_refuses_what_the_layer_cannot
     let e = light_at_photo_level(&layer, &prep(0.3), &x(black.clone()), &black).unwrap_err();
     assert!(format!("{e:#}").contains("leaves the object black"), "{e:#}");
 }
+
+#[test]
+fn the_default_keeps_of_l_prime_what_the_checkpoint_reads() {
+    use crate::light_estimate::LightEstimate;
+    let d = dir("estimate");
+    let (p, m, _) = write_photo(&d);
+    let with = |estimate| EditRequest {
+        light_estimate: estimate,
+        ..request(&p, &m, "library:gold-polished")
+    };
+    let net = edit(model(), &with(LightEstimate::Network), &d.join("network")).unwrap();
+    let auto = edit(model(), &with(LightEstimate::Auto), &d.join("auto")).unwrap();
+    let skill = Model::load(model()).unwrap().light_skill().unwrap();
+    let mut expected = env_of(&d.join("network"));
+    let r = skill.apply(&mut expected, 4);
+    assert_eq!(auto.light_estimate, Some(r));
+    let kept = net.light_estimate.unwrap();
+    assert!(!kept.averaged_around_vertical && !kept.made_neutral && kept.skill.is_none());
+    for (a, b) in env_of(&d.join("auto")).iter().zip(&expected) {
+        assert!((a - b).abs() <= 1e-5 * b.abs().max(1e-6), "{a} vs {b}");
+    }
+    let written = report(&d.join("auto"))["light_estimate"].clone();
+    assert_eq!(written["estimate"], "auto");
+    assert_eq!(written["skill"]["azimuth"], skill.azimuth);
+    assert_eq!(written["averaged_around_vertical"], r.averaged_around_vertical);
+    // A given light is the photo's: nothing of L' is kept, nothing is estimated.
+    let given = EditRequest {
+        light: Some("builtin:studio".into()),
+        ..with(LightEstimate::Auto)
+    };
+    assert!(
+        edit(model(), &given, &d.join("given"))
+            .unwrap()
+            .light_estimate
+            .is_none()
+    );
+    assert!(report(&d.join("given"))["light_estimate"].is_null());
+}

@@ -12,16 +12,96 @@
 //! | `sheet.png` | I, I', O', relit, n', L', and spheres of m' and m_t under L', labelled |
 //! | `report.json` | every setting, the framing and exposure, timings, the files |
 
+use super::photo::Framing;
 use super::photo::{Encoding, Photo};
-use super::{EditReport, Predicted, Prepared};
+use super::{Composite, Predicted, Prepared, background, light_estimate, normals, range, target};
 use anyhow::{Context, Result, bail};
 use matedit_contract::io::{
     SheetLabels, normal_to_u8, write_atomically, write_exr_channels, write_labelled_contact_sheet,
 };
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::tonemap::{srgb_encode, tonemap_u8};
+use matedit_trainer::post_optimisation;
 use matedit_trainer::render::{Batch, RenderingLayer};
 use std::path::{Path, PathBuf};
+
+/// Everything [`crate::edit`] measured and decided, for `report.json`.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct EditReport {
+    /// The photo.
+    pub photo: String,
+    /// Its size.
+    pub photo_size: [usize; 2],
+    /// How it was stored.
+    pub encoding: Encoding,
+    /// The mask (or "alpha of the photo").
+    pub mask: String,
+    /// Object pixels in the photo.
+    pub object_pixels: usize,
+    /// The checkpoint used, its stage and network shape.
+    pub checkpoint: String,
+    /// Its stage.
+    pub stage: String,
+    /// Network input side.
+    pub input_size: usize,
+    /// Environment rows.
+    pub env_height: usize,
+    /// Where the input lies in the photo.
+    pub framing: Framing,
+    /// What the photo's linear values were multiplied by (object mean luminance →
+    /// [`crate::photo::TRAINING_MEAN_LUMINANCE`]).
+    pub exposure: f64,
+    /// The target mean luminance.
+    pub training_mean_luminance: f64,
+    /// Per region: its id and target material spec.
+    pub regions: Vec<target::RegionTarget>,
+    /// The other illumination, if any.
+    pub relight: Option<String>,
+    /// The photo's illumination given instead of L', if any.
+    pub light: Option<String>,
+    /// The object's own material given instead of m', if any.
+    pub input_material: Option<String>,
+    /// The normal map given instead of n', if any, and where it had no normal.
+    pub normals: Option<normals::NormalsReport>,
+    /// What of L' was kept ([`light_estimate`]); none when a light was given.
+    pub light_estimate: Option<light_estimate::LightEstimateReport>,
+    /// How the light's level was set.
+    pub light_level: background::LightLevel,
+    /// How O' went back into the photo.
+    pub composite: Composite,
+    /// How each composited image was held to the photo's range ([`range`]).
+    pub range: Vec<range::RangeReport>,
+    /// Eq. 6, when asked for.
+    pub eq6: Option<Eq6Report>,
+    /// Seconds per phase.
+    pub seconds: Timings,
+    /// Files written, relative to the output folder.
+    pub files: Vec<String>,
+}
+
+/// What Eq. 6 did, for `report.json` and `energy.png`.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Eq6Report {
+    /// Weights and lengths as given.
+    pub config: post_optimisation::Eq6Config,
+    /// The light prior's weight the energies below were computed with: b × the ratio of the
+    /// detail square's pixels to the network's (the balance b was tuned for at the network's
+    /// resolution).
+    pub light_weight: f64,
+    /// E at the network's prediction.
+    pub start: post_optimisation::Energy,
+    /// E at the end.
+    pub end: post_optimisation::Energy,
+    /// E after every L-BFGS iteration.
+    pub steps: Vec<post_optimisation::Step>,
+    /// Passes of the rendering layer.
+    pub evaluations: usize,
+    /// The alternation's pixel stride (1: every pixel of the object; k: every k-th of each row
+    /// and column, the whole image's E at the first and last step).
+    pub stride: usize,
+    /// Seconds.
+    pub seconds: f64,
+}
 
 /// Seconds per phase of an edit.
 #[derive(Clone, Debug, Default, serde::Serialize)]
