@@ -242,33 +242,36 @@ async fn serve_from(cfg: ServeConfig, work: PathBuf, remove_work: bool) -> Resul
     let (q, path) = (queue.clone(), cfg.model.clone());
     let worker = std::thread::Builder::new()
         .name("matedit-edit".into())
-        .spawn(move || match Model::load(&path) {
-            Ok(model) => {
-                let s = &model.state;
-                let _ = tx.send(Ok(json!({
-                    // The run's own part of the path (run/checkpoints/stage): where the server
-                    // keeps it is nobody else's business.
-                    "checkpoint": model
-                        .dir
-                        .components()
-                        .rev()
-                        .take(3)
-                        .collect::<Vec<_>>()
-                        .into_iter()
-                        .rev()
-                        .collect::<std::path::PathBuf>()
-                        .display()
-                        .to_string(),
-                    "stage": s.stage_name,
-                    "input_size": s.net.input_size,
-                    "env_height": s.net.env_height,
-                })));
-                jobs::work(&q, &model);
-            }
-            Err(e) => {
-                let _ = tx.send(Err(e));
-            }
-        })
+        // The light probe runs once here, not in the first user's edit.
+        .spawn(
+            move || match Model::load(&path).and_then(|m| m.light_skill().map(|_| m)) {
+                Ok(model) => {
+                    let s = &model.state;
+                    let _ = tx.send(Ok(json!({
+                        // The run's own part of the path (run/checkpoints/stage): where the server
+                        // keeps it is nobody else's business.
+                        "checkpoint": model
+                            .dir
+                            .components()
+                            .rev()
+                            .take(3)
+                            .collect::<Vec<_>>()
+                            .into_iter()
+                            .rev()
+                            .collect::<std::path::PathBuf>()
+                            .display()
+                            .to_string(),
+                        "stage": s.stage_name,
+                        "input_size": s.net.input_size,
+                        "env_height": s.net.env_height,
+                    })));
+                    jobs::work(&q, &model);
+                }
+                Err(e) => {
+                    let _ = tx.send(Err(e));
+                }
+            },
+        )
         .context("cannot start the edit worker")?;
     let mut info = tokio::task::spawn_blocking(move || rx.recv())
         .await
