@@ -276,6 +276,9 @@ struct Finish {
     /// every receiving object's own material is given, `photo` otherwise.
     #[arg(long, value_enum)]
     range: Option<Range>,
+    /// What of each photo's predicted L' to keep (as `edit --light-estimate`).
+    #[arg(long, value_enum, default_value_t = LightEstimate::default())]
+    light_estimate: LightEstimate,
     /// Output folder.
     #[arg(long)]
     out: PathBuf,
@@ -411,6 +414,7 @@ fn run(cli: Cli) -> Result<()> {
                     optimize,
                     composite,
                     range,
+                    light_estimate,
                     out,
                 },
         } => {
@@ -420,11 +424,13 @@ fn run(cli: Cli) -> Result<()> {
                 Given {
                     material: from_material.as_deref(),
                     normals: from_normals.as_deref(),
+                    light_estimate,
                     ..Given::photo(&from, from_mask.as_deref())
                 },
                 Given {
                     material: to_material.as_deref(),
                     normals: to_normals.as_deref(),
+                    light_estimate,
                     ..Given::photo(&to, to_mask.as_deref())
                 },
                 cfg.as_ref(),
@@ -453,6 +459,7 @@ fn run(cli: Cli) -> Result<()> {
                     optimize,
                     composite,
                     range,
+                    light_estimate,
                     out,
                 },
         } => {
@@ -463,11 +470,13 @@ fn run(cli: Cli) -> Result<()> {
                 Given {
                     material: a_material.as_deref(),
                     normals: a_normals.as_deref(),
+                    light_estimate,
                     ..Given::photo(&a, a_mask.as_deref())
                 },
                 Given {
                     material: b_material.as_deref(),
                     normals: b_normals.as_deref(),
+                    light_estimate,
                     ..Given::photo(&b, b_mask.as_deref())
                 },
                 cfg.as_ref(),
@@ -565,6 +574,14 @@ mod tests {
         assert_eq!(range(&[]), None);
         assert_eq!(range(&["--range", "clip"]), Some(Range::Clip));
         assert!(parse(&["--range", "hdr"]).is_err());
+        let estimate = |args: &[&str]| match parse(args).map(|c| c.command) {
+            Ok(Command::Edit { light_estimate, .. }) => light_estimate,
+            _ => panic!("{args:?} not parsed"),
+        };
+        assert_eq!(estimate(&[]), LightEstimate::Auto);
+        assert_eq!(estimate(&["--light-estimate", "network"]), LightEstimate::Network);
+        let e = parse(&["--light-estimate", "guess"]).err().map(|e| e.to_string());
+        assert!(e.is_some_and(|e| e.contains("--light-estimate")));
         assert_eq!(
             (Composite::best_for(true), Composite::best_for(false)),
             (Composite::Ratio, Composite::Detail)
@@ -578,6 +595,13 @@ mod tests {
             ("transfer", "--from", "--to", ["--from-material", "--to-material"]),
             ("swap", "--a", "--b", ["--a-material", "--b-material"]),
         ] {
+            let finish = |args: &[&str]| match pair(cmd, x, y, args) {
+                Ok(Command::Transfer { finish, .. } | Command::Swap { finish, .. }) => finish.light_estimate,
+                _ => panic!("{cmd} {args:?} not parsed"),
+            };
+            assert_eq!(finish(&[]), LightEstimate::Auto);
+            assert_eq!(finish(&["--light-estimate", "network"]), LightEstimate::Network);
+            assert!(pair(cmd, x, y, &["--light-estimate", "guess"]).is_err());
             for o in own {
                 assert!(pair(cmd, x, y, &[o, "lambert:0.2,0.2,0.2"]).is_ok(), "{cmd} {o}");
                 let e = pair(cmd, x, y, &[o, "lambert:0.2,0.2,0.2", "--optimize"])

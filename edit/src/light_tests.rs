@@ -316,6 +316,16 @@ fn the_default_keeps_of_l_prime_what_the_checkpoint_reads() {
     assert_eq!(written["estimate"], "auto");
     assert_eq!(written["skill"]["azimuth"], skill.azimuth);
     assert_eq!(written["averaged_around_vertical"], r.averaged_around_vertical);
+    // Transfer keeps the receiving photo's choice.
+    for (e, measured) in [(LightEstimate::Network, false), (LightEstimate::Auto, true)] {
+        let to = Given {
+            light_estimate: e,
+            ..Given::photo(&p, Some(&m))
+        };
+        let out = d.join(format!("transfer-{e:?}"));
+        let r = transfer(model(), Given::photo(&p, Some(&m)), to, None, Composite::Detail, &out).unwrap();
+        assert_eq!(r.light_estimate.and_then(|x| x.skill).is_some(), measured, "{e:?}");
+    }
     // A given light is the photo's: nothing of L' is kept, nothing is estimated.
     let given = EditRequest {
         light: Some("builtin:studio".into()),

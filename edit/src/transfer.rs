@@ -28,6 +28,8 @@ pub struct Given<'a> {
     /// The object's normals at the photo's resolution when they are known (as `edit --normals`):
     /// they replace that photo's n'.
     pub normals: Option<&'a Path>,
+    /// What of that photo's L' is kept (as `edit --light-estimate`).
+    pub light_estimate: crate::light_estimate::LightEstimate,
 }
 
 impl<'a> Given<'a> {
@@ -38,6 +40,7 @@ impl<'a> Given<'a> {
             mask,
             material: None,
             normals: None,
+            light_estimate: Default::default(),
         }
     }
 
@@ -145,6 +148,7 @@ fn light_options(
                 .normals
                 .map(|n| normals::load_normals(n, read.photo.width, read.photo.height, &read.coverage))
                 .transpose()?,
+            estimate: given.light_estimate,
             ..LightOptions::default()
         })
     };
