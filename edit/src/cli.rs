@@ -284,6 +284,15 @@ struct Finish {
     out: PathBuf,
 }
 
+/// `println!` that lets the reader go: output piped into `head` that closes early ends the
+/// output, not the command (whose files are written all the same) with a panic.
+macro_rules! say {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout().lock(), $($t)*);
+    }};
+}
+
 fn host_name(s: &str) -> Result<String, String> {
     match crate::serve::guard::host_of(s) {
         Some(h) if h == s.trim().to_ascii_lowercase() => Ok(h),
@@ -369,10 +378,10 @@ fn run(cli: Cli) -> Result<()> {
             };
             let report = edit(&model, &req, &out)?;
             if let Some(line) = report.light_estimate.as_ref().and_then(|e| e.describe()) {
-                println!("{line}");
+                say!("{line}");
             }
             for r in report.range.iter().filter(|r| r.applied) {
-                println!(
+                say!(
                     "{}: held to the photo's range: × {:.2} ({:.0} % of the object was above white as rendered; --range clip keeps it)",
                     r.image,
                     r.scale,
@@ -380,7 +389,7 @@ fn run(cli: Cli) -> Result<()> {
                 );
             }
             if let Some(e) = &report.eq6 {
-                println!(
+                say!(
                     "Eq. 6: E {:.4e} → {:.4e} ({:.0} % lower) in {:.2} s, {} L-BFGS iterations (energy.png)",
                     e.start.total,
                     e.end.total,
@@ -389,7 +398,7 @@ fn run(cli: Cli) -> Result<()> {
                     e.steps.len()
                 );
             }
-            println!(
+            say!(
                 "{}: edited in {:.2} s (network {:.2} s, rendering layer {:.2} s); {} files, report.json",
                 out.display(),
                 report.seconds.total,
@@ -437,7 +446,7 @@ fn run(cli: Cli) -> Result<()> {
                 Look::chosen(composite, range, to_material.is_some()),
                 &out,
             )?;
-            println!(
+            say!(
                 "{}: transferred in {:.2} s; report.json",
                 out.display(),
                 r.seconds.total
@@ -483,7 +492,7 @@ fn run(cli: Cli) -> Result<()> {
                 Look::chosen(composite, range, both_known),
                 &out,
             )?;
-            println!(
+            say!(
                 "{}: swapped in {:.2} s; a/ and b/ with report.json each",
                 out.display(),
                 rb.seconds.total
