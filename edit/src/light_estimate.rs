@@ -155,6 +155,13 @@ fn azimuth_skill(maps: &[Vec<f32>], h: usize) -> f64 {
     }
 }
 
+/// The share of a tint's change `asked` (in log(red/blue)) that L' `shown`, in [0, 1]; 0 where
+/// it is not a number.
+fn colour_skill(asked: f64, shown: f64) -> f64 {
+    let share = shown / asked;
+    if share.is_finite() { share.clamp(0.0, 1.0) } else { 0.0 }
+}
+
 /// log(red/blue) of `l`'s mean colour.
 fn red_over_blue(l: &[f32]) -> f64 {
     let p = l.len() / 3;
@@ -207,7 +214,8 @@ impl LightSkill {
     pub fn measure(net: &Net, size: usize, env_height: usize) -> Result<Self> {
         // The probe's pictures need only a light as sharp as its key: rendered under fewer rows
         // than the network answers in, they cost a quarter (or less) of the layer's time.
-        let h = PROBE_ROWS.min(env_height);
+        // Even, so that a quarter turn is a whole number of columns.
+        let h = (PROBE_ROWS.min(env_height) / 2 * 2).max(2);
         let layer = RenderingLayer::new(h);
         let (normals, mask, region_map) = sphere(size);
         let (m, _) = crate::target::dsbrdf_of("plastic:0.1:0.5,0.5,0.5")?;
@@ -245,7 +253,7 @@ impl LightSkill {
         let shown = red_over_blue(&look(&warm)?) - red_over_blue(&look(&cool)?);
         Ok(Self {
             azimuth: azimuth_skill(&turns, env_height),
-            colour: (shown / asked).clamp(0.0, 1.0),
+            colour: colour_skill(asked, shown),
         })
     }
 
@@ -339,6 +347,14 @@ mod tests {
         let t = turned(&l, H, 3);
         assert_eq!(t[2 * (2 * H) + 6], l[2 * (2 * H) + 3]);
         assert_eq!(turned(&l, H, 2 * H), l);
+        // The colour skill: a share of the tint, whatever L' answered.
+        assert_eq!(colour_skill(1.2, 0.6), 0.5);
+        assert_eq!(colour_skill(1.2, 2.4), 1.0);
+        assert_eq!(colour_skill(1.2, -0.3), 0.0);
+        for shown in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            assert_eq!(colour_skill(1.2, shown), 0.0, "{shown}");
+        }
+        assert_eq!(colour_skill(0.0, 0.0), 0.0);
     }
 
     #[test]
