@@ -334,7 +334,7 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
         ..EditRequest::default()
     };
     let (m2, o2) = (model.clone(), cli_out.clone());
-    tokio::task::spawn_blocking(move || edit(&m2, &req, &o2))
+    let cli_report = tokio::task::spawn_blocking(move || edit(&m2, &req, &o2))
         .await
         .unwrap()
         .unwrap();
@@ -381,6 +381,25 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
         .await
         .unwrap();
     assert_eq!(caption, "n′", "no normals were given");
+    // L′'s tile says what of it the checkpoint does not read, as the command line's report does.
+    let env_caption = c
+        .execute("return document.getElementById('result-env').alt", vec![])
+        .await
+        .unwrap();
+    let e = cli_report.light_estimate.expect("L′ was the network's");
+    let dropped: Vec<&str> = [
+        (e.averaged_around_vertical, "averaged around the vertical axis"),
+        (e.made_neutral, "made neutral"),
+    ]
+    .into_iter()
+    .filter_map(|(d, what)| d.then_some(what))
+    .collect();
+    let expected = if dropped.is_empty() {
+        "L′".to_string()
+    } else {
+        format!("L′ — {} (not read from a picture)", dropped.join(" and "))
+    };
+    assert_eq!(env_caption, expected);
     let got = image::load_from_memory(&image_bytes(&c, "result-edited").await)
         .unwrap()
         .to_rgb8();
