@@ -426,6 +426,24 @@ mod tests {
     }
 
     #[test]
+    fn the_probe_measures_networks_of_every_light_size() {
+        use matedit_trainer::model::Widths;
+        use matedit_trainer::model::network::NetConfig;
+        let device = Device::flex();
+        for (size, h) in [(16, 4), (16, 8), (32, 32), (16, 128)] {
+            device.seed(7);
+            let net = NetConfig::new(size, Widths::new(4, 16, 32, 8))
+                .with_env_height(h)
+                .init(&device);
+            let s = LightSkill::measure(&net, size, h).unwrap();
+            assert!(
+                (0.0..=1.0).contains(&s.azimuth) && (0.0..=1.0).contains(&s.colour),
+                "{size}² input, {h} rows: {s:?}"
+            );
+        }
+    }
+
+    #[test]
     fn a_checkpoints_skill_is_measured_in_range_and_the_same_every_time() {
         let m = crate::Model::load(crate::tests::model()).unwrap();
         let s = m.light_skill().unwrap();
