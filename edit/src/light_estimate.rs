@@ -4,8 +4,8 @@
 //! answers them from the picture; a network that gives every picture the same key light and the
 //! same tint answers a prior (on the photo benchmark the quickstart's brightest texel is the same
 //! one in every scene, its colour the same bluish one; docs/PERFORMANCE.md, "What the network's
-//! L' carries of each photo"). [`LightSkill::measure`] asks the checkpoint once, at load: it
-//! renders a grey plastic sphere under one light turned to four azimuths and tinted warm and cool,
+//! L' carries of each photo"). [`LightSkill::measure`] asks the checkpoint once per loaded model
+//! (`Model::light_skill`, when an edit first needs it): it renders a grey plastic sphere under one light turned to four azimuths and tinted warm and cool,
 //! and measures how far L' follows. What it does not follow, an edit ([`LightEstimate::Auto`])
 //! replaces by its expectation over what the picture did not say: L' averaged around the
 //! vertical axis (lights are captured at any heading), and its colour neutral.
@@ -54,7 +54,8 @@ pub struct LightEstimateReport {
     pub made_neutral: bool,
 }
 
-/// The key light's lobe, exp(κ(cos − 1)): about 13° wide, a few texels at 32–64 rows.
+/// The key light's lobe, exp(κ(cos − 1)): 21° across at half its peak, two texels of the probe's
+/// 16 rows.
 const KEY_SHARPNESS: f64 = 40.0;
 /// Rows of the probe's light (at most the network's).
 const PROBE_ROWS: usize = 16;
