@@ -72,9 +72,10 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         #[arg(long, value_enum, default_value_t = LevelFrom::default())]
         light_level: LevelFrom,
         /// What of the predicted L' to keep: `auto` keeps what the checkpoint reads from a
-        /// picture (measured when it is loaded; report.json's light_estimate) and replaces the
-        /// rest by its expectation (L' averaged around the vertical axis, its colour neutral);
-        /// `network` keeps L' as the network gives it (the paper's).
+        /// picture (measured once, about 0.1 s, by a probe the first edit runs; report.json's
+        /// light_estimate) and replaces the rest by its expectation (L' averaged around the
+        /// vertical axis, its colour neutral); `network` keeps L' as the network gives it (the
+        /// paper's), and runs no probe.
         #[arg(long, value_enum, default_value_t = LightEstimate::default())]
         light_estimate: LightEstimate,
         /// The photo's horizontal field of view in degrees (1–170), for the directions its
@@ -378,7 +379,12 @@ fn run(cli: Cli) -> Result<()> {
             };
             let report = edit(&model, &req, &out)?;
             if let Some(line) = report.light_estimate.as_ref().and_then(|e| e.describe()) {
-                say!("{line}");
+                let eq6 = if report.eq6.is_some() {
+                    " (Eq. 6 started from it)"
+                } else {
+                    ""
+                };
+                say!("{line}{eq6}");
             }
             for r in report.range.iter().filter(|r| r.applied) {
                 say!(

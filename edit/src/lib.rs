@@ -209,8 +209,12 @@ impl Model {
             return Ok(*s);
         }
         let (size, h) = (self.state.net.input_size, self.state.net.env_height);
-        let s = light_estimate::LightSkill::measure(&self.net, size, h)
-            .with_context(|| format!("checkpoint {}: the light probe", self.dir.display()))?;
+        let s = light_estimate::LightSkill::measure(&self.net, size, h).with_context(|| {
+            format!(
+                "checkpoint {}: the light probe (--light-estimate network does without it)",
+                self.dir.display()
+            )
+        })?;
         Ok(*self.light_skill.get_or_init(|| s))
     }
 }

@@ -28,9 +28,21 @@ pub enum LightEstimate {
     Network,
 }
 
-/// Below this a property of the light counts as not read (a skill is 0 for an answer that does
-/// not change with the picture, 1 for one that follows it).
-pub const READ: f64 = 0.5;
+/// The heading skill at and above which L''s layout around the vertical axis counts as read: the
+/// skill is 0 for an L' that stays put, about 0.5 for one that changes but not with the light's
+/// heading (chance), and 1 for one that turns with it.
+pub const HEADING_READ: f64 = 0.75;
+/// The colour skill at and above which L''s colour counts as read: the share of a tint L' shows
+/// (0 for none; an L' showing half of every tint is nearer the truth than grey).
+pub const COLOUR_READ: f64 = 0.5;
+/// The turns of the probe's light: quarter turns, a whole number of columns for every map of an
+/// even number of rows.
+const TURNS: usize = 4;
+
+/// Columns of the `k`-th of [`TURNS`] turns of a map of `h` rows.
+fn turn_columns(k: usize, h: usize) -> usize {
+    k * 2 * h / TURNS
+}
 
 /// How far a checkpoint's L' follows the light of its input, each in [0, 1].
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -130,17 +142,19 @@ fn azimuthal_part(l: &[f32], h: usize) -> Vec<f64> {
     out
 }
 
-/// The azimuth skill of L's given for lights turned by `k·w/n` columns (`maps[k]`): how much
-/// nearer each L' is to another turned along than to it unturned. Solid-angle weights (sin θ
-/// per row) count every direction alike. 0 where every map is uniform around the axis.
+/// The azimuth skill of the L's (`[3, h, 2h]`) given for the probe's light turned by
+/// [`turn_columns`] (`maps[k]` for the `k`-th turn): how much nearer each L' is to another turned
+/// along than to it unturned. Solid-angle weights (sin θ per row) count every direction alike. 0
+/// where every map is uniform around the axis.
 fn azimuth_skill(maps: &[Vec<f32>], h: usize) -> f64 {
     let (w, n) = (2 * h, maps.len());
+    debug_assert_eq!(n, TURNS);
     let parts: Vec<Vec<f64>> = maps.iter().map(|m| azimuthal_part(m, h)).collect();
     let weight = |t: usize| (((t / w) as f64 + 0.5) * std::f64::consts::PI / h as f64).sin();
     let (mut stays, mut turns) = (0.0, 0.0);
     for (j, a) in parts.iter().enumerate() {
         for (k, b) in parts.iter().enumerate().filter(|(k, _)| *k != j) {
-            let shift = ((k + n - j) % n) * w / n;
+            let shift = turn_columns((k + n - j) % n, h);
             for t in 0..a.len() {
                 let (row, col) = (t / w, t % w);
                 let along = a[row * w + (col + w - shift) % w];
@@ -194,17 +208,28 @@ impl LightEstimate {
 impl LightEstimateReport {
     /// One line saying what of L' was replaced and why, when something was.
     pub fn describe(&self) -> Option<String> {
-        let what = match (self.averaged_around_vertical, self.made_neutral) {
-            (true, true) => "averaged around the vertical axis and made neutral",
-            (true, false) => "averaged around the vertical axis",
-            (false, true) => "made neutral",
+        let skill = self.skill?;
+        let (what, unread, skills) = match (self.averaged_around_vertical, self.made_neutral) {
+            (true, true) => (
+                "averaged around the vertical axis and made neutral",
+                "reads neither the light's heading nor its colour",
+                format!("heading {:.2}, colour {:.2}", skill.azimuth, skill.colour),
+            ),
+            (true, false) => (
+                "averaged around the vertical axis",
+                "does not read the light's heading",
+                format!("heading {:.2}", skill.azimuth),
+            ),
+            (false, true) => (
+                "made neutral",
+                "does not read the light's colour",
+                format!("colour {:.2}", skill.colour),
+            ),
             (false, false) => return None,
         };
         Some(format!(
-            "light: L' {what}: this checkpoint does not read the light's heading or colour from a \
-             picture (skill {:.2} and {:.2}, of 1; --light-estimate network keeps them)",
-            self.skill.map_or(f64::NAN, |s| s.azimuth),
-            self.skill.map_or(f64::NAN, |s| s.colour)
+            "light: L' {what}: this checkpoint {unread} from a picture ({skills}, of 1; \
+             --light-estimate network keeps L' as it is)"
         ))
     }
 }
@@ -246,8 +271,8 @@ impl LightSkill {
             Ok(net.predict_photo(&input, &mask, &region_map, 1, &Device::flex())?.env)
         };
         let white = probe_light(h, [1.0; 3]);
-        let turns: Vec<Vec<f32>> = (0..4)
-            .map(|k| look(&turned(&white, h, k * 2 * h / 4)))
+        let turns: Vec<Vec<f32>> = (0..TURNS)
+            .map(|k| look(&turned(&white, h, turn_columns(k, h))))
             .collect::<Result<_>>()?;
         let [warm, cool] = TINTS.map(|t| probe_light(h, t));
         let asked = red_over_blue(&warm) - red_over_blue(&cool);
@@ -263,8 +288,8 @@ impl LightSkill {
         let report = LightEstimateReport {
             estimate: LightEstimate::Auto,
             skill: Some(*self),
-            averaged_around_vertical: self.azimuth < READ,
-            made_neutral: self.colour < READ,
+            averaged_around_vertical: self.azimuth < HEADING_READ,
+            made_neutral: self.colour < COLOUR_READ,
         };
         if report.averaged_around_vertical {
             average_around_vertical(env, h);
@@ -329,7 +354,7 @@ mod tests {
     #[test]
     fn the_azimuth_skill_is_one_for_a_light_that_turns_along_and_zero_for_one_that_stays() {
         let l = map(key, [1.0; 3]);
-        let along: Vec<Vec<f32>> = (0..4).map(|k| turned(&l, H, k * 2 * H / 4)).collect();
+        let along: Vec<Vec<f32>> = (0..TURNS).map(|k| turned(&l, H, turn_columns(k, H))).collect();
         let stays = vec![l.clone(); 4];
         assert!((azimuth_skill(&along, H) - 1.0).abs() < 1e-12);
         assert!(azimuth_skill(&stays, H).abs() < 1e-12);
@@ -340,7 +365,7 @@ mod tests {
             .collect();
         let s = azimuth_skill(&half, H);
         assert!(s > 0.2 && s < 0.8, "{s}");
-        // Uniform around the axis (or black, or a single texel's noise of 1e-30): nothing to follow.
+        // Uniform around the axis, or black: nothing to follow.
         let rows = vec![map(|row, _| 1.0 + row as f32, [1.0; 3]); 4];
         assert_eq!(azimuth_skill(&rows, H), 0.0);
         assert_eq!(azimuth_skill(&vec![vec![0.0; 6 * H * H]; 4], H), 0.0);
@@ -393,8 +418,9 @@ mod tests {
     #[test]
     fn an_estimate_drops_only_what_the_checkpoint_does_not_read() {
         let l = map(key, [1.2, 1.0, 0.6]);
-        for (azimuth, colour) in [(0.0, 0.0), (0.9, 0.0), (0.0, 0.9), (0.9, 0.9)] {
+        for (azimuth, colour) in [(0.0, 0.0), (0.9, 0.0), (0.0, 0.9), (0.9, 0.9), (0.6, 0.6), (0.75, 0.5)] {
             let skill = LightSkill { azimuth, colour };
+            let (avg, neutral) = (azimuth < HEADING_READ, colour < COLOUR_READ);
             let mut kept = l.clone();
             let never = || -> Result<LightSkill> { panic!("`network` asks for no skill") };
             let r = LightEstimate::Network.apply(never, &mut kept, H).unwrap();
@@ -405,25 +431,48 @@ mod tests {
             assert_eq!(r.skill, Some(skill));
             assert_eq!(
                 (r.averaged_around_vertical, r.made_neutral),
-                (azimuth < READ, colour < READ)
+                (avg, neutral),
+                "{skill:?}"
             );
+            // The line names what was replaced, and only that skill's figure.
             match r.describe() {
-                None => assert!(azimuth >= READ && colour >= READ),
+                None => assert!(!avg && !neutral),
                 Some(line) => {
-                    assert_eq!(line.contains("averaged around"), azimuth < READ, "{line}");
-                    assert_eq!(line.contains("neutral"), colour < READ, "{line}");
-                    assert!(line.contains(&format!("{azimuth:.2}")) && line.contains("--light-estimate network"));
+                    assert_eq!(line.contains("averaged around"), avg, "{line}");
+                    assert_eq!(line.contains("heading"), avg, "{line}");
+                    assert_eq!(line.contains("neutral"), neutral, "{line}");
+                    assert_eq!(line.contains(&format!("colour {colour:.2}")), neutral, "{line}");
+                    assert_eq!(line.contains(&format!("heading {azimuth:.2}")), avg, "{line}");
+                    assert!(line.contains("--light-estimate network"), "{line}");
                 }
             }
             let mut expected = l.clone();
-            if azimuth < READ {
+            if avg {
                 average_around_vertical(&mut expected, H);
             }
-            if colour < READ {
+            if neutral {
                 make_neutral(&mut expected);
             }
             assert_eq!(auto, expected);
         }
+    }
+
+    #[test]
+    fn an_l_prime_that_changes_but_not_with_the_heading_scores_chance_and_counts_as_not_read() {
+        // Four unrelated layouts (a fixed pseudo-random texel pattern each).
+        let noise = |seed: u32| {
+            map(
+                move |row, col| {
+                    let x = (row as u32 * 2654435761) ^ (col as u32 * 40503) ^ (seed * 2246822519);
+                    1.0 + (x.wrapping_mul(2654435761) >> 24) as f32 / 64.0
+                },
+                [1.0; 3],
+            )
+        };
+        let maps: Vec<Vec<f32>> = (0..TURNS as u32).map(noise).collect();
+        let s = azimuth_skill(&maps, H);
+        assert!(s > 0.3 && s < 0.7, "{s}");
+        assert!(s < HEADING_READ);
     }
 
     #[test]

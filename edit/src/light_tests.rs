@@ -338,4 +338,12 @@ fn the_default_keeps_of_l_prime_what_the_checkpoint_reads() {
             .is_none()
     );
     assert!(report(&d.join("given"))["light_estimate"].is_null());
+    // The probe runs only where it is needed: neither for a given light nor for `network`.
+    let m = Model::load(model()).unwrap();
+    let t0 = std::time::Instant::now();
+    edit_with(&m, &given, &d.join("given-2"), None, t0).unwrap();
+    edit_with(&m, &with(LightEstimate::Network), &d.join("network-2"), None, t0).unwrap();
+    assert!(m.light_skill.get().is_none());
+    edit_with(&m, &with(LightEstimate::Auto), &d.join("auto-2"), None, t0).unwrap();
+    assert_eq!(m.light_skill.get(), Some(&skill));
 }

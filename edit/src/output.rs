@@ -88,7 +88,8 @@ pub struct Eq6Report {
     /// detail square's pixels to the network's (the balance b was tuned for at the network's
     /// resolution).
     pub light_weight: f64,
-    /// E at the network's prediction.
+    /// E at the start: the network's prediction (with what of L' the checkpoint does not read
+    /// replaced, [`crate::light_estimate`]).
     pub start: post_optimisation::Energy,
     /// E at the end.
     pub end: post_optimisation::Energy,
@@ -108,7 +109,8 @@ pub struct Eq6Report {
 pub struct Timings {
     /// Reading the model, photo, mask, regions and materials.
     pub load: f64,
-    /// The network (n', m', L').
+    /// The network (n', m', L'), and the light probe the first time a loaded model needs it
+    /// ([`crate::light_estimate`]).
     pub network: f64,
     /// Eq. 6, when asked for.
     pub eq6: f64,

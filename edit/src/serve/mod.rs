@@ -588,7 +588,15 @@ pub fn serve(cfg: ServeConfig) -> Result<()> {
         eprintln!("loading {} …", cfg.model.display());
         let public = !cfg.bind.is_loopback();
         let server = start(cfg).await?;
-        println!("matedit serve: open http://{} (Ctrl-C stops)", server.addr);
+        // Like the command line's output, the address line lets a closed stdout go.
+        {
+            use std::io::Write as _;
+            let _ = writeln!(
+                std::io::stdout().lock(),
+                "matedit serve: open http://{} (Ctrl-C stops)",
+                server.addr
+            );
+        }
         if public {
             eprintln!("note: listening beyond this machine; anyone who reaches it may queue edits");
         }
