@@ -285,15 +285,6 @@ struct Finish {
     out: PathBuf,
 }
 
-/// `println!` that lets the reader go: output piped into `head` that closes early ends the
-/// output, not the command (whose files are written all the same) with a panic.
-macro_rules! say {
-    ($($t:tt)*) => {{
-        use std::io::Write as _;
-        let _ = writeln!(std::io::stdout().lock(), $($t)*);
-    }};
-}
-
 fn host_name(s: &str) -> Result<String, String> {
     match crate::serve::guard::host_of(s) {
         Some(h) if h == s.trim().to_ascii_lowercase() => Ok(h),

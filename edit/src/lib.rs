@@ -17,6 +17,16 @@
 
 #![warn(missing_docs)]
 
+/// `println!` that lets the reader go: output piped into `head` that closes early ends the
+/// output, not the command (whose files are written all the same) with a panic. For every line
+/// `matedit` writes to stdout ([`cli`], [`serve`]).
+macro_rules! say {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout().lock(), $($t)*);
+    }};
+}
+
 pub mod background;
 pub mod cli;
 pub mod composite;

@@ -10,9 +10,9 @@
 //! replaces by its expectation over what the picture did not say: L' averaged around the
 //! vertical axis (lights are captured at any heading), and its colour neutral.
 
-use super::photo::{TRAINING_MEAN_LUMINANCE, luminance};
-use anyhow::{Result, bail};
-use burn::tensor::Device;
+use super::photo::{Encoding, Framing, Photo, luminance, prepare_framed};
+use super::predict::network_prediction;
+use anyhow::{Context, Result};
 use matedit_trainer::model::network::Net;
 use matedit_trainer::render::{Batch, RenderingLayer};
 
@@ -177,11 +177,16 @@ fn colour_skill(asked: f64, shown: f64) -> f64 {
     if share.is_finite() { share.clamp(0.0, 1.0) } else { 0.0 }
 }
 
+/// The mean of each channel of `l` (`[3, …]`).
+fn channel_means(l: &[f32]) -> [f64; 3] {
+    let p = l.len() / 3;
+    std::array::from_fn(|c| l[c * p..(c + 1) * p].iter().map(|&v| v as f64).sum::<f64>() / p.max(1) as f64)
+}
+
 /// log(red/blue) of `l`'s mean colour.
 fn red_over_blue(l: &[f32]) -> f64 {
-    let p = l.len() / 3;
-    let mean = |c: usize| l[c * p..(c + 1) * p].iter().map(|&v| v as f64).sum::<f64>() / p as f64;
-    (mean(0).max(1e-30) / mean(2).max(1e-30)).ln()
+    let [r, _, b] = channel_means(l);
+    (r.max(1e-30) / b.max(1e-30)).ln()
 }
 
 impl LightEstimate {
@@ -246,6 +251,14 @@ impl LightSkill {
         let (normals, mask, region_map) = sphere(size);
         let (m, _) = crate::target::dsbrdf_of("plastic:0.1:0.5,0.5,0.5")?;
         let material: Vec<f32> = m.to_normalised().map(|v| v as f32).to_vec();
+        // Each render is a linear photo of the sphere, framed one pixel per network pixel and
+        // exposed as any photo is (`prepare_framed`), then shown to the network.
+        let framing = Framing {
+            x0: 0.0,
+            y0: 0.0,
+            side: size as f64,
+            size,
+        };
         let look = |l: &[f32]| -> Result<Vec<f32>> {
             let img = layer.forward(&Batch {
                 batch: 1,
@@ -257,18 +270,15 @@ impl LightSkill {
                 env: l,
             })?;
             let p = size * size;
-            let on: Vec<usize> = (0..p).filter(|&k| mask[k] > 0.0).collect();
-            let mean = on
-                .iter()
-                .map(|&k| luminance([img[k], img[p + k], img[2 * p + k]]))
-                .sum::<f64>()
-                / on.len().max(1) as f64;
-            if !(mean.is_finite() && mean > 0.0) {
-                bail!("the light probe rendered black");
-            }
-            let k = (TRAINING_MEAN_LUMINANCE / mean) as f32;
-            let input: Vec<f32> = img.iter().map(|v| v * k).collect();
-            Ok(net.predict_photo(&input, &mask, &region_map, 1, &Device::flex())?.env)
+            let photo = Photo {
+                width: size,
+                height: size,
+                rgb: (0..p).map(|k| [img[k], img[p + k], img[2 * p + k]]).collect(),
+                alpha: None,
+                encoding: Encoding::Linear,
+            };
+            let prep = prepare_framed(&photo, &mask, None, framing, None).context("the light probe")?;
+            Ok(network_prediction(net, &prep)?.env)
         };
         let white = probe_light(h, [1.0; 3]);
         let turns: Vec<Vec<f32>> = (0..TURNS)
@@ -315,9 +325,7 @@ pub fn average_around_vertical(env: &mut [f32], h: usize) {
 /// channel means over its own.
 pub fn make_neutral(env: &mut [f32]) {
     let p = env.len() / 3;
-    let means: Vec<f64> = (0..3)
-        .map(|c| env[c * p..(c + 1) * p].iter().map(|&v| v as f64).sum::<f64>() / p.max(1) as f64)
-        .collect();
+    let means = channel_means(env);
     let grey = means.iter().sum::<f64>() / 3.0;
     for (c, m) in means.iter().enumerate() {
         let k = if *m > 0.0 && grey.is_finite() {
@@ -479,7 +487,7 @@ mod tests {
     fn the_probe_measures_networks_of_every_light_size() {
         use matedit_trainer::model::Widths;
         use matedit_trainer::model::network::NetConfig;
-        let device = Device::flex();
+        let device = burn::tensor::Device::flex();
         for (size, h) in [(16, 4), (16, 8), (32, 32), (16, 128)] {
             device.seed(7);
             let net = NetConfig::new(size, Widths::new(4, 16, 32, 8))

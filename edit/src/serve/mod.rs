@@ -230,6 +230,14 @@ async fn start_in(cfg: ServeConfig, temp: &std::path::Path) -> Result<Server> {
     started
 }
 
+/// The model, with its light probe run ([`Model::light_skill`]): once here, not in the first
+/// user's edit.
+fn load_measured(path: &std::path::Path) -> Result<Model> {
+    let model = Model::load(path)?;
+    model.light_skill()?;
+    Ok(model)
+}
+
 /// [`start`] once the work folder exists.
 async fn serve_from(cfg: ServeConfig, work: PathBuf, remove_work: bool) -> Result<Server> {
     // Bound first: a port in use is refused before the model is loaded and a worker started.
@@ -242,36 +250,33 @@ async fn serve_from(cfg: ServeConfig, work: PathBuf, remove_work: bool) -> Resul
     let (q, path) = (queue.clone(), cfg.model.clone());
     let worker = std::thread::Builder::new()
         .name("matedit-edit".into())
-        // The light probe runs once here, not in the first user's edit.
-        .spawn(
-            move || match Model::load(&path).and_then(|m| m.light_skill().map(|_| m)) {
-                Ok(model) => {
-                    let s = &model.state;
-                    let _ = tx.send(Ok(json!({
-                        // The run's own part of the path (run/checkpoints/stage): where the server
-                        // keeps it is nobody else's business.
-                        "checkpoint": model
-                            .dir
-                            .components()
-                            .rev()
-                            .take(3)
-                            .collect::<Vec<_>>()
-                            .into_iter()
-                            .rev()
-                            .collect::<std::path::PathBuf>()
-                            .display()
-                            .to_string(),
-                        "stage": s.stage_name,
-                        "input_size": s.net.input_size,
-                        "env_height": s.net.env_height,
-                    })));
-                    jobs::work(&q, &model);
-                }
-                Err(e) => {
-                    let _ = tx.send(Err(e));
-                }
-            },
-        )
+        .spawn(move || match load_measured(&path) {
+            Ok(model) => {
+                let s = &model.state;
+                let _ = tx.send(Ok(json!({
+                    // The run's own part of the path (run/checkpoints/stage): where the server
+                    // keeps it is nobody else's business.
+                    "checkpoint": model
+                        .dir
+                        .components()
+                        .rev()
+                        .take(3)
+                        .collect::<Vec<_>>()
+                        .into_iter()
+                        .rev()
+                        .collect::<std::path::PathBuf>()
+                        .display()
+                        .to_string(),
+                    "stage": s.stage_name,
+                    "input_size": s.net.input_size,
+                    "env_height": s.net.env_height,
+                })));
+                jobs::work(&q, &model);
+            }
+            Err(e) => {
+                let _ = tx.send(Err(e));
+            }
+        })
         .context("cannot start the edit worker")?;
     let mut info = tokio::task::spawn_blocking(move || rx.recv())
         .await
@@ -588,15 +593,7 @@ pub fn serve(cfg: ServeConfig) -> Result<()> {
         eprintln!("loading {} …", cfg.model.display());
         let public = !cfg.bind.is_loopback();
         let server = start(cfg).await?;
-        // Like the command line's output, the address line lets a closed stdout go.
-        {
-            use std::io::Write as _;
-            let _ = writeln!(
-                std::io::stdout().lock(),
-                "matedit serve: open http://{} (Ctrl-C stops)",
-                server.addr
-            );
-        }
+        say!("matedit serve: open http://{} (Ctrl-C stops)", server.addr);
         if public {
             eprintln!("note: listening beyond this machine; anyone who reaches it may queue edits");
         }
