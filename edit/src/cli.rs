@@ -369,6 +369,9 @@ fn run(cli: Cli) -> Result<()> {
                 }),
             };
             let report = edit(&model, &req, &out)?;
+            if let Some(o) = &report.orientation {
+                say!("{}", o.line());
+            }
             if let Some(line) = report.light_estimate.as_ref().and_then(|e| e.describe()) {
                 let eq6 = if report.eq6.is_some() {
                     " (Eq. 6 started from it)"

@@ -36,6 +36,7 @@ pub mod light_estimate;
 #[cfg(test)]
 mod light_tests;
 pub mod normals;
+pub mod orientation;
 pub mod output;
 pub mod photo;
 pub mod predict;
@@ -164,6 +165,8 @@ pub struct Understood {
     pub coverage: Vec<f32>,
     /// What the report calls the mask.
     pub mask_name: String,
+    /// How the photo was turned to stand as viewers show it, where its EXIF said to.
+    pub orientation: Option<orientation::OrientationReport>,
     /// The network input.
     pub prep: Prepared,
     /// n*, m*, L* (the network's, or after Eq. 6) at the network's resolution.
@@ -239,14 +242,23 @@ pub struct ReadPhoto {
     pub mask_name: String,
     /// Region label per photo pixel and the number of regions.
     pub labels: Option<(Vec<u8>, usize)>,
+    /// How the photo was turned to stand as viewers show it, where its EXIF said to.
+    pub orientation: Option<orientation::OrientationReport>,
 }
 
 /// Reads a photo, its mask (or alpha) and region labels, checking everything before the
 /// network runs.
 pub fn read_photo(photo_path: &Path, mask: Option<&Path>, regions: Option<&Path>) -> Result<ReadPhoto> {
-    let p = photo::load_photo(photo_path)?;
+    let (p, turn) = photo::load_photo_shown(photo_path)?;
+    let mut orientation = orientation::OrientationReport::new(turn, orientation::shown_size((p.width, p.height), turn));
     let (coverage, mask_name) = match mask {
-        Some(m) => (photo::load_mask(m, p.width, p.height)?, m.display().to_string()),
+        Some(m) => {
+            let (coverage, fit) = photo::load_mask(m, p.width, p.height, turn)?;
+            if let Some(o) = orientation.as_mut() {
+                o.mask = Some(fit);
+            }
+            (coverage, m.display().to_string())
+        }
         None => (
             p.alpha.clone().with_context(|| {
                 format!(
@@ -258,14 +270,22 @@ pub fn read_photo(photo_path: &Path, mask: Option<&Path>, regions: Option<&Path>
         ),
     };
     photo::check_mask_shape(mask.unwrap_or(photo_path), &coverage, p.width)?;
-    let labels = regions
-        .map(|r| target::load_regions(r, p.width, p.height, &coverage))
-        .transpose()?;
+    let labels = match regions {
+        Some(r) => {
+            let (labels, n, fit) = target::load_regions(r, p.width, p.height, turn, &coverage)?;
+            if let Some(o) = orientation.as_mut() {
+                o.regions = Some(fit);
+            }
+            Some((labels, n))
+        }
+        None => None,
+    };
     Ok(ReadPhoto {
         photo: p,
         coverage,
         mask_name,
         labels,
+        orientation,
     })
 }
 
@@ -285,6 +305,7 @@ pub fn understand(
         coverage,
         mask_name,
         labels,
+        orientation,
     } = read;
     let prep = prepare(
         &p,
@@ -421,6 +442,7 @@ pub fn understand(
         path: path.to_path_buf(),
         coverage,
         mask_name,
+        orientation,
         prep,
         point: x,
         detail,
@@ -462,6 +484,7 @@ fn finish(
         path,
         coverage,
         mask_name,
+        orientation,
         prep,
         point,
         detail,
@@ -515,6 +538,7 @@ fn finish(
         photo: path.display().to_string(),
         photo_size: [p.width, p.height],
         encoding: p.encoding,
+        orientation,
         mask: mask_name,
         object_pixels: coverage.iter().filter(|&&c| c > 0.0).count(),
         checkpoint: model.dir.display().to_string(),

@@ -356,7 +356,9 @@ mod tests {
         use crate::tests::{dir, model, request, write_photo};
         let d = dir("given-normals");
         let (p, m, _) = write_photo(&d);
-        let coverage = crate::photo::load_mask(&m, 60, 40).expect("mask");
+        let coverage = crate::photo::load_mask(&m, 60, 40, image::metadata::Orientation::NoTransforms)
+            .expect("mask")
+            .0;
         let tilt = [0.6_f32, -0.48, 0.64];
         let map = d.join("normals.exr");
         exr::prelude::write_rgb_file(&map, 60, 40, |x, y| {
@@ -419,7 +421,9 @@ mod tests {
         use crate::{Composite, Given};
         let d = dir("given-normals-transfer");
         let (p, m, _) = write_photo(&d);
-        let coverage = crate::photo::load_mask(&m, 60, 40).expect("mask");
+        let coverage = crate::photo::load_mask(&m, 60, 40, image::metadata::Orientation::NoTransforms)
+            .expect("mask")
+            .0;
         let tilt = [-0.36_f32, 0.48, 0.8];
         let map = d.join("map.exr");
         exr::prelude::write_rgb_file(&map, 60, 40, |x, y| {

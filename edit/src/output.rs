@@ -34,6 +34,9 @@ pub struct EditReport {
     pub photo_size: [usize; 2],
     /// How it was stored.
     pub encoding: Encoding,
+    /// How it was turned to stand as viewers show it (the edit is written so), where its EXIF
+    /// said to ([`crate::orientation`]).
+    pub orientation: Option<crate::orientation::OrientationReport>,
     /// The mask (or "alpha of the photo").
     pub mask: String,
     /// Object pixels in the photo.

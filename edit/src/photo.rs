@@ -1,7 +1,8 @@
 //! A photo and its object mask, read and framed the way the training images were made.
 //!
 //! * **Reading.** PNG (8/16-bit) and JPEG are sRGB and decoded to linear; EXR and Radiance HDR
-//!   are linear radiance already. The mask is a separate image (any non-zero pixel is object; its
+//!   are linear radiance already. A JPEG or PNG is turned as its EXIF orientation says
+//!   ([`crate::orientation`]), so the edit stands as viewers show the photo. The mask is a separate image (any non-zero pixel is object; its
 //!   value, or its alpha where it has one, is the soft coverage used when compositing) or, without
 //!   one, the photo's own alpha channel (what background removers such as rembg write).
 //! * **Framing** ([`Framing`]). The training images show the object with its larger side about
@@ -13,7 +14,9 @@
 //!   luminance was about [`TRAINING_MEAN_LUMINANCE`] (median over the same split). The input is
 //!   scaled to that, and every rendered image scaled back before it is composited.
 
+use crate::orientation::{self, Fit};
 use anyhow::{Context, Result, bail};
+use image::metadata::Orientation;
 use std::path::Path;
 
 /// Median ratio of the object's larger bounding-box side to the image side in the quickstart
@@ -72,9 +75,14 @@ pub(crate) fn extension(path: &Path) -> String {
         .unwrap_or_default()
 }
 
-/// Reads a photo (PNG, JPEG, EXR or HDR). Non-finite or negative linear values are errors naming
-/// the file and the pixel.
+/// Reads a photo (PNG, JPEG, EXR or HDR) as viewers show it. Non-finite or negative linear
+/// values are errors naming the file and the pixel.
 pub fn load_photo(path: &Path) -> Result<Photo> {
+    load_photo_shown(path).map(|(p, _)| p)
+}
+
+/// [`load_photo`], with the EXIF orientation its pixels were turned by.
+pub fn load_photo_shown(path: &Path) -> Result<(Photo, Orientation)> {
     let what = path.display();
     check_file(path)?;
     match extension(path).as_str() {
@@ -128,16 +136,17 @@ pub fn load_photo(path: &Path) -> Result<Photo> {
                 bail!("{what}: alpha is NaN at pixel ({}, {})", k % w, k / w);
             }
             let alpha = a.map(|a| a.iter().map(|v| v.clamp(0.0, 1.0)).collect());
-            Ok(Photo {
+            let p = Photo {
                 width: w,
                 height: h,
                 rgb,
                 alpha,
                 encoding: Encoding::Linear,
-            })
+            };
+            Ok((p, Orientation::NoTransforms))
         }
         "png" | "jpg" | "jpeg" | "hdr" => {
-            let img = decode(path)?;
+            let (img, turned) = decode_turned(path)?;
             let (w, h) = (img.width() as usize, img.height() as usize);
             use image::DynamicImage as D;
             let encoding = match &img {
@@ -160,13 +169,14 @@ pub fn load_photo(path: &Path) -> Result<Photo> {
                 .collect();
             check_linear(path, &rgb)?;
             let alpha = has_alpha.then(|| rgba.pixels().map(|p| p[3].clamp(0.0, 1.0)).collect());
-            Ok(Photo {
+            let p = Photo {
                 width: w,
                 height: h,
                 rgb,
                 alpha,
                 encoding,
-            })
+            };
+            Ok((p, turned))
         }
         other => bail!("{what}: cannot read .{other} photos (PNG, JPEG, EXR or HDR)"),
     }
@@ -211,8 +221,18 @@ fn check_file(path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Decodes an image with its size checked from the header first.
+/// Decodes an image as stored (a normal map's vectors would need turning with its pixels), with
+/// its size checked from the header first.
 pub(crate) fn decode(path: &Path) -> Result<image::DynamicImage> {
+    decode_as(path, false).map(|(img, _)| img)
+}
+
+/// [`decode`], turned as the file's EXIF orientation says.
+pub(crate) fn decode_turned(path: &Path) -> Result<(image::DynamicImage, Orientation)> {
+    decode_as(path, true)
+}
+
+fn decode_as(path: &Path, turn: bool) -> Result<(image::DynamicImage, Orientation)> {
     let what = path.display();
     check_file(path)?;
     let reader = || -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
@@ -232,8 +252,55 @@ pub(crate) fn decode(path: &Path) -> Result<image::DynamicImage> {
     let mut limits = image::Limits::default();
     limits.max_alloc = Some(2 << 30);
     r.limits(limits);
-    r.decode()
-        .with_context(|| format!("{what}: cannot decode the image (truncated or corrupt?)"))
+    if turn {
+        return orientation::decode_turned(r, &what.to_string());
+    }
+    let img = r
+        .decode()
+        .with_context(|| format!("{what}: cannot decode the image (truncated or corrupt?)"))?;
+    Ok((img, Orientation::NoTransforms))
+}
+
+/// Decodes a mask or region image (`kind`) drawn on a photo shown at `width`×`height`, whose
+/// stored pixels were turned by `turn`: as drawn on the photo as shown, or, where only the
+/// stored pixels' size fits it, turned with the photo ([`crate::orientation`]).
+pub(crate) fn decode_for_photo(
+    path: &Path,
+    width: usize,
+    height: usize,
+    turn: Orientation,
+    kind: &str,
+) -> Result<(image::DynamicImage, Fit)> {
+    let size = |img: &image::DynamicImage| (img.width() as usize, img.height() as usize);
+    let (img, _) = decode_turned(path)?;
+    if size(&img) == (width, height) {
+        return Ok((img, Fit::AsShown));
+    }
+    let stored = orientation::shown_size((width, height), turn);
+    if turn != Orientation::NoTransforms {
+        let mut raw = decode(path)?;
+        if size(&raw) == stored {
+            raw.apply_orientation(turn);
+            return Ok((raw, Fit::TurnedWithPhoto));
+        }
+    }
+    let turned = if turn == Orientation::NoTransforms {
+        String::new()
+    } else {
+        format!(
+            " (as shown: its EXIF orientation {} {} its stored {}×{} pixels)",
+            turn.to_exif(),
+            orientation::describe(turn),
+            stored.0,
+            stored.1
+        )
+    };
+    bail!(
+        "{}: the {kind} is {}×{}, the photo {width}×{height}{turned}; they must match pixel for pixel",
+        path.display(),
+        img.width(),
+        img.height()
+    )
 }
 
 /// Refuses a JPEG whose last scan has no end-of-image marker after it: a file cut short, which
@@ -252,29 +319,24 @@ fn check_jpeg_complete(path: &Path) -> Result<()> {
     }
 }
 
-/// Reads a mask image of `width`×`height`: per pixel, the soft coverage in [0, 1] (alpha where
-/// the image has an alpha channel that is not all opaque, otherwise the largest channel
-/// relative to the format's maximum). Any coverage above 0 is object.
-pub fn load_mask(path: &Path, width: usize, height: usize) -> Result<Vec<f32>> {
+/// Reads the mask of a photo shown at `width`×`height` (its stored pixels turned by `turn`,
+/// [`decode_for_photo`]): per pixel, the soft coverage in [0, 1] (alpha where the image has an
+/// alpha channel that is not all opaque, otherwise the largest channel relative to the format's
+/// maximum). Any coverage above 0 is object.
+pub fn load_mask(path: &Path, width: usize, height: usize, turn: Orientation) -> Result<(Vec<f32>, Fit)> {
     let what = path.display();
-    let img = match extension(path).as_str() {
-        "png" | "jpg" | "jpeg" => decode(path)?,
+    let (img, fit) = match extension(path).as_str() {
+        "png" | "jpg" | "jpeg" => decode_for_photo(path, width, height, turn, "mask")?,
         other => bail!("{what}: masks must be PNG or JPEG images, not .{other}"),
     };
-    if (img.width() as usize, img.height() as usize) != (width, height) {
-        bail!(
-            "{what}: the mask is {}×{}, the photo {width}×{height}; they must match pixel for pixel",
-            img.width(),
-            img.height()
-        );
-    }
     let has_alpha = img.color().has_alpha();
     let rgba = img.into_rgba32f();
     let alpha_used = has_alpha && rgba.pixels().any(|p| p[3] < 1.0);
-    Ok(rgba
+    let coverage = rgba
         .pixels()
         .map(|p| if alpha_used { p[3] } else { p[0].max(p[1]).max(p[2]) }.clamp(0.0, 1.0))
-        .collect())
+        .collect();
+    Ok((coverage, fit))
 }
 
 /// Checks a coverage mask: some object, some background.

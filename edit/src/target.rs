@@ -2,7 +2,9 @@
 //! DSBRDF where it is not one, since the rendering layer renders DSBRDFs), the regions of a
 //! multi-material object, and another illumination.
 
+use crate::orientation::Fit;
 use anyhow::{Context, Result, bail};
+use image::metadata::Orientation;
 use matedit_assets::materials::cache;
 use matedit_physics::BrdfSpec;
 use matedit_physics::brdf::Dsbrdf;
@@ -104,23 +106,19 @@ pub fn resolve_targets(
 }
 
 /// Reads a region label image (PNG, grey levels or the first channel: value k > 0 is region k)
-/// of the photo's size. Returns the label of every photo pixel (0 off the object) and the number
-/// of regions (the largest label on the object); labels must run 1..=n without gaps.
-pub fn load_regions(path: &Path, width: usize, height: usize, coverage: &[f32]) -> Result<(Vec<u8>, usize)> {
+/// of a photo shown at `width`×`height` (its stored pixels turned by `turn`,
+/// [`crate::photo::decode_for_photo`]). Returns the label of every photo pixel (0 off the object),
+/// the number of regions (the largest label on the object; labels must run 1..=n without gaps)
+/// and how the image was matched to the photo.
+pub fn load_regions(
+    path: &Path,
+    width: usize,
+    height: usize,
+    turn: Orientation,
+    coverage: &[f32],
+) -> Result<(Vec<u8>, usize, Fit)> {
     let what = path.display();
-    let img = image::ImageReader::open(path)
-        .with_context(|| format!("cannot open {what}"))?
-        .with_guessed_format()
-        .with_context(|| format!("cannot read {what}"))?
-        .decode()
-        .with_context(|| format!("{what}: cannot decode the image (truncated or corrupt?)"))?;
-    if (img.width() as usize, img.height() as usize) != (width, height) {
-        bail!(
-            "{what}: the region image is {}×{}, the photo {width}×{height}; they must match pixel for pixel",
-            img.width(),
-            img.height()
-        );
-    }
+    let (img, fit) = crate::photo::decode_for_photo(path, width, height, turn, "region image")?;
     let grey = img.to_luma8();
     let labels: Vec<u8> = grey
         .pixels()
@@ -138,7 +136,7 @@ pub fn load_regions(path: &Path, width: usize, height: usize, coverage: &[f32]) 
     if let Some(gap) = (1..=n).find(|&k| !seen[k]) {
         bail!("{what}: regions must be numbered 1..={n} without gaps; region {gap} has no pixel on the object");
     }
-    Ok((labels, n))
+    Ok((labels, n, fit))
 }
 
 /// Another illumination (`.hdr`, `.exr` or `builtin:NAME`), resampled to `height` rows and laid

@@ -519,29 +519,40 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
 
     // The brush: a stroke across the object edits.
     c.wait().for_element(Locator::Css("#view:not(.hidden)")).await.unwrap();
-    let canvas = c.find(Locator::Id("brush-canvas")).await.unwrap();
-    let stroke = MouseActions::new("mouse".into())
-        .then(PointerAction::MoveToElement {
-            element: canvas.clone(),
-            duration: None,
-            x: -30.0,
-            y: 0.0,
-        })
-        .then(PointerAction::Down {
-            button: MOUSE_BUTTON_LEFT,
-        })
-        .then(PointerAction::MoveToElement {
-            element: canvas,
-            duration: Some(Duration::from_millis(300)),
-            x: 30.0,
-            y: 5.0,
-        })
-        .then(PointerAction::Up {
-            button: MOUSE_BUTTON_LEFT,
-        });
+    let stroke = stroke_across(c.find(Locator::Id("brush-canvas")).await.unwrap());
     c.perform_actions(stroke).await.unwrap();
     let (s, _) = run_edit(&c, "done|error", 300).await;
     assert_eq!(s, "done", "the painted mask did not edit: {}", text(&c, "error").await);
+
+    // A phone photo stored sideways with an EXIF orientation: the page shows it upright, the
+    // brush paints on it upright, and the edit comes back upright.
+    let turned = turned_photo(&photo);
+    fill(&c, &url, &turned, Mask::Brush, MATERIAL, false).await;
+    c.wait().for_element(Locator::Css("#view:not(.hidden)")).await.unwrap();
+    let shown = c
+        .execute(
+            "const c = document.getElementById('photo-canvas'); return [c.width, c.height];",
+            vec![],
+        )
+        .await
+        .unwrap();
+    let upright = image::open(&photo).unwrap();
+    let want = [upright.width() + upright.width() / 2, upright.height()];
+    assert_eq!(
+        shown,
+        serde_json::json!(want),
+        "the page does not show the photo upright"
+    );
+    let stroke = stroke_across(c.find(Locator::Id("brush-canvas")).await.unwrap());
+    c.perform_actions(stroke).await.unwrap();
+    let (s, _) = run_edit(&c, "done|error", 300).await;
+    assert_eq!(s, "done", "the turned photo did not edit: {}", text(&c, "error").await);
+    let got = image::load_from_memory(&image_bytes(&c, "result-edited").await).unwrap();
+    assert_eq!(
+        [got.width(), got.height()],
+        want,
+        "the edit of the turned photo is not upright"
+    );
 
     // Over the server's upload limit.
     let big = root().join("big.png");
@@ -598,11 +609,68 @@ async fn the_page_edits_a_photo_as_matedit_edit_does_and_explains_bad_uploads() 
     server.stop().await;
 }
 
+/// A brush stroke across the middle of `canvas`, 60 pixels wide.
+fn stroke_across(canvas: fantoccini::elements::Element) -> MouseActions {
+    MouseActions::new("mouse".into())
+        .then(PointerAction::MoveToElement {
+            element: canvas.clone(),
+            duration: None,
+            x: -30.0,
+            y: 0.0,
+        })
+        .then(PointerAction::Down {
+            button: MOUSE_BUTTON_LEFT,
+        })
+        .then(PointerAction::MoveToElement {
+            element: canvas,
+            duration: Some(Duration::from_millis(300)),
+            x: 30.0,
+            y: 5.0,
+        })
+        .then(PointerAction::Up {
+            button: MOUSE_BUTTON_LEFT,
+        })
+}
+
 /// The photo's alpha channel as a mask file.
 fn alpha_mask(photo: &Path) -> PathBuf {
     let img = image::open(photo).unwrap().to_rgba8();
     let m = image::GrayImage::from_fn(img.width(), img.height(), |x, y| image::Luma([img.get_pixel(x, y)[3]]));
     let p = root().join("alpha-mask.png");
     m.save(&p).unwrap();
+    p
+}
+
+/// `photo` widened by half its width of flat background on the right (so a quarter turn changes
+/// its size), stored a quarter turn anticlockwise in a JPEG whose EXIF orientation (6) says to
+/// turn it back, as phones store portrait photos.
+fn turned_photo(photo: &Path) -> PathBuf {
+    let img = image::open(photo).unwrap().to_rgb8();
+    let (w, h) = img.dimensions();
+    let wide = image::RgbImage::from_fn(w + w / 2, h, |x, y| {
+        if x < w {
+            *img.get_pixel(x, y)
+        } else {
+            image::Rgb([60, 70, 80])
+        }
+    });
+    let stored = image::DynamicImage::ImageRgb8(wide).rotate270().to_rgb8();
+    let exif: Vec<u8> = [
+        &b"MM\0\x2a\0\0\0\x08"[..],
+        &[0, 1, 0x01, 0x12, 0, 3, 0, 0, 0, 1, 0, 6, 0, 0, 0, 0, 0, 0],
+    ]
+    .concat();
+    let p = root().join("turned.jpg");
+    let f = std::io::BufWriter::new(std::fs::File::create(&p).unwrap());
+    let mut enc = image::codecs::jpeg::JpegEncoder::new_with_quality(f, 95);
+    image::ImageEncoder::set_exif_metadata(&mut enc, exif).unwrap();
+    image::ImageEncoder::write_image(
+        enc,
+        stored.as_raw(),
+        stored.width(),
+        stored.height(),
+        image::ExtendedColorType::Rgb8,
+    )
+    .unwrap();
     p
 }

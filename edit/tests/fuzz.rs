@@ -143,13 +143,16 @@ fn masks_and_region_labels() {
         .unwrap();
     seeds.push(("labels 24×16".to_string(), labels.into_inner()));
     let read = |p: &Path| -> Result<Verdict, String> {
-        // The photo these belong to is 24×16; a mask of another size is an error naming the file.
-        let coverage = load_mask(p, 24, 16).map_err(err)?;
+        // The photo these belong to is 24×16, its stored pixels turned a quarter by its EXIF: a
+        // mask of its stored size (16×24) is turned with it, one of another size is an error
+        // naming the file.
+        let turn = image::metadata::Orientation::Rotate90;
+        let coverage = load_mask(p, 24, 16, turn).map_err(err)?.0;
         if coverage.len() != 24 * 16 || coverage.iter().any(|v| !(0.0..=1.0).contains(v)) {
             return Ok(Err("coverage of the wrong length or outside [0, 1]".into()));
         }
         let all = vec![1.0; 24 * 16];
-        let (labels, n) = load_regions(p, 24, 16, &all).map_err(err)?;
+        let (labels, n, _) = load_regions(p, 24, 16, turn, &all).map_err(err)?;
         Ok(if labels.len() != 24 * 16 || labels.iter().any(|&l| l as usize > n) {
             Err("labels of the wrong length or beyond the region count".into())
         } else {

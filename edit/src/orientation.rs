@@ -1,0 +1,358 @@
+//! A photo as viewers show it: the EXIF orientation of a JPEG (or a PNG's `eXIf` chunk) applied
+//! on reading.
+//!
+//! Cameras and phones store a portrait photo's pixels sideways and tag the file with how to turn
+//! them; every viewer, browser and editor turns it. Read as stored, such a photo comes out of an
+//! edit sideways, and a mask drawn on it as shown does not fit it. So the photo is turned, and a
+//! mask or region image is taken as drawn on the photo as shown — unless only the stored pixels'
+//! size fits it (a tool that ignores EXIF, such as a script reading the file with PIL, made it on
+//! the stored pixels), in which case it is turned with the photo. Where the turn keeps the size
+//! (a half turn, a mirror), the two cannot be told apart, and the mask is taken as shown.
+
+use anyhow::{Context, Result};
+use image::metadata::Orientation;
+use image::{DynamicImage, ImageDecoder, ImageReader};
+use std::io::{BufRead, Seek};
+
+/// Decodes `reader`'s image and turns it as its EXIF orientation says; returns the orientation
+/// applied (`NoTransforms` where the file has none, or an unreadable one).
+pub fn decode_turned<R: BufRead + Seek>(reader: ImageReader<R>, what: &str) -> Result<(DynamicImage, Orientation)> {
+    let mut decoder = reader
+        .into_decoder()
+        .with_context(|| format!("{what}: cannot decode the image (truncated or corrupt?)"))?;
+    // An EXIF block that cannot be parsed says nothing of the orientation; the pixels are
+    // still the photo.
+    let orientation = decoder.orientation().unwrap_or(Orientation::NoTransforms);
+    let mut img = DynamicImage::from_decoder(decoder)
+        .with_context(|| format!("{what}: cannot decode the image (truncated or corrupt?)"))?;
+    img.apply_orientation(orientation);
+    Ok((img, orientation))
+}
+
+/// Whether `o` turns a w×h image into an h×w one.
+pub fn swaps_axes(o: Orientation) -> bool {
+    matches!(
+        o,
+        Orientation::Rotate90 | Orientation::Rotate270 | Orientation::Rotate90FlipH | Orientation::Rotate270FlipH
+    )
+}
+
+/// The size an image stored as `stored` shows as once turned by `o`.
+pub fn shown_size(stored: (usize, usize), o: Orientation) -> (usize, usize) {
+    if swaps_axes(o) { (stored.1, stored.0) } else { stored }
+}
+
+/// What turning by `o` does, in words.
+pub fn describe(o: Orientation) -> &'static str {
+    match o {
+        Orientation::NoTransforms => "as stored",
+        Orientation::Rotate90 => "turned 90° clockwise",
+        Orientation::Rotate180 => "turned 180°",
+        Orientation::Rotate270 => "turned 90° anticlockwise",
+        Orientation::FlipHorizontal => "mirrored left to right",
+        Orientation::FlipVertical => "mirrored top to bottom",
+        Orientation::Rotate90FlipH => "turned 90° clockwise and mirrored left to right",
+        Orientation::Rotate270FlipH => "turned 90° anticlockwise and mirrored left to right",
+    }
+}
+
+/// How a mask or region image was matched to a turned photo.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Fit {
+    /// Drawn on the photo as shown (its own EXIF orientation, if any, applied).
+    AsShown,
+    /// Drawn on the photo's stored pixels: turned with the photo.
+    TurnedWithPhoto,
+}
+
+/// For `report.json`: how the photo was turned to stand as viewers show it, and how its mask
+/// (and region image) were matched to it. Present only where the photo's file says to turn it.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct OrientationReport {
+    /// The photo's EXIF orientation tag (2–8).
+    pub exif: u8,
+    /// What was done to the photo.
+    pub applied: String,
+    /// The photo's size as stored (the edit is written at its size as shown).
+    pub stored_size: [usize; 2],
+    /// How the mask was matched (none where the photo's alpha is the mask).
+    pub mask: Option<Fit>,
+    /// How the region image was matched, when there is one.
+    pub regions: Option<Fit>,
+}
+
+impl OrientationReport {
+    /// The report for a photo turned by `o` from `stored` (none when it was not turned).
+    pub fn new(o: Orientation, stored: (usize, usize)) -> Option<Self> {
+        (o != Orientation::NoTransforms).then(|| OrientationReport {
+            exif: o.to_exif(),
+            applied: describe(o).to_string(),
+            stored_size: [stored.0, stored.1],
+            mask: None,
+            regions: None,
+        })
+    }
+
+    /// One line for the command line.
+    pub fn line(&self) -> String {
+        let fit = |f: Option<Fit>, what: &str| match f {
+            Some(Fit::TurnedWithPhoto) => format!("; the {what} fitted its stored pixels and was turned with it"),
+            _ => String::new(),
+        };
+        format!(
+            "orientation: the photo was {} as its EXIF orientation {} says (stored {}×{}){}{}",
+            self.applied,
+            self.exif,
+            self.stored_size[0],
+            self.stored_size[1],
+            fit(self.mask, "mask"),
+            fit(self.regions, "region image")
+        )
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use image::{ImageEncoder, RgbImage};
+    use std::path::{Path, PathBuf};
+
+    /// A big-endian EXIF (TIFF) block whose only entry is the orientation tag.
+    pub(crate) fn exif_with_orientation(tag: u16) -> Vec<u8> {
+        let mut b = b"MM\0\x2a\0\0\0\x08".to_vec();
+        b.extend_from_slice(&1u16.to_be_bytes()); // one entry
+        b.extend_from_slice(&0x0112u16.to_be_bytes()); // Orientation
+        b.extend_from_slice(&3u16.to_be_bytes()); // SHORT
+        b.extend_from_slice(&1u32.to_be_bytes()); // one value
+        b.extend_from_slice(&tag.to_be_bytes());
+        b.extend_from_slice(&[0, 0]); // the value's padding to four bytes
+        b.extend_from_slice(&0u32.to_be_bytes()); // no next IFD
+        b
+    }
+
+    /// Writes `img` as a PNG or JPEG (by `path`'s extension) carrying EXIF orientation `tag`
+    /// (none for 0).
+    pub(crate) fn write_with_orientation(path: &Path, img: &RgbImage, tag: u16) {
+        let f = std::io::BufWriter::new(std::fs::File::create(path).expect("create"));
+        let exif = exif_with_orientation(tag);
+        let (w, h) = img.dimensions();
+        if path.extension().is_some_and(|e| e == "png") {
+            let mut enc = image::codecs::png::PngEncoder::new(f);
+            if tag > 0 {
+                enc.set_exif_metadata(exif).expect("png exif");
+            }
+            enc.write_image(img.as_raw(), w, h, image::ExtendedColorType::Rgb8)
+                .expect("png");
+        } else {
+            let mut enc = image::codecs::jpeg::JpegEncoder::new_with_quality(f, 100);
+            if tag > 0 {
+                enc.set_exif_metadata(exif).expect("jpeg exif");
+            }
+            enc.write_image(img.as_raw(), w, h, image::ExtendedColorType::Rgb8)
+                .expect("jpeg");
+        }
+    }
+
+    fn read(path: &Path) -> (DynamicImage, Orientation) {
+        let r = ImageReader::open(path)
+            .expect("open")
+            .with_guessed_format()
+            .expect("format");
+        decode_turned(r, "test").expect("decode")
+    }
+
+    fn dir(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("matedit-orientation-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&d).expect("dir");
+        d
+    }
+
+    /// A 3×2 image whose pixels are all different: where each lands says what was done.
+    fn marked() -> RgbImage {
+        RgbImage::from_fn(3, 2, |x, y| image::Rgb([(x * 80) as u8, (y * 200) as u8, 30]))
+    }
+
+    #[test]
+    fn every_exif_orientation_turns_the_pixels_as_viewers_do() {
+        let d = dir("all");
+        let img = marked();
+        // Where stored pixel (x, y) of a 3×2 image shows, per EXIF tag (the EXIF 2.3 table:
+        // 6 = the stored top row becomes the right column).
+        let shown = |tag: u16, x: u32, y: u32| -> (u32, u32) {
+            match tag {
+                1 => (x, y),
+                2 => (2 - x, y),
+                3 => (2 - x, 1 - y),
+                4 => (x, 1 - y),
+                5 => (y, x),
+                6 => (1 - y, x),
+                7 => (1 - y, 2 - x),
+                8 => (y, 2 - x),
+                _ => unreachable!(),
+            }
+        };
+        for ext in ["png", "jpg"] {
+            for tag in 1..=8u16 {
+                let path = d.join(format!("o{tag}.{ext}"));
+                write_with_orientation(&path, &img, tag);
+                let (out, o) = read(&path);
+                assert_eq!(o.to_exif(), tag as u8, "{ext} {tag}");
+                let out = out.to_rgb8();
+                assert_eq!(
+                    (out.width() as usize, out.height() as usize),
+                    shown_size((3, 2), o),
+                    "{ext} {tag}"
+                );
+                for (x, y, p) in img.enumerate_pixels() {
+                    let (sx, sy) = shown(tag, x, y);
+                    let q = out.get_pixel(sx, sy);
+                    // JPEG at quality 100 still rounds a little.
+                    let near = p.0.iter().zip(q.0.iter()).all(|(a, b)| a.abs_diff(*b) <= 24);
+                    assert!(near, "{ext} tag {tag}: ({x},{y}) → ({sx},{sy}): {p:?} vs {q:?}");
+                }
+            }
+        }
+        std::fs::remove_dir_all(d).ok();
+    }
+
+    #[test]
+    fn no_or_broken_exif_leaves_the_pixels_as_stored() {
+        let d = dir("none");
+        let img = marked();
+        let plain = d.join("plain.png");
+        write_with_orientation(&plain, &img, 0);
+        let (out, o) = read(&plain);
+        assert_eq!(o, Orientation::NoTransforms);
+        assert_eq!(out.to_rgb8(), img);
+        // Tags outside 1–8 and a block that is not TIFF at all are no orientation.
+        for (name, exif) in [
+            ("tag0", exif_with_orientation(0)),
+            ("tag9", exif_with_orientation(9)),
+            ("junk", b"not an exif block".to_vec()),
+            ("cut", exif_with_orientation(6)[..12].to_vec()),
+        ] {
+            let p = d.join(format!("{name}.jpg"));
+            let f = std::io::BufWriter::new(std::fs::File::create(&p).expect("create"));
+            let mut enc = image::codecs::jpeg::JpegEncoder::new_with_quality(f, 100);
+            enc.set_exif_metadata(exif).expect("exif");
+            enc.write_image(img.as_raw(), 3, 2, image::ExtendedColorType::Rgb8)
+                .expect("jpeg");
+            let (out, o) = read(&p);
+            assert_eq!(o, Orientation::NoTransforms, "{name}");
+            assert_eq!(out.dimensions_tuple(), (3, 2), "{name}");
+        }
+        std::fs::remove_dir_all(d).ok();
+    }
+
+    trait Dims {
+        fn dimensions_tuple(&self) -> (u32, u32);
+    }
+    impl Dims for DynamicImage {
+        fn dimensions_tuple(&self) -> (u32, u32) {
+            (self.width(), self.height())
+        }
+    }
+
+    #[test]
+    fn the_report_says_what_was_turned() {
+        assert!(OrientationReport::new(Orientation::NoTransforms, (4, 3)).is_none());
+        let mut r = OrientationReport::new(Orientation::Rotate90, (4, 3)).expect("turned");
+        assert_eq!((r.exif, r.stored_size), (6, [4, 3]));
+        r.mask = Some(Fit::TurnedWithPhoto);
+        let line = r.line();
+        assert!(
+            line.contains("turned 90° clockwise") && line.contains("EXIF orientation 6"),
+            "{line}"
+        );
+        assert!(line.contains("mask fitted its stored pixels"), "{line}");
+        for tag in 1..=8u8 {
+            let o = Orientation::from_exif(tag).expect("tag");
+            assert_eq!(shown_size((4, 3), o) == (3, 4), (5..=8).contains(&tag), "{tag}");
+        }
+    }
+
+    /// The stored pixels of an image shown as `shown` under `o` (the inverse turn).
+    fn stored_of(shown: &DynamicImage, o: Orientation) -> DynamicImage {
+        let inverse = match o {
+            Orientation::Rotate90 => Orientation::Rotate270,
+            Orientation::Rotate270 => Orientation::Rotate90,
+            other => other, // the rest are their own inverses
+        };
+        let mut img = shown.clone();
+        img.apply_orientation(inverse);
+        img
+    }
+
+    #[test]
+    fn a_turned_photo_edits_as_it_is_shown_with_its_mask_drawn_either_way() {
+        let d = crate::tests::dir("orientation-edit");
+        let (plain, mask, regions) = crate::tests::write_photo(&d);
+        let model = crate::tests::model();
+        let edit = |photo: &Path, mask: &Path, regions: Option<&Path>, name: &str| {
+            let out = d.join(name);
+            let req = crate::EditRequest {
+                regions: regions.map(Path::to_path_buf),
+                materials: vec![
+                    (Some(1), "lambert:0.1,0.5,0.1".into()),
+                    (Some(2), "ggx:0.15:1,1,1".into()),
+                ],
+                ..crate::tests::request(photo, mask, "")
+            };
+            let report = crate::edit(model, &req, &out);
+            (report, out)
+        };
+        let (want, out) = edit(&plain, &mask, Some(&regions), "plain");
+        assert!(want.expect("plain photo").orientation.is_none());
+        let want_png = image::open(out.join("edited.png")).expect("edited").to_rgb8();
+        assert_eq!(want_png.dimensions(), (60, 40));
+        let shown = image::open(&plain).expect("photo");
+        let (shown_mask, shown_regions) = (
+            image::open(&mask).expect("mask"),
+            image::open(&regions).expect("regions"),
+        );
+        for tag in [6u16, 8, 3, 5] {
+            let o = Orientation::from_exif(tag as u8).expect("tag");
+            let photo = d.join(format!("photo-{tag}.png"));
+            write_with_orientation(&photo, &stored_of(&shown, o).to_rgb8(), tag);
+            // The mask and regions drawn on the photo as shown, then on its stored pixels.
+            let stored_mask = d.join(format!("stored-mask-{tag}.png"));
+            let stored_regions = d.join(format!("stored-regions-{tag}.png"));
+            stored_of(&shown_mask, o).save(&stored_mask).expect("save");
+            stored_of(&shown_regions, o).save(&stored_regions).expect("save");
+            let mut cases = vec![(mask.clone(), regions.clone(), Fit::AsShown)];
+            if swaps_axes(o) {
+                cases.push((stored_mask, stored_regions, Fit::TurnedWithPhoto));
+            }
+            for (i, (m, r, fit)) in cases.into_iter().enumerate() {
+                let (report, out) = edit(&photo, &m, Some(&r), &format!("turned-{tag}-{i}"));
+                let report = report.unwrap_or_else(|e| panic!("tag {tag}, {fit:?}: {e:#}"));
+                let o_report = report.orientation.expect("turned");
+                assert_eq!(
+                    (o_report.exif, o_report.mask, o_report.regions),
+                    (tag as u8, Some(fit), Some(fit)),
+                    "tag {tag}"
+                );
+                assert_eq!(report.photo_size, [60, 40], "tag {tag}");
+                // The same pixels in, the same edit out, byte for byte.
+                let got = image::open(out.join("edited.png")).expect("edited").to_rgb8();
+                assert!(
+                    got == want_png,
+                    "tag {tag}, {fit:?}: the turned photo's edit differs from the plain one's"
+                );
+                let json = std::fs::read_to_string(out.join("report.json")).expect("report");
+                assert!(json.contains("\"orientation\""), "{json}");
+            }
+        }
+        // A mask that fits neither the photo as shown nor its stored pixels names both sizes.
+        let photo = d.join("photo-6.png");
+        let wrong = d.join("wrong.png");
+        image::GrayImage::new(50, 50).save(&wrong).expect("save");
+        let e = format!("{:#}", edit(&photo, &wrong, None, "wrong").0.expect_err("refused"));
+        assert!(
+            e.contains("wrong.png") && e.contains("50×50") && e.contains("60×40") && e.contains("EXIF orientation 6"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(d).ok();
+    }
+}
