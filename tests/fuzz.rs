@@ -10,7 +10,7 @@
 #[path = "common/fuzz/mod.rs"]
 mod fuzz;
 
-use fuzz::{Counting, Reader, Verdict, copy_tree, dataset, eval_assets, fuzz, radiance, seed_file};
+use fuzz::{Counting, Reader, Verdict, build_under_lock, copy_tree, dataset, eval_assets, fuzz, radiance, seed_file};
 use matedit_assets::envfile::load_env;
 use matedit_contract::io::{encode_env_exr, encode_exr_channels, read_exr_channels};
 use matedit_contract::verify::verify;
@@ -218,8 +218,10 @@ fn exr_channels() {
 
 #[test]
 fn merl_tables() {
-    let full = MerlBrdf::tabulate_bytes(&Lambert {
-        albedo: [0.5, 0.3, 0.2],
+    let full = build_under_lock(|| {
+        MerlBrdf::tabulate_bytes(&Lambert {
+            albedo: [0.5, 0.3, 0.2],
+        })
     });
     // The header and the first entries only: the mutations that matter are in the counts.
     let short = full[..4096].to_vec();

@@ -32,6 +32,9 @@ pub struct LightLevel {
     pub pixels: usize,
     /// The horizontal field of view the background's directions were computed with (degrees).
     pub fov_deg: f64,
+    /// Where it came from: "given" (`--fov`), "exif" (the photo's 35 mm equivalent focal
+    /// length, [`crate::camera`]) or "default" ([`DEFAULT_FOV_DEG`]).
+    pub fov_from: String,
     /// Why the background was not used, when it was not.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
@@ -82,13 +85,14 @@ pub fn light_level(
     env: &[f32],
     env_height: usize,
     exposure: f64,
-    fov_deg: f64,
+    (fov_deg, fov_from): (f64, &str),
 ) -> LightLevel {
     let network = |pixels: usize, why: &str| LightLevel {
         source: "network".into(),
         scale: 1.0,
         pixels,
         fov_deg,
+        fov_from: fov_from.into(),
         note: Some(why.into()),
     };
     let clip = match p.encoding {
@@ -138,6 +142,7 @@ pub fn light_level(
         scale,
         pixels,
         fov_deg,
+        fov_from: fov_from.into(),
         note: None,
     }
 }
@@ -229,7 +234,7 @@ mod tests {
         let env = map(64, sky);
         for fov in [10.0, 40.0, 90.0, 150.0] {
             let (p, cov) = photo(Encoding::Linear, fov, |d| sky(d).map(|v| v * 0.25));
-            let level = light_level(&p, &cov, &env, 64, 3.0, fov);
+            let level = light_level(&p, &cov, &env, 64, 3.0, (fov, "given"));
             assert_eq!(level.source, "background", "{fov}: {level:?}");
             assert!((level.scale - 0.75).abs() < 0.75 * 0.01, "{fov}: {level:?}");
         }
@@ -240,16 +245,19 @@ mod tests {
         let env = map(16, |_| [1.0; 3]);
         // Clipped everywhere (8-bit white).
         let (p, cov) = photo(Encoding::Srgb8, 40.0, |_| [1.0; 3]);
-        let l = light_level(&p, &cov, &env, 16, 1.0, 40.0);
+        let l = light_level(&p, &cov, &env, 16, 1.0, (40.0, "default"));
         assert_eq!((l.source.as_str(), l.scale), ("network", 1.0));
         assert!(l.note.as_deref().is_some_and(|n| n.contains("clipped")), "{l:?}");
         // The same white in a linear photo is not clipped.
         let (p, cov) = photo(Encoding::Linear, 40.0, |_| [1.0; 3]);
-        assert_eq!(light_level(&p, &cov, &env, 16, 1.0, 40.0).source, "background");
+        assert_eq!(
+            light_level(&p, &cov, &env, 16, 1.0, (40.0, "default")).source,
+            "background"
+        );
         // Black background (a cut-out), NaN/negative background, the object filling the frame.
         let (p, cov) = photo(Encoding::Srgb8, 40.0, |_| [0.0; 3]);
         assert!(
-            light_level(&p, &cov, &env, 16, 1.0, 40.0)
+            light_level(&p, &cov, &env, 16, 1.0, (40.0, "default"))
                 .note
                 .unwrap()
                 .contains("black")
@@ -257,15 +265,18 @@ mod tests {
         let (p, cov) = photo(Encoding::Linear, 40.0, |d| {
             [if d[0] > 0.0 { f32::NAN } else { -1.0 }; 3]
         });
-        assert_eq!(light_level(&p, &cov, &env, 16, 1.0, 40.0).source, "network");
+        assert_eq!(
+            light_level(&p, &cov, &env, 16, 1.0, (40.0, "default")).source,
+            "network"
+        );
         let (p, _) = photo(Encoding::Linear, 40.0, |_| [0.5; 3]);
         let full = vec![1.0; p.width * p.height];
-        let l = light_level(&p, &full, &env, 16, 1.0, 40.0);
+        let l = light_level(&p, &full, &env, 16, 1.0, (40.0, "default"));
         assert!(l.note.unwrap().contains("too little background"));
         // A black light along the background: no level, no division by zero.
         let dark_back = map(16, |d| [if d[2] < 0.0 { 0.0 } else { 1.0 }; 3]);
         let (p, cov) = photo(Encoding::Linear, 40.0, |_| [0.5; 3]);
-        let l = light_level(&p, &cov, &dark_back, 16, 1.0, 40.0);
+        let l = light_level(&p, &cov, &dark_back, 16, 1.0, (40.0, "default"));
         assert_eq!((l.source.as_str(), l.scale), ("network", 1.0), "{l:?}");
     }
 }

@@ -79,7 +79,8 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         #[arg(long, value_enum, default_value_t = LightEstimate::default())]
         light_estimate: LightEstimate,
         /// The photo's horizontal field of view in degrees (1–170), for the directions its
-        /// background is seen along. Default 40.
+        /// background is seen along. Default: what the photo's EXIF 35 mm equivalent focal
+        /// length gives, else 40.
         #[arg(long, value_parser = finite_in(1.0, 170.0), allow_negative_numbers = true)]
         fov: Option<f64>,
         /// The object's own material when it is known (a SPEC as --material takes, for every

@@ -28,6 +28,7 @@ macro_rules! say {
 }
 
 pub mod background;
+pub mod camera;
 pub mod cli;
 pub mod composite;
 pub mod detail;
@@ -244,12 +245,15 @@ pub struct ReadPhoto {
     pub labels: Option<(Vec<u8>, usize)>,
     /// How the photo was turned to stand as viewers show it, where its EXIF said to.
     pub orientation: Option<orientation::OrientationReport>,
+    /// The horizontal field of view its EXIF gives (degrees), where it gives one.
+    pub exif_fov_deg: Option<f64>,
 }
 
 /// Reads a photo, its mask (or alpha) and region labels, checking everything before the
 /// network runs.
 pub fn read_photo(photo_path: &Path, mask: Option<&Path>, regions: Option<&Path>) -> Result<ReadPhoto> {
-    let (p, turn) = photo::load_photo_shown(photo_path)?;
+    let (p, file) = photo::load_photo_shown(photo_path)?;
+    let turn = file.orientation;
     let mut orientation = orientation::OrientationReport::new(turn, orientation::shown_size((p.width, p.height), turn));
     let (coverage, mask_name) = match mask {
         Some(m) => {
@@ -286,6 +290,7 @@ pub fn read_photo(photo_path: &Path, mask: Option<&Path>, regions: Option<&Path>
         mask_name,
         labels,
         orientation,
+        exif_fov_deg: file.fov_deg,
     })
 }
 
@@ -306,6 +311,7 @@ pub fn understand(
         mask_name,
         labels,
         orientation,
+        exif_fov_deg,
     } = read;
     let prep = prepare(
         &p,
@@ -410,7 +416,11 @@ pub fn understand(
             })
         }
     };
-    let fov_deg = light.fov_deg.unwrap_or(background::DEFAULT_FOV_DEG);
+    let (fov_deg, fov_from) = match (light.fov_deg, exif_fov_deg) {
+        (Some(f), _) => (f, "given"),
+        (None, Some(f)) => (f, "exif"),
+        (None, None) => (background::DEFAULT_FOV_DEG, "default"),
+    };
     let light_level = if level_from == LevelFrom::Background {
         let level = background::light_level(
             &p,
@@ -418,7 +428,7 @@ pub fn understand(
             &x.env,
             model.state.net.env_height,
             prep.exposure,
-            fov_deg,
+            (fov_deg, fov_from),
         );
         let k = level.scale as f32;
         x.env.iter_mut().for_each(|v| *v *= k);
@@ -434,6 +444,7 @@ pub fn understand(
             scale: 1.0,
             pixels: 0,
             fov_deg,
+            fov_from: fov_from.into(),
             note: None,
         }
     };

@@ -15,18 +15,26 @@ use image::{DynamicImage, ImageDecoder, ImageReader};
 use std::io::{BufRead, Seek};
 
 /// Decodes `reader`'s image and turns it as its EXIF orientation says; returns the orientation
-/// applied (`NoTransforms` where the file has none, or an unreadable one).
-pub fn decode_turned<R: BufRead + Seek>(reader: ImageReader<R>, what: &str) -> Result<(DynamicImage, Orientation)> {
+/// applied (`NoTransforms` where the file has none, or an unreadable one) and the raw EXIF
+/// (TIFF) block, where the file has one.
+pub fn decode_turned<R: BufRead + Seek>(
+    reader: ImageReader<R>,
+    what: &str,
+) -> Result<(DynamicImage, Orientation, Option<Vec<u8>>)> {
     let mut decoder = reader
         .into_decoder()
         .with_context(|| format!("{what}: cannot decode the image (truncated or corrupt?)"))?;
-    // An EXIF block that cannot be parsed says nothing of the orientation; the pixels are
-    // still the photo.
-    let orientation = decoder.orientation().unwrap_or(Orientation::NoTransforms);
+    // An EXIF block that cannot be read says nothing of the orientation; the pixels are still
+    // the photo.
+    let exif = decoder.exif_metadata().unwrap_or(None);
+    let orientation = exif
+        .as_deref()
+        .and_then(Orientation::from_exif_chunk)
+        .unwrap_or(Orientation::NoTransforms);
     let mut img = DynamicImage::from_decoder(decoder)
         .with_context(|| format!("{what}: cannot decode the image (truncated or corrupt?)"))?;
     img.apply_orientation(orientation);
-    Ok((img, orientation))
+    Ok((img, orientation, exif))
 }
 
 /// Whether `o` turns a w×h image into an h×w one.
@@ -159,7 +167,8 @@ pub(crate) mod tests {
             .expect("open")
             .with_guessed_format()
             .expect("format");
-        decode_turned(r, "test").expect("decode")
+        let (img, o, _) = decode_turned(r, "test").expect("decode");
+        (img, o)
     }
 
     fn dir(name: &str) -> PathBuf {

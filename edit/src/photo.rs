@@ -81,8 +81,17 @@ pub fn load_photo(path: &Path) -> Result<Photo> {
     load_photo_shown(path).map(|(p, _)| p)
 }
 
-/// [`load_photo`], with the EXIF orientation its pixels were turned by.
-pub fn load_photo_shown(path: &Path) -> Result<(Photo, Orientation)> {
+/// What a photo's file says beyond its pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PhotoFile {
+    /// The EXIF orientation its pixels were turned by ([`crate::orientation`]).
+    pub orientation: Orientation,
+    /// The horizontal field of view its EXIF gives, in degrees ([`crate::camera`]).
+    pub fov_deg: Option<f64>,
+}
+
+/// [`load_photo`], with what its file says beyond its pixels.
+pub fn load_photo_shown(path: &Path) -> Result<(Photo, PhotoFile)> {
     let what = path.display();
     check_file(path)?;
     match extension(path).as_str() {
@@ -143,10 +152,14 @@ pub fn load_photo_shown(path: &Path) -> Result<(Photo, Orientation)> {
                 alpha,
                 encoding: Encoding::Linear,
             };
-            Ok((p, Orientation::NoTransforms))
+            let file = PhotoFile {
+                orientation: Orientation::NoTransforms,
+                fov_deg: None,
+            };
+            Ok((p, file))
         }
         "png" | "jpg" | "jpeg" | "hdr" => {
-            let (img, turned) = decode_turned(path)?;
+            let (img, turned, exif) = decode_with_exif(path)?;
             let (w, h) = (img.width() as usize, img.height() as usize);
             use image::DynamicImage as D;
             let encoding = match &img {
@@ -176,7 +189,11 @@ pub fn load_photo_shown(path: &Path) -> Result<(Photo, Orientation)> {
                 alpha,
                 encoding,
             };
-            Ok((p, turned))
+            let file = PhotoFile {
+                orientation: turned,
+                fov_deg: exif.and_then(|e| crate::camera::field_of_view(&e, w, h)),
+            };
+            Ok((p, file))
         }
         other => bail!("{what}: cannot read .{other} photos (PNG, JPEG, EXR or HDR)"),
     }
@@ -224,15 +241,20 @@ fn check_file(path: &Path) -> Result<()> {
 /// Decodes an image as stored (a normal map's vectors would need turning with its pixels), with
 /// its size checked from the header first.
 pub(crate) fn decode(path: &Path) -> Result<image::DynamicImage> {
-    decode_as(path, false).map(|(img, _)| img)
+    decode_as(path, false).map(|(img, _, _)| img)
 }
 
 /// [`decode`], turned as the file's EXIF orientation says.
 pub(crate) fn decode_turned(path: &Path) -> Result<(image::DynamicImage, Orientation)> {
+    decode_as(path, true).map(|(img, o, _)| (img, o))
+}
+
+/// [`decode_turned`], with the file's raw EXIF block.
+fn decode_with_exif(path: &Path) -> Result<(image::DynamicImage, Orientation, Option<Vec<u8>>)> {
     decode_as(path, true)
 }
 
-fn decode_as(path: &Path, turn: bool) -> Result<(image::DynamicImage, Orientation)> {
+fn decode_as(path: &Path, turn: bool) -> Result<(image::DynamicImage, Orientation, Option<Vec<u8>>)> {
     let what = path.display();
     check_file(path)?;
     let reader = || -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
@@ -258,7 +280,7 @@ fn decode_as(path: &Path, turn: bool) -> Result<(image::DynamicImage, Orientatio
     let img = r
         .decode()
         .with_context(|| format!("{what}: cannot decode the image (truncated or corrupt?)"))?;
-    Ok((img, Orientation::NoTransforms))
+    Ok((img, Orientation::NoTransforms, None))
 }
 
 /// Decodes a mask or region image (`kind`) drawn on a photo shown at `width`×`height`, whose
