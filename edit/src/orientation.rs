@@ -16,14 +16,21 @@ use std::io::{BufRead, Seek};
 
 /// Decodes `reader`'s image and turns it as its EXIF orientation says; returns the orientation
 /// applied (`NoTransforms` where the file has none, or an unreadable one) and the raw EXIF
-/// (TIFF) block, where the file has one.
+/// (TIFF) block, where the file has one. An image whose pixels would take more than
+/// `max_bytes` is refused before they are decoded (as `ImageReader::decode` does with its
+/// limits, which `into_decoder` only hands on).
 pub fn decode_turned<R: BufRead + Seek>(
     reader: ImageReader<R>,
     what: &str,
+    max_bytes: u64,
 ) -> Result<(DynamicImage, Orientation, Option<Vec<u8>>)> {
     let mut decoder = reader
         .into_decoder()
         .with_context(|| format!("{what}: cannot decode the image (truncated or corrupt?)"))?;
+    let need = decoder.total_bytes();
+    if need > max_bytes {
+        anyhow::bail!("{what}: decoding it would take {need} bytes, more than the {max_bytes} this command allows");
+    }
     // An EXIF block that cannot be read says nothing of the orientation; the pixels are still
     // the photo.
     let exif = decoder.exif_metadata().unwrap_or(None);
@@ -167,7 +174,7 @@ pub(crate) mod tests {
             .expect("open")
             .with_guessed_format()
             .expect("format");
-        let (img, o, _) = decode_turned(r, "test").expect("decode");
+        let (img, o, _) = decode_turned(r, "test", 1 << 20).expect("decode");
         (img, o)
     }
 
@@ -251,6 +258,26 @@ pub(crate) mod tests {
             assert_eq!(o, Orientation::NoTransforms, "{name}");
             assert_eq!(out.dimensions_tuple(), (3, 2), "{name}");
         }
+        std::fs::remove_dir_all(d).ok();
+    }
+
+    #[test]
+    fn an_image_over_the_byte_limit_is_refused_before_decoding() {
+        let d = dir("limit");
+        let p = d.join("big.png");
+        write_with_orientation(&p, &RgbImage::new(64, 64), 6);
+        let r = || {
+            ImageReader::open(&p)
+                .expect("open")
+                .with_guessed_format()
+                .expect("format")
+        };
+        let e = format!(
+            "{:#}",
+            decode_turned(r(), "big.png", 64 * 64 * 3 - 1).expect_err("refused")
+        );
+        assert!(e.contains("big.png") && e.contains("12288 bytes"), "{e}");
+        assert!(decode_turned(r(), "big.png", 64 * 64 * 3).is_ok());
         std::fs::remove_dir_all(d).ok();
     }
 

@@ -32,6 +32,9 @@ pub const TRAINING_MEAN_LUMINANCE: f64 = matedit_trainer::model::network::NORMAL
 /// `f32`), a larger one refused before it is decoded.
 pub const MAX_PIXELS: u64 = 100_000_000;
 
+/// The most an image's decoded pixels may take (bytes).
+const MAX_DECODE_BYTES: u64 = 2 << 30;
+
 /// How a photo's values were stored (the edited photo is written back the same way).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -272,10 +275,10 @@ fn decode_as(path: &Path, turn: bool) -> Result<(image::DynamicImage, Orientatio
     }
     let mut r = reader()?;
     let mut limits = image::Limits::default();
-    limits.max_alloc = Some(2 << 30);
+    limits.max_alloc = Some(MAX_DECODE_BYTES);
     r.limits(limits);
     if turn {
-        return orientation::decode_turned(r, &what.to_string());
+        return orientation::decode_turned(r, &what.to_string(), MAX_DECODE_BYTES);
     }
     let img = r
         .decode()
