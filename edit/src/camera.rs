@@ -4,8 +4,8 @@
 //! The edit uses it where a photo pixel's direction matters: the light's level from the photo's
 //! background ([`crate::background`]) looks the given map up along each background pixel's
 //! direction through a pinhole of this field of view. A phone's main camera sees about 65–70°
-//! across, twice the 40° default: with the default, the background's pixels are looked up in
-//! the wrong part of the map.
+//! across a landscape photo, 1.7 times the 40° default: with the default, the background's
+//! pixels are looked up in the wrong part of the map.
 
 use exif::{In, Reader, Tag};
 
@@ -22,7 +22,11 @@ pub const FOV_RANGE_DEG: (f64, f64) = (1.0, 170.0);
 /// none where the block cannot be read, has no such field or gives 0 (unknown), or the field
 /// of view it gives is outside [`FOV_RANGE_DEG`].
 pub fn field_of_view(exif: &[u8], width: usize, height: usize) -> Option<f64> {
-    let parsed = Reader::new().read_raw(exif.to_vec()).ok()?;
+    // One malformed entry elsewhere in the block does not lose the focal length.
+    let parsed = match Reader::new().continue_on_error(true).read_raw(exif.to_vec()) {
+        Ok(parsed) => parsed,
+        Err(e) => e.distill_partial_result(|_| {}).ok()?,
+    };
     let f35 = parsed
         .get_field(Tag::FocalLengthIn35mmFilm, In::PRIMARY)?
         .value
@@ -136,6 +140,13 @@ pub(crate) mod tests {
         let want = fov_of_equivalent_focal_length(26.0, 60, 40).expect("fov");
         assert_eq!(from_exif.fov_from, "exif");
         assert!((from_exif.fov_deg - want).abs() < 1e-9, "{from_exif:?}");
+        // The field of view reaches the directions: the background's level moves with it.
+        assert_eq!(from_exif.source, "background", "{from_exif:?}");
+        let at_default = level(&jpeg, Some(crate::background::DEFAULT_FOV_DEG), "at-default");
+        assert!(
+            (from_exif.scale / at_default.scale - 1.0).abs() > 1e-3,
+            "{from_exif:?} {at_default:?}"
+        );
         let given = level(&jpeg, Some(30.0), "given");
         assert_eq!((given.fov_deg, given.fov_from.as_str()), (30.0, "given"));
         let plain_level = level(&plain, None, "default");

@@ -258,9 +258,7 @@ pub fn read_photo(photo_path: &Path, mask: Option<&Path>, regions: Option<&Path>
     let (coverage, mask_name) = match mask {
         Some(m) => {
             let (coverage, fit) = photo::load_mask(m, p.width, p.height, turn)?;
-            if let Some(o) = orientation.as_mut() {
-                o.mask = Some(fit);
-            }
+            orientation.mask = Some(fit);
             (coverage, m.display().to_string())
         }
         None => (
@@ -277,9 +275,7 @@ pub fn read_photo(photo_path: &Path, mask: Option<&Path>, regions: Option<&Path>
     let labels = match regions {
         Some(r) => {
             let (labels, n, fit) = target::load_regions(r, p.width, p.height, turn, &coverage)?;
-            if let Some(o) = orientation.as_mut() {
-                o.regions = Some(fit);
-            }
+            orientation.regions = Some(fit);
             Some((labels, n))
         }
         None => None,
@@ -289,7 +285,7 @@ pub fn read_photo(photo_path: &Path, mask: Option<&Path>, regions: Option<&Path>
         coverage,
         mask_name,
         labels,
-        orientation,
+        orientation: orientation.matters().then_some(orientation),
         exif_fov_deg: file.fov_deg,
     })
 }

@@ -77,7 +77,9 @@ pub fn load_normals(path: &Path, width: usize, height: usize, coverage: &[f32]) 
         }
     };
     if (w, h) != (width, height) {
-        bail!("{what}: the normal map is {w}×{h}, the photo {width}×{height}; they must match pixel for pixel");
+        bail!(
+            "{what}: the normal map is {w}×{h}, the photo {width}×{height} as viewers show it; they must match pixel for pixel (a normal map is read as stored: no EXIF turn)"
+        );
     }
     let given = GivenNormals {
         path: what.to_string(),

@@ -6,8 +6,10 @@
 //! edit sideways, and a mask drawn on it as shown does not fit it. So the photo is turned, and a
 //! mask or region image is taken as drawn on the photo as shown — unless only the stored pixels'
 //! size fits it (a tool that ignores EXIF, such as a script reading the file with PIL, made it on
-//! the stored pixels), in which case it is turned with the photo. Where the turn keeps the size
-//! (a half turn, a mirror), the two cannot be told apart, and the mask is taken as shown.
+//! the stored pixels), in which case it is turned with the photo ([`crate::photo`]'s
+//! `decode_for_photo`). Where the turn keeps the size (a half turn, a mirror, a quarter turn of
+//! a square photo), the two cannot be told apart: the mask is taken as shown, and the report
+//! says both fitted.
 
 use anyhow::{Context, Result};
 use image::metadata::Orientation;
@@ -71,21 +73,46 @@ pub fn describe(o: Orientation) -> &'static str {
     }
 }
 
-/// How a mask or region image was matched to a turned photo.
+/// How a mask or region image was matched to its photo.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Fit {
     /// Drawn on the photo as shown (its own EXIF orientation, if any, applied).
     AsShown,
+    /// Taken as drawn on the photo as shown, though one drawn on the stored pixels would fit
+    /// too: the photo's turn keeps its size (a half turn, a mirror, a square photo).
+    AsShownOrStored,
+    /// Its own EXIF orientation ignored: turned by it, it does not fit; as stored, it does (a
+    /// tool that wrote the pixels upright and kept the tag).
+    OwnOrientationIgnored,
     /// Drawn on the photo's stored pixels: turned with the photo.
     TurnedWithPhoto,
 }
 
+impl Fit {
+    /// What the command line says of it, if anything.
+    fn said(self, what: &str) -> Option<String> {
+        match self {
+            Fit::AsShown => None,
+            Fit::AsShownOrStored => Some(format!(
+                "the {what} fits the photo both as shown and as stored, and was taken as drawn on the photo as shown"
+            )),
+            Fit::OwnOrientationIgnored => Some(format!(
+                "the {what}'s own EXIF orientation was ignored (its stored pixels fit the photo)"
+            )),
+            Fit::TurnedWithPhoto => Some(format!(
+                "the {what} fitted the photo's stored pixels and was turned with it"
+            )),
+        }
+    }
+}
+
 /// For `report.json`: how the photo was turned to stand as viewers show it, and how its mask
-/// (and region image) were matched to it. Present only where the photo's file says to turn it.
+/// (and region image) were matched to it. Present where the photo's file says to turn it, or
+/// a mask or region image was not simply taken as shown.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct OrientationReport {
-    /// The photo's EXIF orientation tag (2–8).
+    /// The photo's EXIF orientation tag (1: none, or as stored).
     pub exif: u8,
     /// What was done to the photo.
     pub applied: String,
@@ -98,32 +125,39 @@ pub struct OrientationReport {
 }
 
 impl OrientationReport {
-    /// The report for a photo turned by `o` from `stored` (none when it was not turned).
-    pub fn new(o: Orientation, stored: (usize, usize)) -> Option<Self> {
-        (o != Orientation::NoTransforms).then(|| OrientationReport {
+    /// The report for a photo turned by `o` from `stored`.
+    pub fn new(o: Orientation, stored: (usize, usize)) -> Self {
+        OrientationReport {
             exif: o.to_exif(),
             applied: describe(o).to_string(),
             stored_size: [stored.0, stored.1],
             mask: None,
             regions: None,
-        })
+        }
+    }
+
+    /// Whether it says anything a reader needs: the photo was turned, or a mask or region
+    /// image was not simply taken as shown.
+    pub fn matters(&self) -> bool {
+        self.exif != 1 || [self.mask, self.regions].iter().flatten().any(|f| *f != Fit::AsShown)
     }
 
     /// One line for the command line.
     pub fn line(&self) -> String {
-        let fit = |f: Option<Fit>, what: &str| match f {
-            Some(Fit::TurnedWithPhoto) => format!("; the {what} fitted its stored pixels and was turned with it"),
-            _ => String::new(),
+        let turned = if self.exif == 1 {
+            "the photo was read as stored".to_string()
+        } else {
+            format!(
+                "the photo was {} as its EXIF orientation {} says (stored {}×{})",
+                self.applied, self.exif, self.stored_size[0], self.stored_size[1]
+            )
         };
-        format!(
-            "orientation: the photo was {} as its EXIF orientation {} says (stored {}×{}){}{}",
-            self.applied,
-            self.exif,
-            self.stored_size[0],
-            self.stored_size[1],
-            fit(self.mask, "mask"),
-            fit(self.regions, "region image")
-        )
+        let fits = [(self.mask, "mask"), (self.regions, "region image")]
+            .into_iter()
+            .filter_map(|(f, what)| f.and_then(|f| f.said(what)))
+            .map(|s| format!("; {s}"))
+            .collect::<String>();
+        format!("orientation: {turned}{fits}")
     }
 }
 
@@ -291,17 +325,32 @@ pub(crate) mod tests {
     }
 
     #[test]
-    fn the_report_says_what_was_turned() {
-        assert!(OrientationReport::new(Orientation::NoTransforms, (4, 3)).is_none());
-        let mut r = OrientationReport::new(Orientation::Rotate90, (4, 3)).expect("turned");
+    fn the_report_says_what_was_turned_and_how_the_mask_was_fitted() {
+        let mut plain = OrientationReport::new(Orientation::NoTransforms, (4, 3));
+        plain.mask = Some(Fit::AsShown);
+        assert!(!plain.matters());
+        plain.mask = Some(Fit::OwnOrientationIgnored);
+        assert!(plain.matters());
+        let line = plain.line();
+        assert!(
+            line.contains("read as stored") && line.contains("mask's own EXIF orientation was ignored"),
+            "{line}"
+        );
+        let mut r = OrientationReport::new(Orientation::Rotate90, (4, 3));
+        assert!(r.matters());
         assert_eq!((r.exif, r.stored_size), (6, [4, 3]));
         r.mask = Some(Fit::TurnedWithPhoto);
+        r.regions = Some(Fit::AsShownOrStored);
         let line = r.line();
         assert!(
             line.contains("turned 90° clockwise") && line.contains("EXIF orientation 6"),
             "{line}"
         );
-        assert!(line.contains("mask fitted its stored pixels"), "{line}");
+        assert!(line.contains("mask fitted the photo's stored pixels"), "{line}");
+        assert!(
+            line.contains("region image fits the photo both as shown and as stored"),
+            "{line}"
+        );
         for tag in 1..=8u8 {
             let o = Orientation::from_exif(tag).expect("tag");
             assert_eq!(shown_size((4, 3), o) == (3, 4), (5..=8).contains(&tag), "{tag}");
@@ -356,7 +405,13 @@ pub(crate) mod tests {
             let stored_regions = d.join(format!("stored-regions-{tag}.png"));
             stored_of(&shown_mask, o).save(&stored_mask).expect("save");
             stored_of(&shown_regions, o).save(&stored_regions).expect("save");
-            let mut cases = vec![(mask.clone(), regions.clone(), Fit::AsShown)];
+            // A half turn keeps the size: a mask drawn on the stored pixels would fit too.
+            let as_shown = if swaps_axes(o) {
+                Fit::AsShown
+            } else {
+                Fit::AsShownOrStored
+            };
+            let mut cases = vec![(mask.clone(), regions.clone(), as_shown)];
             if swaps_axes(o) {
                 cases.push((stored_mask, stored_regions, Fit::TurnedWithPhoto));
             }
@@ -386,9 +441,25 @@ pub(crate) mod tests {
         image::GrayImage::new(50, 50).save(&wrong).expect("save");
         let e = format!("{:#}", edit(&photo, &wrong, None, "wrong").0.expect_err("refused"));
         assert!(
-            e.contains("wrong.png") && e.contains("50×50") && e.contains("60×40") && e.contains("EXIF orientation 6"),
+            e.contains("wrong.png")
+                && e.contains("50×50")
+                && e.contains("60×40")
+                && e.contains("EXIF orientation 6")
+                && e.contains("stored 40×60"),
             "{e}"
         );
+        // A mask that carries an EXIF turn of its own but was written upright (a tool that
+        // kept the tag) fits the plain photo as stored: its tag is ignored, and the edit is the
+        // plain one.
+        let tagged = d.join("tagged-mask.png");
+        write_with_orientation(&tagged, &shown_mask.to_rgb8(), 6);
+        let (report, out) = edit(&plain, &tagged, Some(&regions), "tagged");
+        let o_report = report.expect("tagged mask").orientation.expect("said");
+        assert_eq!((o_report.exif, o_report.mask), (1, Some(Fit::OwnOrientationIgnored)));
+        let (want_one, want_out) = edit(&plain, &mask, Some(&regions), "plain-one");
+        want_one.expect("plain");
+        let got = image::open(out.join("edited.png")).expect("edited").to_rgb8();
+        assert!(got == image::open(want_out.join("edited.png")).expect("edited").to_rgb8());
         std::fs::remove_dir_all(d).ok();
     }
 }

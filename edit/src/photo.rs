@@ -287,8 +287,10 @@ fn decode_as(path: &Path, turn: bool) -> Result<(image::DynamicImage, Orientatio
 }
 
 /// Decodes a mask or region image (`kind`) drawn on a photo shown at `width`×`height`, whose
-/// stored pixels were turned by `turn`: as drawn on the photo as shown, or, where only the
-/// stored pixels' size fits it, turned with the photo ([`crate::orientation`]).
+/// stored pixels were turned by `turn` ([`crate::orientation`]): as drawn on the photo as shown
+/// (turned by its own EXIF orientation, if it has one); else as stored, where its own EXIF turn
+/// is what keeps it from fitting; else, where the photo's stored pixels' size fits it, turned
+/// with the photo.
 pub(crate) fn decode_for_photo(
     path: &Path,
     width: usize,
@@ -297,18 +299,37 @@ pub(crate) fn decode_for_photo(
     kind: &str,
 ) -> Result<(image::DynamicImage, Fit)> {
     let size = |img: &image::DynamicImage| (img.width() as usize, img.height() as usize);
-    let (img, _) = decode_turned(path)?;
-    if size(&img) == (width, height) {
-        return Ok((img, Fit::AsShown));
-    }
+    let (shown, own) = decode_turned(path)?;
     let stored = orientation::shown_size((width, height), turn);
-    if turn != Orientation::NoTransforms {
-        let mut raw = decode(path)?;
-        if size(&raw) == stored {
-            raw.apply_orientation(turn);
-            return Ok((raw, Fit::TurnedWithPhoto));
-        }
+    if size(&shown) == (width, height) {
+        // A half turn, a mirror, or a quarter turn of a square photo keeps the size: a mask
+        // drawn on the stored pixels would fit as well, and nothing tells the two apart.
+        let fit = if turn != Orientation::NoTransforms && stored == (width, height) {
+            Fit::AsShownOrStored
+        } else {
+            Fit::AsShown
+        };
+        return Ok((shown, fit));
     }
+    let mut raw = if own == Orientation::NoTransforms {
+        shown
+    } else {
+        let raw = decode(path)?;
+        if size(&raw) == (width, height) {
+            return Ok((raw, Fit::OwnOrientationIgnored));
+        }
+        raw
+    };
+    if turn != Orientation::NoTransforms && size(&raw) == stored {
+        raw.apply_orientation(turn);
+        return Ok((raw, Fit::TurnedWithPhoto));
+    }
+    let its = if own == Orientation::NoTransforms {
+        format!("{}×{}", raw.width(), raw.height())
+    } else {
+        let (w, h) = orientation::shown_size(size(&raw), own);
+        format!("{w}×{h} (as its own EXIF orientation {} shows it)", own.to_exif())
+    };
     let turned = if turn == Orientation::NoTransforms {
         String::new()
     } else {
@@ -321,10 +342,8 @@ pub(crate) fn decode_for_photo(
         )
     };
     bail!(
-        "{}: the {kind} is {}×{}, the photo {width}×{height}{turned}; they must match pixel for pixel",
-        path.display(),
-        img.width(),
-        img.height()
+        "{}: the {kind} is {its}, the photo {width}×{height}{turned}; they must match pixel for pixel",
+        path.display()
     )
 }
 

@@ -48,6 +48,51 @@ fn jpeg(w: u32, h: u32) -> Vec<u8> {
     out.into_inner()
 }
 
+/// An EXIF (TIFF) block with an orientation and a 35 mm equivalent focal length: the parsing
+/// of both is fuzzed with the photo.
+fn exif_block(orientation: u16, f35: u16) -> Vec<u8> {
+    use exif::{Field, In, Tag, Value};
+    let fields = [
+        Field {
+            tag: Tag::Orientation,
+            ifd_num: In::PRIMARY,
+            value: Value::Short(vec![orientation]),
+        },
+        Field {
+            tag: Tag::FocalLengthIn35mmFilm,
+            ifd_num: In::PRIMARY,
+            value: Value::Short(vec![f35]),
+        },
+    ];
+    let mut w = exif::experimental::Writer::new();
+    for f in &fields {
+        w.push_field(f);
+    }
+    let mut buf = std::io::Cursor::new(Vec::new());
+    w.write(&mut buf, false).unwrap();
+    buf.into_inner()
+}
+
+/// A `w`×`h` RGB image as PNG or JPEG carrying [`exif_block`].
+fn with_exif(w: u32, h: u32, format: image::ImageFormat, orientation: u16) -> Vec<u8> {
+    use image::ImageEncoder;
+    let img = image::RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 9) as u8, (y * 13) as u8, 90]));
+    let mut out = std::io::Cursor::new(Vec::new());
+    let exif = exif_block(orientation, 26);
+    if format == image::ImageFormat::Png {
+        let mut enc = image::codecs::png::PngEncoder::new(&mut out);
+        enc.set_exif_metadata(exif).unwrap();
+        enc.write_image(img.as_raw(), w, h, image::ExtendedColorType::Rgb8)
+            .unwrap();
+    } else {
+        let mut enc = image::codecs::jpeg::JpegEncoder::new(&mut out);
+        enc.set_exif_metadata(exif).unwrap();
+        enc.write_image(img.as_raw(), w, h, image::ExtendedColorType::Rgb8)
+            .unwrap();
+    }
+    out.into_inner()
+}
+
 fn photo_valid(p: &matedit_edit::photo::Photo) -> Verdict {
     if p.width == 0 || p.height == 0 || p.rgb.len() != p.width * p.height {
         Err(format!("{}×{} with {} pixels", p.width, p.height, p.rgb.len()))
@@ -87,6 +132,10 @@ fn photos_png() {
         ("rgb8 24×16".to_string(), png(24, 16, false, false)),
         ("rgba8 24×16".to_string(), png(24, 16, false, true)),
         ("rgb16 24×16".to_string(), png(24, 16, true, false)),
+        (
+            "rgb8 16×24, EXIF turn".to_string(),
+            with_exif(16, 24, image::ImageFormat::Png, 6),
+        ),
     ];
     if let Some(a) = eval_assets() {
         seeds.extend(seed_file(&a.join("photos/rembg_cars/car-1.out.png")));
@@ -96,7 +145,13 @@ fn photos_png() {
 
 #[test]
 fn photos_jpeg() {
-    let mut seeds = vec![("jpeg 24×16".to_string(), jpeg(24, 16))];
+    let mut seeds = vec![
+        ("jpeg 24×16".to_string(), jpeg(24, 16)),
+        (
+            "jpeg 16×24, EXIF turn".to_string(),
+            with_exif(16, 24, image::ImageFormat::Jpeg, 8),
+        ),
+    ];
     if let Some(a) = eval_assets() {
         seeds.extend(seed_file(&a.join("photos/rembg_cars/car-2.jpg")));
     }
@@ -135,6 +190,13 @@ fn masks_and_region_labels() {
     let mut seeds = vec![
         ("rgba8 24×16".to_string(), png(24, 16, false, true)),
         ("rgb16 24×16".to_string(), png(24, 16, true, false)),
+        // Drawn on the photo's stored pixels: turned with it.
+        ("rgba8 16×24".to_string(), png(16, 24, false, true)),
+        // Its own EXIF turn, and upright as stored.
+        (
+            "rgb8 24×16, own EXIF turn".to_string(),
+            with_exif(24, 16, image::ImageFormat::Png, 6),
+        ),
     ];
     // Labels 0..=2 in grey.
     let mut labels = std::io::Cursor::new(Vec::new());

@@ -5,7 +5,8 @@ use super::*;
 
 /// The file at `path` if it exists (seeds from the eval assets are optional).
 pub fn seed_file(path: &Path) -> Option<(String, Vec<u8>)> {
-    std::fs::read(path).ok().map(|b| (path.display().to_string(), b))
+    // A real file can be megabytes: read under the lock, as every large seed is built.
+    super::build_under_lock(|| std::fs::read(path).ok().map(|b| (path.display().to_string(), b)))
 }
 
 /// `../shared/eval-assets` (or `$MATEDIT_EVAL_ASSETS`), when present.
