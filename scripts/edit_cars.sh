@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The README's figure of real photos edited: each car photo of the evaluation assets (with the
 # alpha matte rembg wrote as its mask) edited to a diffuse, a glossy paint and a metal with each
-# composite: the paper's `render` (O' at the photo's resolution), `ratio`, and the default
-# `detail`.
+# composite: the paper's `render` (O' at the photo's resolution), `ratio`, `detail` (the default
+# until 2026-11-29) and the default `structure`.
 #   scripts/edit_cars.sh MODEL [ASSETS] [OUT]
 # MODEL: a `trainer run` output folder (e.g. out/train/quickstart) or a checkpoint folder;
 # ASSETS: the folder holding photos/rembg_cars/ (default ../shared/eval-assets, or $MATEDIT_EVAL_ASSETS);
@@ -24,7 +24,7 @@ rows=()
 for n in 1 2 3; do
     photo="$assets/photos/rembg_cars/car-$n.jpg"
     mask="$assets/photos/rembg_cars/car-$n.out.png"
-    for how in render ratio detail; do
+    for how in render ratio detail structure; do
         args=(--composite "$how")
         row="car-$n, $how::$photo"
         for m in $materials; do
@@ -49,7 +49,7 @@ for entry in "1 ggx:0.1:0.9116,0.9206,0.9239" "2 plastic:0.05:0.8,0.8,0.8"; do
     plain="car-$n, default::$photo"
     known="car-$n, --input-material $own::$photo"
     for m in $materials; do
-        plain="$plain,$out/car-$n/detail/$m/edited.png"
+        plain="$plain,$out/car-$n/structure/$m/edited.png"
         "$bin" edit --model "$model" --image "$photo" --mask "$mask" --material "library:$m" \
             --input-material "$own" --out "$out/car-$n/known/$m" >/dev/null
         known="$known,$out/car-$n/known/$m/edited.png"

@@ -594,7 +594,7 @@ mod tests {
         assert!(e.is_some_and(|e| e.contains("--light-estimate")));
         assert_eq!(
             (Composite::best_for(true), Composite::best_for(false)),
-            (Composite::Ratio, Composite::Detail)
+            (Composite::Ratio, Composite::Structure)
         );
         // So do transfer and swap, for either object; Eq. 6 is refused with any of them.
         let pair = |cmd: &str, x: &str, y: &str, args: &[&str]| {

@@ -76,10 +76,16 @@ use std::time::Instant;
 pub enum Composite {
     /// The paper's: the object's pixels are O', rendered at the photo's resolution.
     Render,
+    /// The photo's own luminance at every scale, times the change the render makes to it,
+    /// O''s luminance over I*'s blurred (σ = [`composite::STRUCTURE_SIGMA_FRACTION`] of the
+    /// framing square), in O''s colour: the layer says how much brighter or darker the object
+    /// becomes and what colour, the photo where its light and shade lie (not in the paper; the
+    /// best measured on the photo benchmark).
+    #[default]
+    Structure,
     /// O' times the photo's fine detail: the photo's luminance over I*'s, divided by the same
     /// ratio blurred; the large scale comes from the render, edges, texture and small shadows
-    /// from the photo (not in the paper; the best measured on the photo benchmark).
-    #[default]
+    /// from the photo (not in the paper).
     Detail,
     /// O' times the photo's luminance over I*'s: O''s colour with the photo's light and shade
     /// (its edges, texture and what the layer does not model), achromatic, so the input's hue
@@ -95,10 +101,10 @@ pub enum Composite {
 
 impl Composite {
     /// The composite measured best on the photo benchmark: `ratio` when the object's material is
-    /// known (I × R(m_t)/R(m*) is exact when m* is right), `detail` with the network's m'
-    /// (docs/PERFORMANCE.md, "The object's own material, given").
+    /// known (I × R(m_t)/R(m*) is exact when m* is right), `structure` with the network's m'
+    /// (docs/PERFORMANCE.md, "The object's own material, given" and "The photo's structure").
     pub fn best_for(known_material: bool) -> Self {
-        if known_material { Self::Ratio } else { Self::Detail }
+        if known_material { Self::Ratio } else { Self::Structure }
     }
 }
 

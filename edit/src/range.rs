@@ -326,7 +326,9 @@ mod tests {
         assert!(!r.applied && r.scale == 1.0);
     }
 
-    /// The whole edit: a lambertian target under a given light forty times the photo's white.
+    /// The whole edit: a lambertian target under a given light forty times the photo's white,
+    /// composited by `detail`, which takes O''s level (`structure` and `ratio` take only O''s
+    /// change relative to I*, in which the light's level cancels).
     #[test]
     fn an_edit_brighter_than_the_photo_is_held_to_its_range_and_keeps_its_hue() {
         use crate::tests::{dir, model, request, write_photo};
@@ -338,6 +340,7 @@ mod tests {
             light: Some(light.display().to_string()),
             light_level: crate::LevelFrom::Given,
             range,
+            composite: crate::Composite::Detail,
             ..request(&p, &m, "lambert:0.8,0.4,0.1")
         };
         let held = crate::edit(model(), &req(Some(Range::Photo)), &d.join("photo")).unwrap();

@@ -63,6 +63,7 @@ pub(super) async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
             "composite" => {
                 f.composite = match text().as_str() {
                     "" => None,
+                    "structure" => Some(Composite::Structure),
                     "detail" => Some(Composite::Detail),
                     "shading" => Some(Composite::Shading),
                     "delta" => Some(Composite::Delta),
@@ -72,7 +73,7 @@ pub(super) async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
                         return Err(error(
                             StatusCode::BAD_REQUEST,
                             format!(
-                                "composite “{}”: expected detail, shading, delta, render or ratio",
+                                "composite “{}”: expected structure, detail, shading, delta, render or ratio",
                                 upload::display_name(other)
                             ),
                         ));

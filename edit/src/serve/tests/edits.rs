@@ -63,7 +63,7 @@ fn an_edit_matches_the_command_line_and_serves_only_its_own_files() {
         );
     }
     let (s, b) = http(addr, "GET", &format!("{url}/files/report.json"), None, b"");
-    assert_eq!((s, json_of(&b)["composite"].as_str()), (200, Some("detail")));
+    assert_eq!((s, json_of(&b)["composite"].as_str()), (200, Some("structure")));
     // The page's information names the model by its run's part of the path only.
     let (s, b) = http(addr, "GET", "/api/info", None, b"");
     let info = json_of(&b);

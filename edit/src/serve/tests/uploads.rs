@@ -268,7 +268,7 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
                 ("composite", None, b"blend"),
             ],
             400,
-            "expected detail, shading, delta, render or ratio",
+            "expected structure, detail, shading, delta, render or ratio",
         ),
         (
             vec![("photo", Some("p.png"), &photo), ("path", None, b"/etc/passwd")],
