@@ -97,7 +97,7 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         #[arg(long)]
         normals: Option<PathBuf>,
         /// How the render goes back into the photo. Default: `ratio` with --input-material,
-        /// `detail` otherwise (the best measured for each, docs/PERFORMANCE.md).
+        /// `structure` otherwise (the best measured for each, docs/PERFORMANCE.md).
         #[arg(long, value_enum)]
         composite: Option<Composite>,
         /// What the edited object's level is held to in an 8- or 16-bit photo: `photo` scales it
@@ -271,7 +271,7 @@ struct Finish {
     #[arg(long)]
     optimize: bool,
     /// How the render goes back into the photo. Default: `ratio` where every receiving object's
-    /// own material is given, `detail` otherwise (the best measured for each).
+    /// own material is given, `structure` otherwise (the best measured for each).
     #[arg(long, value_enum)]
     composite: Option<Composite>,
     /// What the edited object's level is held to (as `edit --range`). Default: `clip` where
@@ -570,7 +570,7 @@ mod tests {
         ] {
             assert!(parse(&[option, value]).is_ok(), "{option} {value} refused");
         }
-        // No --composite leaves the choice to the known material: `ratio` with one, `detail` without.
+        // No --composite leaves the choice to the known material: `ratio` with one, `structure` without.
         let composite = |args: &[&str]| match parse(args).map(|c| c.command) {
             Ok(Command::Edit { composite, .. }) => composite,
             _ => panic!("{args:?} refused"),

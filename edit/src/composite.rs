@@ -201,7 +201,8 @@ pub fn object_values(
     out
 }
 
-/// The blur of [`Composite::Structure`]'s change, as a fraction of the framing square's side:
+/// The blur of [`Composite::Structure`]'s change, as a fraction of the framing square's side
+/// (the 15 % its documentation, the CLI's help, names):
 /// the layer's estimates (n' at the network's resolution, a light it does not place) are right,
 /// if at all, at large scales only. 4 % to the whole square measured within 0.001 SSIM on the
 /// photo benchmark; 15 % had the most edits better than the photo.

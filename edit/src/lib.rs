@@ -77,10 +77,10 @@ pub enum Composite {
     /// The paper's: the object's pixels are O', rendered at the photo's resolution.
     Render,
     /// The photo's own luminance at every scale, times the change the render makes to it,
-    /// O''s luminance over I*'s blurred (σ = [`composite::STRUCTURE_SIGMA_FRACTION`] of the
-    /// framing square), in O''s colour: the layer says how much brighter or darker the object
-    /// becomes and what colour, the photo where its light and shade lie (not in the paper; the
-    /// best measured on the photo benchmark).
+    /// O''s luminance over I*'s blurred (σ = 15 % of the framing square), in O''s colour: the
+    /// layer says how much brighter or darker the object becomes and what colour, the photo
+    /// where its light and shade lie (not in the paper; the best measured on the photo
+    /// benchmark).
     #[default]
     Structure,
     /// O' times the photo's fine detail: the photo's luminance over I*'s, divided by the same
