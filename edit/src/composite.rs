@@ -453,9 +453,6 @@ mod tests {
         // checker texture; I* explains the smooth shading at half its level. The target's
         // render is a flat colour: the result is that colour times the checker (around 1),
         // not times the smooth shading or the factor 2 between photo and I*.
-        const M: usize = 64;
-        let smooth = |k: usize| 0.2 + 0.6 * (k % M) as f32 / M as f32;
-        let checker = |k: usize| if (k % M + k / M).is_multiple_of(2) { 1.2 } else { 0.8 };
         let (p, coverage, prep, inside) = square(|k| smooth(k) * checker(k));
         let plane = |f: &dyn Fn(usize) -> f32| -> Vec<f32> { (0..3).flat_map(|_| (0..M * M).map(f)).collect() };
         let i_star = plane(&|k| 0.5 * smooth(k));
@@ -480,10 +477,22 @@ mod tests {
         }
     }
 
+    /// The side of [`square`]'s photo.
+    const M: usize = 64;
+
+    /// A smooth shading across [`square`]'s photo.
+    fn smooth(k: usize) -> f32 {
+        0.2 + 0.6 * (k % M) as f32 / M as f32
+    }
+
+    /// A fine ±20 % checker texture.
+    fn checker(k: usize) -> f32 {
+        if (k % M + k / M).is_multiple_of(2) { 1.2 } else { 0.8 }
+    }
+
     /// A 64×64 linear photo whose object (the centre 48×48) is `photo(k)` (grey), with its
     /// coverage and framing (the whole photo, exposure 1).
     fn square(photo: impl Fn(usize) -> f32) -> (Photo, Vec<f32>, Prepared, impl Fn(usize) -> bool) {
-        const M: usize = 64;
         let inside = |k: usize| (8..56).contains(&(k % M)) && (8..56).contains(&(k / M));
         let rgb = (0..M * M)
             .map(|k| if inside(k) { [photo(k); 3] } else { [0.4, 0.5, 0.6] })
@@ -518,9 +527,6 @@ mod tests {
         // The photo: a smooth shading times a fine checker, which I* explains but for the
         // checker. O' is a colour T under the same shading, and, on the right half, twice as
         // bright: a sharp change the photo does not show (as wrong normals make).
-        const M: usize = 64;
-        let smooth = |k: usize| 0.2 + 0.6 * (k % M) as f32 / M as f32;
-        let checker = |k: usize| if (k % M + k / M).is_multiple_of(2) { 1.2 } else { 0.8 };
         let (p, cov, prep, inside) = square(|k| smooth(k) * checker(k));
         let t = [0.1_f32, 0.6, 0.2];
         let t_lum = luminance(t) as f32;
