@@ -202,9 +202,8 @@ pub fn object_values(
 }
 
 /// The blur of [`Composite::Structure`]'s change, as a fraction of the framing square's side
-/// (the 15 % its documentation, the CLI's help, names):
-/// the layer's estimates (n' at the network's resolution, a light it does not place) are right,
-/// if at all, at large scales only. 4 % to the whole square measured within 0.001 SSIM on the
+/// (the CLI's help names it: keep the two together). The layer's estimates (n' at the network's
+/// resolution, a light it does not place) are right, if at all, at large scales only. 4 % to the whole square measured within 0.001 SSIM on the
 /// photo benchmark; 15 % had the most edits better than the photo.
 pub const STRUCTURE_SIGMA_FRACTION: f64 = 0.15;
 
@@ -219,8 +218,8 @@ pub const STRUCTURE_CHANGE_POWER: f64 = 0.75;
 /// back): the photo's luminance times the change O'/I* in luminance blurred at σ =
 /// [`STRUCTURE_SIGMA_FRACTION`] of the framing's side and raised to [`STRUCTURE_CHANGE_POWER`],
 /// over O''s luminance. So the result's luminance is the photo's times that smooth change, its
-/// colour O''s. Where either render is
-/// black or not finite the gain is 1 (O' as rendered); it is capped at [`MAX_RATIO`].
+/// colour O''s. Where either render is black or not finite the gain is 1 (O' as rendered); it
+/// is capped at [`MAX_RATIO`].
 fn structure_gain(p: &Photo, coverage: &[f32], prep: &Prepared, render: &[f32], i_prime: &[f32]) -> Vec<f32> {
     let (w, h, n) = (p.width, p.height, prep.size);
     let back = 1.0 / prep.exposure;
@@ -248,9 +247,11 @@ fn structure_gain(p: &Photo, coverage: &[f32], prep: &Prepared, render: &[f32], 
     let smooth = masked_blur(&change, &valid, w, h, sigma);
     (0..w * h)
         .map(|k| {
-            let lp = luminance(p.rgb[k]);
-            let g = lp * smooth[k] as f64 / rendered[k];
-            if valid[k] && g.is_finite() {
+            if !valid[k] {
+                return 1.0;
+            }
+            let g = luminance(p.rgb[k]) * smooth[k] as f64 / rendered[k];
+            if g.is_finite() {
                 g.min(MAX_RATIO as f64) as f32
             } else {
                 1.0

@@ -290,7 +290,7 @@ pub(crate) mod tests {
                 .expect("jpeg");
             let (out, o) = read(&p);
             assert_eq!(o, Orientation::NoTransforms, "{name}");
-            assert_eq!(out.dimensions_tuple(), (3, 2), "{name}");
+            assert_eq!((out.width(), out.height()), (3, 2), "{name}");
         }
         std::fs::remove_dir_all(d).ok();
     }
@@ -313,15 +313,6 @@ pub(crate) mod tests {
         assert!(e.contains("big.png") && e.contains("12288 bytes"), "{e}");
         assert!(decode_turned(r(), "big.png", 64 * 64 * 3).is_ok());
         std::fs::remove_dir_all(d).ok();
-    }
-
-    trait Dims {
-        fn dimensions_tuple(&self) -> (u32, u32);
-    }
-    impl Dims for DynamicImage {
-        fn dimensions_tuple(&self) -> (u32, u32) {
-            (self.width(), self.height())
-        }
     }
 
     #[test]

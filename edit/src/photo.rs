@@ -162,7 +162,7 @@ pub fn load_photo_shown(path: &Path) -> Result<(Photo, PhotoFile)> {
             Ok((p, file))
         }
         "png" | "jpg" | "jpeg" | "hdr" => {
-            let (img, turned, exif) = decode_with_exif(path)?;
+            let (img, turned, exif) = decode_as(path, true)?;
             let (w, h) = (img.width() as usize, img.height() as usize);
             use image::DynamicImage as D;
             let encoding = match &img {
@@ -252,11 +252,7 @@ pub(crate) fn decode_turned(path: &Path) -> Result<(image::DynamicImage, Orienta
     decode_as(path, true).map(|(img, o, _)| (img, o))
 }
 
-/// [`decode_turned`], with the file's raw EXIF block.
-fn decode_with_exif(path: &Path) -> Result<(image::DynamicImage, Orientation, Option<Vec<u8>>)> {
-    decode_as(path, true)
-}
-
+/// [`decode`] (`turn` false) or [`decode_turned`] with the file's raw EXIF block.
 fn decode_as(path: &Path, turn: bool) -> Result<(image::DynamicImage, Orientation, Option<Vec<u8>>)> {
     let what = path.display();
     check_file(path)?;
