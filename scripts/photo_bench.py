@@ -59,6 +59,7 @@ Usage:
     python3 scripts/photo_bench.py all --out out/photobench --matedit BIN --model MODEL
     python3 scripts/photo_bench.py levels --out out/photobench --methods detail   # after `score`
     python3 scripts/photo_bench.py ceiling --out out/photobench   # a perfect edit's scores
+    python3 scripts/photo_bench.py reach --out out/photobench     # the photo-keeping composites' bound
     python3 scripts/photo_bench.py normals --out out/photobench --methods detail  # n*'s angle to the truth
     python3 scripts/photo_bench.py lprime --out out/photobench --method detail    # L' variants for --light
     python3 scripts/photo_bench.py combine --out out/photobench --methods A B --how mean|fit|truth
@@ -844,6 +845,63 @@ def cmd_ceiling(args):
     write_atomic(out / "ceiling.json", lambda p: p.write_text(json.dumps(report, indent=1)))
 
 
+REACH_SIGMAS = (0.02, 0.05, 0.15)
+
+
+def cmd_reach(args):
+    """What a composite that keeps the photo's own light and shade can reach at best: the photo's
+    luminance times the truth's own change (truth luminance over photo luminance), blurred over the
+    object at sigma = a share of its bounding square's side, in the truth's colour; and the same
+    with one gain and one colour per edit (the truth's mean change). These use the truth, so they
+    are bounds, not methods: `structure` is of this family with the change estimated by the layer,
+    so it cannot score above the blurred rows (docs/PERFORMANCE.md, "What a photo-keeping
+    composite can reach"). Writes DIR/reach.json."""
+    from scipy.ndimage import gaussian_filter  # scikit-image's own dependency
+
+    out = Path(args.out)
+    records = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]
+    targets = [t for t in args.targets.split(",") if t]
+    methods = [f"change blurred {round(100 * s)} %" for s in REACH_SIGMAS] + ["one gain and colour per edit"]
+    cases = []
+    for rec in records:
+        d = out / rec["name"]
+        photo = rgb8(d / "photo.png")
+        obj = rgb8(d / "mask.png")[..., 0] > 127
+        ys, xs = np.nonzero(obj)
+        side = max(np.ptp(ys), np.ptp(xs)) + 1
+        lin = srgb_decode(photo / 255)
+        lp = luminance709(lin)
+        weight = {s: gaussian_filter(obj.astype(np.float64), s * side) for s in REACH_SIGMAS}
+        for t in targets:
+            truth = rgb8(d / f"truth_{t}.png")
+            tg = grad_magnitude(truth)
+            base = scores(photo, truth, obj, tg)
+            cases.append({"scene": rec["name"], "target": t, "method": "unchanged", "error": None,
+                          "seconds": None, **base})
+            tl = srgb_decode(truth / 255)
+            lt = luminance709(tl)
+            change = np.where(obj, (lt + 1e-4) / (lp + 1e-4), 0.0)  # tiny floor: black pixels of either
+            colour = tl / np.maximum(lt, 1e-6)[..., None]
+            mean_colour = tl[obj].mean(0) / max(lt[obj].mean(), 1e-6)
+            gains = [gaussian_filter(change, s * side) / np.maximum(weight[s], 1e-9) for s in REACH_SIGMAS]
+            gains.append(np.full_like(lp, lt[obj].mean() / max(lp[obj].mean(), 1e-6)))
+            for i, (m, g) in enumerate(zip(methods, gains)):
+                c = colour if i < len(REACH_SIGMAS) else mean_colour
+                edit = np.where(obj[..., None], c * (lp * g)[..., None], lin)
+                s = scores(srgb8(edit).astype(np.float64), truth, obj, tg)
+                cases.append({"scene": rec["name"], "target": t, "method": m, "error": None, "seconds": None,
+                              **s, "beats": s["l2"] < base["l2"] and s["ssim"] > base["ssim"]})
+    overall = summarise(cases, methods)
+    per_target = {t: summarise([c for c in cases if c["target"] == t], methods) for t in targets}
+    print(markdown([((m,), row) for m, row in overall.items()]))
+    print()
+    print(markdown([((t, m), row) for t, table in per_target.items() for m, row in table.items()], first_col="target"))
+    command = shlex.join([Path(sys.executable).name] + sys.argv)
+    print(f"\nCommand: `{command}`")
+    report = {"command": command, "sigmas": REACH_SIGMAS, "means": overall, "per_target": per_target, "cases": cases}
+    write_atomic(out / "reach.json", lambda p: p.write_text(json.dumps(report, indent=1)))
+
+
 LIGHT_VARIANTS = {
     "light_blocks.exr": "the true light averaged over 8x8-texel blocks (8x16 values: the key light's direction, "
                         "no detail)",
@@ -1258,6 +1316,9 @@ def main():
     ceiling = sub.add_parser("ceiling", parents=[common, render],
                              help="each truth rendered again with another seed and scored: what a perfect edit gets")
     ceiling.add_argument("--targets", default=",".join(TARGETS), help="comma-separated targets of " + ", ".join(TARGETS))
+    reach = sub.add_parser("reach", parents=[common],
+                           help="what a composite keeping the photo's light and shade reaches given the truth's change")
+    reach.add_argument("--targets", default=",".join(TARGETS), help="comma-separated targets of " + ", ".join(TARGETS))
     levels = sub.add_parser("levels", parents=[common],
                             help="each method's level error against the truths, and its scores at the truth's level")
     levels.add_argument("--methods", nargs="+", required=True, metavar="NAME",
@@ -1296,6 +1357,8 @@ def main():
         cmd_levels(args)
     if args.command == "ceiling":
         cmd_ceiling(args)
+    if args.command == "reach":
+        cmd_reach(args)
     if args.command == "lprime":
         cmd_lprime(args)
     if args.command == "combine":

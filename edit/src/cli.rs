@@ -97,7 +97,8 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         #[arg(long)]
         normals: Option<PathBuf>,
         /// How the render goes back into the photo. Default: `ratio` with --input-material,
-        /// `structure` otherwise (the best measured for each, docs/PERFORMANCE.md).
+        /// `detail` with --light (not with --light-level network), `structure` otherwise (the
+        /// best measured for each, docs/PERFORMANCE.md).
         #[arg(long, value_enum)]
         composite: Option<Composite>,
         /// What the edited object's level is held to in an 8- or 16-bit photo: `photo` scales it
@@ -356,7 +357,7 @@ fn run(cli: Cli) -> Result<()> {
                 light_level,
                 light_estimate,
                 fov_deg: fov,
-                composite: composite.unwrap_or_else(|| Composite::best_for(input_material.is_some())),
+                composite,
                 range,
                 input_material,
                 normals,
@@ -570,7 +571,8 @@ mod tests {
         ] {
             assert!(parse(&[option, value]).is_ok(), "{option} {value} refused");
         }
-        // No --composite leaves the choice to the known material: `ratio` with one, `structure` without.
+        // No --composite leaves the choice to what is known: `ratio` with the material, `detail`
+        // with a light at a known level, `structure` with neither.
         let composite = |args: &[&str]| match parse(args).map(|c| c.command) {
             Ok(Command::Edit { composite, .. }) => composite,
             _ => panic!("{args:?} refused"),
@@ -592,9 +594,15 @@ mod tests {
         assert_eq!(estimate(&["--light-estimate", "network"]), LightEstimate::Network);
         let e = parse(&["--light-estimate", "guess"]).err().map(|e| e.to_string());
         assert!(e.is_some_and(|e| e.contains("--light-estimate")));
+        let best = [(true, false), (true, true), (false, true), (false, false)].map(|(m, l)| Composite::best_for(m, l));
         assert_eq!(
-            (Composite::best_for(true), Composite::best_for(false)),
-            (Composite::Ratio, Composite::Structure)
+            best,
+            [
+                Composite::Ratio,
+                Composite::Ratio,
+                Composite::Detail,
+                Composite::Structure
+            ]
         );
         // So do transfer and swap, for either object; Eq. 6 is refused with any of them.
         let pair = |cmd: &str, x: &str, y: &str, args: &[&str]| {

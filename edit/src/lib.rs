@@ -100,11 +100,18 @@ pub enum Composite {
 }
 
 impl Composite {
-    /// The composite measured best on the photo benchmark: `ratio` when the object's material is
-    /// known (I × R(m_t)/R(m*) is exact when m* is right), `structure` with the network's m'
-    /// (docs/PERFORMANCE.md, "The object's own material, given" and "The photo's structure").
-    pub fn best_for(known_material: bool) -> Self {
-        if known_material { Self::Ratio } else { Self::Structure }
+    /// The composite measured best on the photo benchmark for what is known of the photo:
+    /// `ratio` when the object's material is known (I × R(m_t)/R(m*) is exact when m* is right);
+    /// `detail` when its light is given at a known level (O' is then at the right level and
+    /// shaded by the right light, which `structure`'s shrunk, blurred change would discard);
+    /// `structure` when both are the network's guesses (docs/PERFORMANCE.md, "The object's own
+    /// material, given", "The photo's structure" and "A given light's default composite").
+    pub fn best_for(known_material: bool, known_light: bool) -> Self {
+        match (known_material, known_light) {
+            (true, _) => Self::Ratio,
+            (false, true) => Self::Detail,
+            (false, false) => Self::Structure,
+        }
     }
 }
 
@@ -135,8 +142,9 @@ pub struct EditRequest {
     /// The object's normals at the photo's resolution, when known (EXR or PNG, camera space):
     /// used instead of n' ([`normals`]).
     pub normals: Option<PathBuf>,
-    /// How to composite (the command line picks [`Composite::best_for`] when none is given).
-    pub composite: Composite,
+    /// How to composite; `None`: [`Composite::best_for`] what `input_material` and `light` make
+    /// known.
+    pub composite: Option<Composite>,
     /// What the edited object's level is held to ([`range`]; `None`: [`Range::best_for`] the
     /// request, the rendered level where `input_material` or `light` makes it known).
     pub range: Option<Range>,
@@ -683,7 +691,9 @@ fn edit_checked(
         relight,
         req.light.as_deref(),
         Look {
-            composite: req.composite,
+            composite: req
+                .composite
+                .unwrap_or(Composite::best_for(light.input_material.is_some(), light.light_known())),
             range: req.range.unwrap_or(Range::best_for(level_known)),
         },
         out,

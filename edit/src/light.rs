@@ -63,7 +63,13 @@ impl LightOptions {
     /// own material, or a given map at its own or the background's level (not where the network's
     /// fit scales it). It picks the edit's range ([`crate::Range::best_for`]).
     pub(crate) fn level_known(&self) -> bool {
-        self.input_material.is_some() || (self.given.is_some() && self.level_from() != LevelFrom::Network)
+        self.input_material.is_some() || self.light_known()
+    }
+
+    /// Whether the light is given at a known level (its own or the background's, not the
+    /// network's fit): it picks the composite ([`crate::Composite::best_for`]).
+    pub(crate) fn light_known(&self) -> bool {
+        self.given.is_some() && self.level_from() != LevelFrom::Network
     }
 }
 

@@ -83,7 +83,8 @@ fn a_given_light_replaces_l_prime_at_the_level_asked_for() {
 fn an_edits_light_given_back_at_its_own_level_renders_the_same_edit() {
     // env.exr is L' in the photo's linear units: the map `--light-level given` reads. Given
     // back, it is the same light, so the edit and the map written are the same again (held to
-    // the same range: a given light's own level is otherwise kept as rendered).
+    // the same range and composite: a given light's own level is otherwise kept as rendered,
+    // and composited by `detail`).
     let d = dir("light-again");
     let (p, m, _) = write_photo(&d);
     let first = d.join("first");
@@ -93,6 +94,7 @@ fn an_edits_light_given_back_at_its_own_level_renders_the_same_edit() {
         light: Some(first.join("env.exr").to_str().unwrap().to_string()),
         light_level: LevelFrom::Given,
         range: Some(Range::Photo),
+        composite: Some(a.composite),
         ..request(&p, &m, "library:gold-polished")
     };
     let b = edit(model(), &req, &again).unwrap();

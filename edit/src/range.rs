@@ -63,7 +63,7 @@ impl Look {
     /// `known` or not.
     pub fn chosen(composite: Option<crate::Composite>, range: Option<Range>, known: bool) -> Self {
         Self {
-            composite: composite.unwrap_or(crate::Composite::best_for(known)),
+            composite: composite.unwrap_or(crate::Composite::best_for(known, false)),
             range: range.unwrap_or(Range::best_for(known)),
         }
     }
@@ -336,18 +336,30 @@ mod tests {
         let (p, m, _) = write_photo(&d);
         let light = d.join("bright.exr");
         exr::prelude::write_rgb_file(&light, 16, 8, |_, _| (40.0_f32, 40.0_f32, 40.0_f32)).unwrap();
-        let req = |range| crate::EditRequest {
+        let req = |range, composite| crate::EditRequest {
             light: Some(light.display().to_string()),
             light_level: crate::LevelFrom::Given,
             range,
-            composite: crate::Composite::Detail,
+            composite,
             ..request(&p, &m, "lambert:0.8,0.4,0.1")
         };
-        let held = crate::edit(model(), &req(Some(Range::Photo)), &d.join("photo")).unwrap();
-        let clipped = crate::edit(model(), &req(Some(Range::Clip)), &d.join("clip")).unwrap();
-        // Unasked, a light at its own level is a known level: kept as rendered.
-        let known = crate::edit(model(), &req(None), &d.join("known")).unwrap();
-        assert_eq!(known.range, clipped.range);
+        let detail = Some(crate::Composite::Detail);
+        let held = crate::edit(model(), &req(Some(Range::Photo), detail), &d.join("photo")).unwrap();
+        let clipped = crate::edit(model(), &req(Some(Range::Clip), detail), &d.join("clip")).unwrap();
+        // Unasked, a light at its own level is a known level: kept as rendered, and composited
+        // by `detail`, which keeps the level.
+        let known = crate::edit(model(), &req(None, None), &d.join("known")).unwrap();
+        assert_eq!(
+            (&known.range, known.composite),
+            (&clipped.range, crate::Composite::Detail)
+        );
+        // A given light scaled by the network's fit is a guessed level: `structure`, as with L'.
+        let guessed = crate::EditRequest {
+            light_level: crate::LevelFrom::Network,
+            ..req(None, None)
+        };
+        let guessed = crate::edit(model(), &guessed, &d.join("guessed")).unwrap();
+        assert_eq!(guessed.composite, crate::Composite::Structure);
         let (h, c) = (&held.range[0], &clipped.range[0]);
         assert!(
             c.rendered_share_above_white > 0.5 && !c.applied && c.scale == 1.0,

@@ -205,7 +205,7 @@ fn a_photo_is_edited_and_only_the_object_changes() {
     let req = EditRequest {
         relight: Some("builtin:studio".into()),
         materials: Vec::new(),
-        composite: Composite::Ratio,
+        composite: Some(Composite::Ratio),
         ..request(&p, &m, "unused")
     };
     edit(model(), &req, &out3).unwrap();
@@ -555,7 +555,7 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     let by_edit = d.join("k-edit");
     let req = EditRequest {
         input_material: Some(grey.to_string()),
-        composite: Composite::Ratio,
+        composite: Some(Composite::Ratio),
         ..request(&p, &m, "lambert:0.5,0.5,0.5")
     };
     edit(model(), &req, &by_edit).unwrap();

@@ -136,7 +136,9 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
             bail!("the object's own material is held as given: Eq. 6 would change it; give one or the other");
         }
     }
-    let composite = f.composite.unwrap_or(Composite::best_for(f.input_material.is_some()));
+    let composite = f
+        .composite
+        .unwrap_or(Composite::best_for(f.input_material.is_some(), false));
     let work = match (source, f.material) {
         (Some(_), Some(_)) => bail!("give either a material or a photo to transfer from, not both"),
         (None, None) => bail!("no material: pick a library material or a photo to transfer from"),
@@ -157,7 +159,7 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
                 fov_deg: None,
                 input_material: f.input_material,
                 normals,
-                composite,
+                composite: Some(composite),
                 range: None,
                 optimize,
             })
