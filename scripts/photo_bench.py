@@ -60,6 +60,8 @@ Usage:
     python3 scripts/photo_bench.py levels --out out/photobench --methods detail   # after `score`
     python3 scripts/photo_bench.py ceiling --out out/photobench   # a perfect edit's scores
     python3 scripts/photo_bench.py reach --out out/photobench     # the photo-keeping composites' bound
+    python3 scripts/photo_bench.py relights --out out/photobench  # relighting truths, then:
+    python3 scripts/photo_bench.py score --out out/photobench --matedit BIN --model MODEL --targets relit
     python3 scripts/photo_bench.py normals --out out/photobench --methods detail  # n*'s angle to the truth
     python3 scripts/photo_bench.py lprime --out out/photobench --method detail    # L' variants for --light
     python3 scripts/photo_bench.py combine --out out/photobench --methods A B --how mean|fit|truth
@@ -651,14 +653,17 @@ def project_spec(mitsuba):
 
 def run_edit(args, scene_dir, spec, out_dir, extra, input_spec=None):
     """Runs matedit edit; returns (edited image or None, seconds, error text). `{scene}` in
-    `extra` is the scene's folder, `{input}` the project spec of its input material."""
+    `extra` is the scene's folder, `{input}` the project spec of its input material. A `spec` of
+    None relights instead (`--relight` the scene's relight.exr) and returns relit.png."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    edited, report = out_dir / "edited.png", out_dir / "report.json"
+    edited = out_dir / ("edited.png" if spec is not None else "relit.png")
+    report = out_dir / "report.json"
     if not (args.reuse and edited.exists() and report.exists()):
         for f in (edited, report):
             f.unlink(missing_ok=True)
         cmd = [args.matedit, "edit", "--model", args.model, "--image", str(scene_dir / "photo.png"),
-               "--mask", str(scene_dir / "mask.png"), "--material", spec, "--out", str(out_dir)]
+               "--mask", str(scene_dir / "mask.png"), "--out", str(out_dir)]
+        cmd += ["--material", spec] if spec is not None else ["--relight", str(scene_dir / "relight.exr")]
         cmd += [a.replace("{scene}", str(scene_dir)).replace("{input}", input_spec or "") for a in extra]
         try:
             proc = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
@@ -726,7 +731,7 @@ def write_sheet(out, cases, scenes, targets, methods, rows_max=12):
             row = [labelled(tile(d / "photo.png"), f"{rec['name']} {rec['mesh']}"),
                    labelled(tile(d / f"truth_{t}.png"), t)]
             for m in methods:
-                edited = out / "edits" / m / f"{rec['name']}-{t}" / "edited.png"
+                edited = out / "edits" / m / f"{rec['name']}-{t}" / ("relit.png" if t == RELIT else "edited.png")
                 ok = (rec["name"], t, m) not in failed and edited.exists()
                 row.append(tile(edited) if ok else labelled(blank.copy(), "failed"))
             rows.append(row)
@@ -843,6 +848,49 @@ def cmd_ceiling(args):
     print(f"\nCommand: `{command}`")
     report = {"command": command, "seed_offset": 1, "means": overall, "per_target": per_target, "cases": cases}
     write_atomic(out / "ceiling.json", lambda p: p.write_text(json.dumps(report, indent=1)))
+
+
+RELIT = "relit"  # `score --targets relit`: `--relight {scene}/relight.exr`, scored on relit.png
+RELIGHT_TURN_DEG = 180.0
+
+
+def record_geometry(rec):
+    """A scene's mesh entry and render plan rebuilt from its scenes.json record (recipe meshes
+    and `--shapes` ones alike)."""
+    entry = MESHES.get(rec["mesh"]) or MeshEntry(rec["mesh_file"], tuple(rec["mesh_axes"]), ((0, 1),))
+    plan = {"mesh": rec["mesh"], "fov": rec["fov_deg_x"], "map_path": rec["map_file"],
+            "env_rotation": rec["env_rotation_deg"]}
+    camera = (np.array(rec["camera"]["origin"]), np.array(rec["camera"]["target"]))
+    return entry, plan, camera
+
+
+def cmd_relights(args):
+    """Relighting truths: each scene's object in its own input material under its own map turned
+    by RELIGHT_TURN_DEG about the vertical axis (the same light's level, colour and detail, its
+    key light elsewhere), path-traced with the scene's camera, spp and exposure. Writes
+    sceneNN/relight.exr (that light as `matedit edit --relight` reads it: camera frame, +z
+    towards the camera) and sceneNN/truth_relit.{exr,png}; kept, so a rerun only fills gaps.
+    `score --targets relit` then scores `matedit edit --relight {scene}/relight.exr`."""
+    mi = mitsuba()
+    out = Path(args.out)
+    settings = json.loads((out / "scenes.json").read_text())
+    for rec in settings["scenes"][: args.scenes]:
+        d = out / rec["name"]
+        t0 = time.time()
+        turned = dict(rec, env_rotation_deg=(rec["env_rotation_deg"] + RELIGHT_TURN_DEG) % 360.0)
+        if not (d / "relight.exr").exists():
+            write_exr(mi, d / "relight.exr", camera_frame_light(mi, turned))
+        exr, png = d / f"truth_{RELIT}.exr", d / f"truth_{RELIT}.png"
+        if not exr.exists():
+            entry, plan, camera = record_geometry(turned)
+            scene = build_scene(mi, load_mesh(rec["mesh_file"], entry), rec["input_mitsuba"], plan, camera,
+                                settings["width"], settings["height"], settings["spp"])
+            write_exr(mi, exr, render_radiance(mi, scene, rec["seed"]))
+        if not png.exists():
+            radiance = np.array(mi.Bitmap(str(exr)), dtype=np.float32)[..., :3]
+            write_png(png, srgb8(radiance * rec["exposure"]))
+        print(f"{rec['name']} {rec['mesh']:<12} relit under {rec['map']} turned {RELIGHT_TURN_DEG:.0f} deg: "
+              f"{time.time() - t0:.1f} s", flush=True)
 
 
 REACH_SIGMAS = (0.02, 0.05, 0.15)
@@ -1112,9 +1160,9 @@ def cmd_score(args):
     out = Path(args.out)
     scenes = json.loads((out / "scenes.json").read_text())["scenes"][: args.scenes]  # None: all
     targets = [t for t in args.targets.split(",") if t]
-    unknown = set(targets) - set(TARGETS)
+    unknown = set(targets) - set(TARGETS) - {RELIT}
     if unknown:
-        raise SystemExit(f"--targets: unknown {sorted(unknown)} (known: {', '.join(TARGETS)})")
+        raise SystemExit(f"--targets: unknown {sorted(unknown)} (known: {', '.join(TARGETS)}, {RELIT})")
     methods = parse_methods(args.methods)
     cases = []
     for rec in scenes:
@@ -1128,7 +1176,8 @@ def cmd_score(args):
             cases.append({"scene": rec["name"], "mesh": rec["mesh"], "target": t, "method": "unchanged",
                           "error": None, "seconds": None, **base})
             for m, extra in methods.items():
-                edited, secs, err = run_edit(args, d, TARGETS[t]["spec"], out / "edits" / m / f"{rec['name']}-{t}",
+                spec = TARGETS[t]["spec"] if t != RELIT else None
+                edited, secs, err = run_edit(args, d, spec, out / "edits" / m / f"{rec['name']}-{t}",
                                              extra, project_spec(rec["input_mitsuba"]))
                 if err is None and edited.shape != photo.shape:
                     err = (f"edited.png is {edited.shape[1]}x{edited.shape[0]}, "
@@ -1151,13 +1200,17 @@ def cmd_score(args):
     print(f"\n{len(scenes)} scenes x {len(targets)} targets, scored on the object's pixels against Mitsuba truths\n")
     print(markdown([((m,), row) for m, row in overall.items()]))
     print()
-    print(markdown([((f"{t} ({'exact' if TARGETS[t]['exact'] else 'near'})", m), row)
+    kind = {t: "exact" if t in TARGETS and TARGETS[t]["exact"] else "near" if t in TARGETS else "relight"
+            for t in targets}
+    print(markdown([((f"{t} ({kind[t]})", m), row)
                     for t, table in per_target.items() for m, row in table.items()], first_col="target"))
     print(f"\nCommand: `{command}`")
     failures = [c for c in cases if c["error"]]
     if failures:
         print(f"\n{len(failures)} edits failed; first: {failures[0]['error'][-800:]}", file=sys.stderr)
-    results = {"command": command, "scenes": len(scenes), "targets": {t: TARGETS[t] for t in targets},
+    targets_used = {t: TARGETS.get(t, {"relight": f"input material, its map turned {RELIGHT_TURN_DEG:.0f} deg"})
+                    for t in targets}
+    results = {"command": command, "scenes": len(scenes), "targets": targets_used,
                "methods": {m: shlex.join(a) for m, a in methods.items()}, "means": overall,
                "per_target": per_target, "cases": cases}
     json_path = Path(args.json) if args.json else out / "results.json"
@@ -1316,6 +1369,8 @@ def main():
     ceiling = sub.add_parser("ceiling", parents=[common, render],
                              help="each truth rendered again with another seed and scored: what a perfect edit gets")
     ceiling.add_argument("--targets", default=",".join(TARGETS), help="comma-separated targets of " + ", ".join(TARGETS))
+    sub.add_parser("relights", parents=[common],
+                   help="relighting truths: each object under its own map turned 180 deg (then score --targets relit)")
     reach = sub.add_parser("reach", parents=[common],
                            help="what a composite keeping the photo's light and shade reaches given the truth's change")
     reach.add_argument("--targets", default=",".join(TARGETS), help="comma-separated targets of " + ", ".join(TARGETS))
@@ -1357,6 +1412,8 @@ def main():
         cmd_levels(args)
     if args.command == "ceiling":
         cmd_ceiling(args)
+    if args.command == "relights":
+        cmd_relights(args)
     if args.command == "reach":
         cmd_reach(args)
     if args.command == "lprime":

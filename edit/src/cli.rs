@@ -2,6 +2,7 @@
 //! the paper). The binary's `main` only calls [`main`].
 
 use crate::light_estimate::LightEstimate;
+use crate::relight::RelightLevel;
 use crate::serve::{ServeConfig, serve};
 use crate::target::parse_material_arg;
 use crate::{Composite, EditRequest, Given, LevelFrom, Look, Range, edit, swap, transfer};
@@ -57,9 +58,15 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         #[arg(long = "material", value_parser = parse_material_arg)]
         materials: Vec<(Option<u8>, String)>,
         /// Also render the predicted material under another illumination (.hdr, .exr or
-        /// builtin:NAME; its +z faces the camera).
+        /// builtin:NAME; its +z faces the camera), written as relit.png: composited by `ratio`
+        /// unless --composite says (measured best for relighting, docs/PERFORMANCE.md).
         #[arg(long)]
         relight: Option<String>,
+        /// What sets --relight's level: `light` scales the map to the mean radiance of the
+        /// photo's light as the edit finds it (the object's exposure kept, its light and shade
+        /// moved); `given` takes the map's values as radiance in the photo's linear units.
+        #[arg(long, value_enum, default_value_t)]
+        relight_level: RelightLevel,
         /// The photo's own illumination when it is known (.hdr, .exr or builtin:NAME; its +z
         /// faces the camera): used instead of the predicted L', at the level that best explains
         /// the photo.
@@ -331,6 +338,7 @@ fn run(cli: Cli) -> Result<()> {
             regions,
             materials,
             relight,
+            relight_level,
             light,
             light_level,
             light_estimate,
@@ -353,6 +361,7 @@ fn run(cli: Cli) -> Result<()> {
                 regions,
                 materials,
                 relight,
+                relight_level,
                 light,
                 light_level,
                 light_estimate,

@@ -3,8 +3,8 @@
 //! detail square's pixels ([`crate::detail`]) and scaled back from the training exposure;
 //! outside it the photo, untouched.
 
+use super::Prepared;
 use super::photo::{Photo, luminance};
-use super::{Composite, Prepared};
 
 /// Largest factor [`Composite::Ratio`] and [`Composite::Shading`] apply (where I* is nearly
 /// black the ratio is noise).
@@ -199,6 +199,59 @@ pub fn object_values(
         *o = new;
     }
     out
+}
+
+/// How the re-rendered object goes back into the photo.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Composite {
+    /// The paper's: the object's pixels are O', rendered at the photo's resolution.
+    Render,
+    /// The photo's own luminance at every scale, times the change the render makes to it,
+    /// O''s luminance over I*'s blurred (σ = 15 % of the framing square), in O''s colour: the
+    /// layer says how much brighter or darker the object becomes and what colour, the photo
+    /// where its light and shade lie (not in the paper; the best measured on the photo
+    /// benchmark).
+    #[default]
+    Structure,
+    /// O' times the photo's fine detail: the photo's luminance over I*'s, divided by the same
+    /// ratio blurred; the large scale comes from the render, edges, texture and small shadows
+    /// from the photo (not in the paper).
+    Detail,
+    /// O' times the photo's luminance over I*'s: O''s colour with the photo's light and shade
+    /// (its edges, texture and what the layer does not model), achromatic, so the input's hue
+    /// does not survive (not in the paper).
+    Shading,
+    /// The photo plus the edit's change, I + O' − I*: what the rendering layer cannot explain
+    /// stays as the photo has it, its colour too (not in the paper).
+    Delta,
+    /// The photo times O'/I': the edit's change of shading and colour, with the photo's own
+    /// detail kept at full resolution (not in the paper).
+    Ratio,
+}
+
+impl Composite {
+    /// The composite measured best for relighting on the photo benchmark (its objects under
+    /// their own maps turned, docs/PERFORMANCE.md, "Relighting"): `ratio`, I × R(m*, L_new) /
+    /// R(m*, L*). The material is the same in both renders, so what m* gets wrong of it cancels
+    /// in the ratio, and the photo's own detail stays.
+    pub fn best_for_relighting() -> Self {
+        Self::Ratio
+    }
+
+    /// The composite measured best on the photo benchmark for what is known of the photo:
+    /// `ratio` when the object's material is known (I × R(m_t)/R(m*) is exact when m* is right);
+    /// `detail` when its light is given at a known level (O' is then at the right level and
+    /// shaded by the right light, which `structure`'s shrunk, blurred change would discard);
+    /// `structure` when both are the network's guesses (docs/PERFORMANCE.md, "The object's own
+    /// material, given", "The photo's structure" and "What a photo-keeping composite can reach").
+    pub fn best_for(known_material: bool, known_light: bool) -> Self {
+        match (known_material, known_light) {
+            (true, _) => Self::Ratio,
+            (false, true) => Self::Detail,
+            (false, false) => Self::Structure,
+        }
+    }
 }
 
 /// The blur of [`Composite::Structure`]'s change, as a fraction of the framing square's side

@@ -43,6 +43,7 @@ pub mod photo;
 pub mod predict;
 pub mod progress;
 pub mod range;
+pub mod relight;
 pub use photo::{Prepared, prepare, prepare_framed};
 pub use predict::{Predicted, network_prediction, render_all};
 pub use range::{Look, Range};
@@ -52,6 +53,7 @@ pub mod target;
 mod tests;
 pub mod transfer;
 
+pub use composite::Composite;
 pub use light::{LevelFrom, LightOptions, known_material, light_at_own_level, light_at_photo_level};
 pub use output::{EditReport, Eq6Report};
 pub use transfer::{Given, swap, transfer, transfer_with};
@@ -70,51 +72,6 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
-/// How the re-rendered object goes back into the photo.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Composite {
-    /// The paper's: the object's pixels are O', rendered at the photo's resolution.
-    Render,
-    /// The photo's own luminance at every scale, times the change the render makes to it,
-    /// O''s luminance over I*'s blurred (σ = 15 % of the framing square), in O''s colour: the
-    /// layer says how much brighter or darker the object becomes and what colour, the photo
-    /// where its light and shade lie (not in the paper; the best measured on the photo
-    /// benchmark).
-    #[default]
-    Structure,
-    /// O' times the photo's fine detail: the photo's luminance over I*'s, divided by the same
-    /// ratio blurred; the large scale comes from the render, edges, texture and small shadows
-    /// from the photo (not in the paper).
-    Detail,
-    /// O' times the photo's luminance over I*'s: O''s colour with the photo's light and shade
-    /// (its edges, texture and what the layer does not model), achromatic, so the input's hue
-    /// does not survive (not in the paper).
-    Shading,
-    /// The photo plus the edit's change, I + O' − I*: what the rendering layer cannot explain
-    /// stays as the photo has it, its colour too (not in the paper).
-    Delta,
-    /// The photo times O'/I': the edit's change of shading and colour, with the photo's own
-    /// detail kept at full resolution (not in the paper).
-    Ratio,
-}
-
-impl Composite {
-    /// The composite measured best on the photo benchmark for what is known of the photo:
-    /// `ratio` when the object's material is known (I × R(m_t)/R(m*) is exact when m* is right);
-    /// `detail` when its light is given at a known level (O' is then at the right level and
-    /// shaded by the right light, which `structure`'s shrunk, blurred change would discard);
-    /// `structure` when both are the network's guesses (docs/PERFORMANCE.md, "The object's own
-    /// material, given", "The photo's structure" and "A given light's default composite").
-    pub fn best_for(known_material: bool, known_light: bool) -> Self {
-        match (known_material, known_light) {
-            (true, _) => Self::Ratio,
-            (false, true) => Self::Detail,
-            (false, false) => Self::Structure,
-        }
-    }
-}
-
 /// What to edit, as the command line gives it.
 #[derive(Clone, Debug, Default)]
 pub struct EditRequest {
@@ -132,6 +89,8 @@ pub struct EditRequest {
     pub light: Option<String>,
     /// What sets the light's level.
     pub light_level: LevelFrom,
+    /// What sets `relight`'s level ([`relight`]).
+    pub relight_level: relight::RelightLevel,
     /// What of the network's L' is kept ([`light_estimate`]).
     pub light_estimate: light_estimate::LightEstimate,
     /// The photo's horizontal field of view in degrees (default [`background::DEFAULT_FOV_DEG`]).
@@ -483,7 +442,7 @@ fn finish(
     model: &Model,
     u: Understood,
     targets: &[(Dsbrdf, target::RegionTarget)],
-    relight: Option<(&str, Vec<f32>)>,
+    relight: Option<(&str, Vec<f32>, relight::RelightLevel)>,
     light_spec: Option<&str>,
     look: Look,
     out: &Path,
@@ -516,7 +475,13 @@ fn finish(
         normals,
         network_seconds,
     } = u;
-    let relight_env = relight.as_ref().map(|(_, l)| l.as_slice());
+    // The relighting map at its level, now that L* is known.
+    let relight = relight
+        .map(|(spec, l, level)| {
+            relight::at_level(&l, &point.env, env_height, level, prep.exposure).map(|(l, r)| (spec, l, r))
+        })
+        .transpose()?;
+    let relight_env = relight.as_ref().map(|(_, l, _)| l.as_slice());
     let fine_point = Prediction {
         normals: detail.normals,
         materials: point.materials.clone(),
@@ -543,9 +508,12 @@ fn finish(
     let t2 = Instant::now();
     let mut composites = Vec::new();
     let mut ranges = Vec::new();
-    for (name, img) in [("edited", &fine.o_prime), ("relit", &fine.relit)] {
+    for (name, img, how) in [
+        ("edited", &fine.o_prime, look.composite),
+        ("relit", &fine.relit, look.relit),
+    ] {
         if let Some(img) = img {
-            let values = composite::object_values(&p, &coverage, &detail.prep, img, &fine.i_prime, look.composite);
+            let values = composite::object_values(&p, &coverage, &detail.prep, img, &fine.i_prime, how);
             let held = range::fit(&p, &coverage, &values, look.range, name);
             composites.push((
                 name,
@@ -570,13 +538,15 @@ fn finish(
         exposure: prep.exposure,
         training_mean_luminance: TRAINING_MEAN_LUMINANCE,
         regions: targets.iter().map(|(_, r)| r.clone()).collect(),
-        relight: relight.map(|(spec, _)| spec.to_string()),
+        relight: relight.as_ref().map(|(spec, _, _)| spec.to_string()),
+        relight_level: relight.map(|(_, _, r)| r),
         light: light_spec.map(str::to_string),
         input_material,
         normals,
         light_estimate,
         light_level,
         composite: look.composite,
+        relit_composite: fine.relit.is_some().then_some(look.relit),
         range: ranges,
         eq6,
         seconds: output::Timings {
@@ -663,7 +633,10 @@ fn edit_checked(
     let relight = req
         .relight
         .as_ref()
-        .map(|spec| Ok::<_, anyhow::Error>((spec.as_str(), target::relight_env(spec, model.state.net.env_height)?)))
+        .map(|spec| {
+            let l = target::relight_env(spec, model.state.net.env_height)?;
+            Ok::<_, anyhow::Error>((spec.as_str(), l, req.relight_level))
+        })
         .transpose()?;
     let light = LightOptions {
         given: req
@@ -694,6 +667,7 @@ fn edit_checked(
             composite: req
                 .composite
                 .unwrap_or(Composite::best_for(light.input_material.is_some(), light.light_known())),
+            relit: req.composite.unwrap_or(Composite::best_for_relighting()),
             range: req.range.unwrap_or(Range::best_for(level_known)),
         },
         out,

@@ -74,13 +74,13 @@ impl LightOptions {
 }
 
 /// `l` times `k`, in f64.
-fn scaled_by(l: &[f32], k: f64) -> Vec<f32> {
+pub(crate) fn scaled_by(l: &[f32], k: f64) -> Vec<f32> {
     l.iter().map(|&v| (v as f64 * k) as f32).collect()
 }
 
 /// Whether the rendering layer renders `l` as it is: its brightest texel (the error) is finite
 /// and at most [`MAX_RADIANCE`], which the layer caps texels at.
-fn renderable(l: &[f32]) -> Result<(), f32> {
+pub(crate) fn renderable(l: &[f32]) -> Result<(), f32> {
     let brightest = l.iter().fold(0.0_f32, |m, &v| m.max(v));
     if brightest.is_finite() && brightest <= MAX_RADIANCE {
         Ok(())

@@ -60,6 +60,8 @@ pub struct EditReport {
     pub regions: Vec<target::RegionTarget>,
     /// The other illumination, if any.
     pub relight: Option<String>,
+    /// How its level was set.
+    pub relight_level: Option<crate::relight::RelightLevelReport>,
     /// The photo's illumination given instead of L', if any.
     pub light: Option<String>,
     /// The object's own material given instead of m', if any.
@@ -72,6 +74,8 @@ pub struct EditReport {
     pub light_level: background::LightLevel,
     /// How O' went back into the photo.
     pub composite: Composite,
+    /// How the relit render went back, when there is one.
+    pub relit_composite: Option<Composite>,
     /// How each composited image was held to the photo's range ([`range`]).
     pub range: Vec<range::RangeReport>,
     /// Eq. 6, when asked for.

@@ -360,7 +360,7 @@ fn check_jpeg_complete(path: &Path) -> Result<()> {
 }
 
 /// Reads the mask of a photo shown at `width`×`height` (its stored pixels turned by `turn`,
-/// [`decode_for_photo`]): per pixel, the soft coverage in [0, 1] (alpha where the image has an
+/// `decode_for_photo`): per pixel, the soft coverage in [0, 1] (alpha where the image has an
 /// alpha channel that is not all opaque, otherwise the largest channel relative to the format's
 /// maximum). Any coverage above 0 is object.
 pub fn load_mask(path: &Path, width: usize, height: usize, turn: Orientation) -> Result<(Vec<f32>, Fit)> {

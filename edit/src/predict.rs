@@ -33,8 +33,8 @@ pub fn network_prediction(net: &Net, prep: &Prepared) -> Result<Prediction> {
 }
 
 /// Renders I' from `x`, O' with `targets` (normalised, `[R, 108]`) and the relit image with
-/// `relight` (`[3, He, 2He]` camera-space radiance, scaled to L's mean radiance: a photo's
-/// exposure is arbitrary, so the other light takes the predicted light's level).
+/// `relight` (`[3, He, 2He]` camera-space radiance in the network's units, at the level
+/// [`crate::relight::at_level`] set).
 pub fn render_all(
     layer: &RenderingLayer,
     prep: &Prepared,
@@ -57,14 +57,7 @@ pub fn render_all(
     };
     let i_prime = render(&x.materials, &x.env)?;
     let o_prime = targets.map(|t| render(t, &x.env)).transpose()?;
-    let mean = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>() / v.len().max(1) as f64;
-    let relit = relight
-        .map(|l| {
-            let k = (mean(&x.env) / mean(l).max(1e-30)) as f32;
-            let l: Vec<f32> = l.iter().map(|v| v * k).collect();
-            render(&x.materials, &l)
-        })
-        .transpose()?;
+    let relit = relight.map(|l| render(&x.materials, l)).transpose()?;
     Ok(Predicted {
         normals: x.normals,
         materials: x.materials,

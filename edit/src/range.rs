@@ -53,6 +53,8 @@ impl Range {
 pub struct Look {
     /// How O' goes back into the photo.
     pub composite: crate::Composite,
+    /// How the relit render goes back (`--relight`).
+    pub relit: crate::Composite,
     /// What the edited object's level is held to.
     pub range: Range,
 }
@@ -64,6 +66,7 @@ impl Look {
     pub fn chosen(composite: Option<crate::Composite>, range: Option<Range>, known: bool) -> Self {
         Self {
             composite: composite.unwrap_or(crate::Composite::best_for(known, false)),
+            relit: composite.unwrap_or(crate::Composite::best_for_relighting()),
             range: range.unwrap_or(Range::best_for(known)),
         }
     }
@@ -75,6 +78,7 @@ impl From<crate::Composite> for Look {
     fn from(composite: crate::Composite) -> Self {
         Self {
             composite,
+            relit: composite,
             range: Range::Photo,
         }
     }

@@ -107,7 +107,7 @@ pub fn resolve_targets(
 
 /// Reads a region label image (PNG, grey levels or the first channel: value k > 0 is region k)
 /// of a photo shown at `width`×`height` (its stored pixels turned by `turn`,
-/// [`crate::photo::decode_for_photo`]). Returns the label of every photo pixel (0 off the object),
+/// `photo::decode_for_photo`). Returns the label of every photo pixel (0 off the object),
 /// the number of regions (the largest label on the object; labels must run 1..=n without gaps)
 /// and how the image was matched to the photo.
 pub fn load_regions(

@@ -155,6 +155,7 @@ pub(super) fn prepare(app: &App, dir: &std::path::Path, mut f: Fields) -> Result
                 relight: None,
                 light: None,
                 light_level: Default::default(),
+                relight_level: Default::default(),
                 light_estimate: Default::default(),
                 fov_deg: None,
                 input_material: f.input_material,
