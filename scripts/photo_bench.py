@@ -857,7 +857,9 @@ RELIGHT_TURN_DEG = 180.0
 def record_geometry(rec):
     """A scene's mesh entry and render plan rebuilt from its scenes.json record (recipe meshes
     and `--shapes` ones alike)."""
-    entry = MESHES.get(rec["mesh"]) or MeshEntry(rec["mesh_file"], tuple(rec["mesh_axes"]), ((0, 1),))
+    known = MESHES.get(rec["mesh"])
+    entry = MeshEntry(rec["mesh_file"], tuple(rec["mesh_axes"]), ((0, 1),),
+                      face_normals=bool(known and known.face_normals and known.path in rec["mesh_file"]))
     plan = {"mesh": rec["mesh"], "fov": rec["fov_deg_x"], "map_path": rec["map_file"],
             "env_rotation": rec["env_rotation_deg"]}
     camera = (np.array(rec["camera"]["origin"]), np.array(rec["camera"]["target"]))
@@ -869,13 +871,16 @@ def cmd_relights(args):
     by RELIGHT_TURN_DEG about the vertical axis (the same light's level, colour and detail, its
     key light elsewhere), path-traced with the scene's camera, spp and exposure. Writes
     sceneNN/relight.exr (that light as `matedit edit --relight` reads it: camera frame, +z
-    towards the camera) and sceneNN/truth_relit.{exr,png}; kept, so a rerun only fills gaps.
+    towards the camera; the map's own radiance, like light.exr, so right at `--relight-level
+    light`, not `given`, which reads the photo's linear units) and sceneNN/truth_relit.{exr,png};
+    kept, so a rerun only fills gaps.
     `score --targets relit` then scores `matedit edit --relight {scene}/relight.exr`."""
     mi = mitsuba()
     out = Path(args.out)
     settings = json.loads((out / "scenes.json").read_text())
     for rec in settings["scenes"][: args.scenes]:
         d = out / rec["name"]
+        d.mkdir(parents=True, exist_ok=True)
         t0 = time.time()
         turned = dict(rec, env_rotation_deg=(rec["env_rotation_deg"] + RELIGHT_TURN_DEG) % 360.0)
         if not (d / "relight.exr").exists():
@@ -1164,6 +1169,11 @@ def cmd_score(args):
     if unknown:
         raise SystemExit(f"--targets: unknown {sorted(unknown)} (known: {', '.join(TARGETS)}, {RELIT})")
     methods = parse_methods(args.methods)
+    if RELIT in targets:
+        missing = [r["name"] for r in scenes if not (out / r["name"] / f"truth_{RELIT}.png").exists()]
+        if missing:
+            raise SystemExit(f"--targets {RELIT}: no relighting truth in {', '.join(missing[:3])}"
+                             f"{' …' if len(missing) > 3 else ''}: run `photo_bench.py relights --out {out}` first")
     cases = []
     for rec in scenes:
         d = out / rec["name"]
@@ -1180,7 +1190,7 @@ def cmd_score(args):
                 edited, secs, err = run_edit(args, d, spec, out / "edits" / m / f"{rec['name']}-{t}",
                                              extra, project_spec(rec["input_mitsuba"]))
                 if err is None and edited.shape != photo.shape:
-                    err = (f"edited.png is {edited.shape[1]}x{edited.shape[0]}, "
+                    err = (f"{'relit' if t == RELIT else 'edited'}.png is {edited.shape[1]}x{edited.shape[0]}, "
                            f"the photo {photo.shape[1]}x{photo.shape[0]}")
                 case = {"scene": rec["name"], "mesh": rec["mesh"], "target": t, "method": m, "error": err,
                         "seconds": secs, "beats": False}
@@ -1213,7 +1223,7 @@ def cmd_score(args):
     results = {"command": command, "scenes": len(scenes), "targets": targets_used,
                "methods": {m: shlex.join(a) for m, a in methods.items()}, "means": overall,
                "per_target": per_target, "cases": cases}
-    json_path = Path(args.json) if args.json else out / "results.json"
+    json_path = Path(args.json) if args.json else out / ("results_relit.json" if RELIT in targets else "results.json")
     write_atomic(json_path, lambda p: p.write_text(json.dumps(results, indent=1)))
     write_sheet(out, cases, scenes, targets, list(methods))
     print(f"per-case results: {json_path}; sheet: {out / 'edits' / 'sheet.png'}")
@@ -1353,8 +1363,10 @@ def main():
     score.add_argument("--methods", nargs="+", default=DEFAULT_METHODS, metavar="NAME=ARGS",
                        help="methods as NAME=extra arguments of matedit edit (split on spaces); default: "
                        + "; ".join(DEFAULT_METHODS))
-    score.add_argument("--targets", default=",".join(TARGETS), help="comma-separated targets of " + ", ".join(TARGETS))
-    score.add_argument("--json", help="per-case results (default DIR/results.json)")
+    score.add_argument("--targets", default=",".join(TARGETS),
+                       help=f"comma-separated targets of {', '.join(TARGETS)}, or {RELIT} (`relights` first)")
+    score.add_argument("--json", help=f"per-case results (default DIR/results.json; DIR/results_{RELIT}.json "
+                       f"with {RELIT})")
     score.add_argument("--timeout", type=float, default=3600, help="seconds allowed per edit")
     score.add_argument("--reuse", action="store_true", help="keep edits already present instead of rerunning them")
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],

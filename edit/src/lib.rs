@@ -478,7 +478,9 @@ fn finish(
     // The relighting map at its level, now that L* is known.
     let relight = relight
         .map(|(spec, l, level)| {
-            relight::at_level(&l, &point.env, env_height, level, prep.exposure).map(|(l, r)| (spec, l, r))
+            relight::at_level(&l, &point.env, env_height, level, prep.exposure)
+                .with_context(|| format!("--relight {spec}"))
+                .map(|(l, r)| (spec, l, r))
         })
         .transpose()?;
     let relight_env = relight.as_ref().map(|(_, l, _)| l.as_slice());
@@ -635,6 +637,7 @@ fn edit_checked(
         .as_ref()
         .map(|spec| {
             let l = target::relight_env(spec, model.state.net.env_height)?;
+            relight::check(&l, model.state.net.env_height).with_context(|| format!("--relight {spec}"))?;
             Ok::<_, anyhow::Error>((spec.as_str(), l, req.relight_level))
         })
         .transpose()?;
@@ -654,9 +657,9 @@ fn edit_checked(
             .map(|n| normals::load_normals(n, read.photo.width, read.photo.height, &read.coverage))
             .transpose()?,
     };
-    let level_known = light.level_known();
     let t_load = t0.elapsed().as_secs_f64();
     let u = understand(model, read, &req.photo, req.optimize.as_ref(), &light, watcher)?;
+    let (material_known, light_known) = (light.input_material.is_some(), light.light_known(&u.light_level));
     finish(
         model,
         u,
@@ -666,9 +669,9 @@ fn edit_checked(
         Look {
             composite: req
                 .composite
-                .unwrap_or(Composite::best_for(light.input_material.is_some(), light.light_known())),
+                .unwrap_or(Composite::best_for(material_known, light_known)),
             relit: req.composite.unwrap_or(Composite::best_for_relighting()),
-            range: req.range.unwrap_or(Range::best_for(level_known)),
+            range: req.range.unwrap_or(Range::best_for(material_known || light_known)),
         },
         out,
         t0,

@@ -59,17 +59,13 @@ impl LightOptions {
         }
     }
 
-    /// Whether the light's level is known rather than the network's guess: set by the object's
-    /// own material, or a given map at its own or the background's level (not where the network's
-    /// fit scales it). It picks the edit's range ([`crate::Range::best_for`]).
-    pub(crate) fn level_known(&self) -> bool {
-        self.input_material.is_some() || self.light_known()
-    }
-
-    /// Whether the light is given at a known level (its own or the background's, not the
-    /// network's fit): it picks the composite ([`crate::Composite::best_for`]).
-    pub(crate) fn light_known(&self) -> bool {
-        self.given.is_some() && self.level_from() != LevelFrom::Network
+    /// Whether the light is given and came at a known level, its own or the background's, as
+    /// `level` (what set it) says: not where the network's fit scaled it, asked for or because
+    /// the background was too small or clipped. It picks the composite
+    /// ([`crate::Composite::best_for`]) and, with the object's own material, the range
+    /// ([`crate::Range::best_for`]).
+    pub(crate) fn light_known(&self, level: &crate::background::LightLevel) -> bool {
+        self.given.is_some() && matches!(level.source.as_str(), "background" | "given")
     }
 }
 

@@ -36,6 +36,13 @@ fn a_given_light_replaces_l_prime_at_the_level_asked_for() {
         let out = d.join(name);
         let r = edit(model(), &with(level, Some("builtin:studio")), &out).unwrap();
         assert_eq!(r.light_level.source, source, "{name}: {:?}", r.light_level);
+        // A light at a known level makes `detail` the default; at the network's, `structure`.
+        let best = if source == "network" {
+            Composite::Structure
+        } else {
+            Composite::Detail
+        };
+        assert_eq!(r.composite, best, "{name}");
         assert_eq!(report(&out)["light"], "builtin:studio");
         assert_eq!(report(&out)["light_level"]["source"], source);
         let env = env_of(&out);
@@ -77,6 +84,29 @@ fn a_given_light_replaces_l_prime_at_the_level_asked_for() {
     let e = edit(model(), &with(LevelFrom::Auto, Some("builtin:nope")), &out).unwrap_err();
     assert!(format!("{e:#}").contains("nope"), "{e:#}");
     assert!(!out.exists());
+}
+
+#[test]
+fn a_given_light_whose_background_level_falls_back_is_composited_as_a_guess() {
+    // Everything around the object at white: no unclipped background to set the level, so the
+    // network's fit sets it, and the composite is that of a guessed level.
+    let d = dir("light-fallback");
+    let (p, m, _) = write_photo(&d);
+    let mut photo = image::open(&p).unwrap().to_rgb8();
+    let mask = image::open(&m).unwrap().to_luma8();
+    for (x, y, q) in photo.enumerate_pixels_mut() {
+        if mask.get_pixel(x, y)[0] == 0 {
+            *q = image::Rgb([255; 3]);
+        }
+    }
+    photo.save(&p).unwrap();
+    let req = EditRequest {
+        light: Some("builtin:studio".into()),
+        ..request(&p, &m, "library:gold-polished")
+    };
+    let r = edit(model(), &req, &d.join("out")).unwrap();
+    assert_eq!(r.light_level.source, "network", "{:?}", r.light_level);
+    assert_eq!(r.composite, Composite::Structure);
 }
 
 #[test]

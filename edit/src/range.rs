@@ -49,7 +49,7 @@ impl Range {
 
 /// How the re-rendered object goes back into the photo: the composite, and the range the edit
 /// is held to. A composite alone holds the edit to the photo's range (the default).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Look {
     /// How O' goes back into the photo.
     pub composite: crate::Composite,

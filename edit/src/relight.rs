@@ -50,6 +50,16 @@ pub fn mean_radiance(l: &[f32], env_height: usize) -> f64 {
     sum / (4.0 * std::f64::consts::PI)
 }
 
+/// Refuses a relighting map that lights nothing (black, or no finite texel), before the edit
+/// runs: [`at_level`] would refuse it only after the network.
+pub fn check(l: &[f32], env_height: usize) -> Result<()> {
+    let mean = mean_radiance(l, env_height);
+    if !(mean.is_finite() && mean > 0.0) {
+        bail!("the relighting map is black (mean radiance {mean:.3e}): it lights nothing");
+    }
+    Ok(())
+}
+
 /// The relighting map `l` at `level`, in the network's units: scaled to the mean radiance of
 /// `light` (L*, the network's units) or by the photo's `exposure` (its own values). Refused
 /// where that cannot be rendered: a black map asked to match a light, a scale that is not
@@ -64,11 +74,8 @@ pub fn at_level(
     let scale = match level {
         RelightLevel::Given => exposure,
         RelightLevel::Light => {
-            let new = mean_radiance(l, env_height);
-            if !(new.is_finite() && new > 0.0) {
-                bail!("the relighting map is black (mean radiance {new:.3e}): it lights nothing");
-            }
-            mean_radiance(light, env_height) / new
+            check(l, env_height)?;
+            mean_radiance(light, env_height) / mean_radiance(l, env_height)
         }
     };
     if !(scale.is_finite() && scale >= 0.0) {
