@@ -731,7 +731,7 @@ def write_sheet(out, cases, scenes, targets, methods, rows_max=12):
             row = [labelled(tile(d / "photo.png"), f"{rec['name']} {rec['mesh']}"),
                    labelled(tile(d / f"truth_{t}.png"), t)]
             for m in methods:
-                edited = out / "edits" / m / f"{rec['name']}-{t}" / ("relit.png" if t == RELIT else "edited.png")
+                edited = out / "edits" / m / f"{rec['name']}-{t}" / scored_target(t)["image"]
                 ok = (rec["name"], t, m) not in failed and edited.exists()
                 row.append(tile(edited) if ok else labelled(blank.copy(), "failed"))
             rows.append(row)
@@ -852,6 +852,16 @@ def cmd_ceiling(args):
 
 RELIT = "relit"  # `score --targets relit`: `--relight {scene}/relight.exr`, scored on relit.png
 RELIGHT_TURN_DEG = 180.0
+
+
+def scored_target(t):
+    """What `score` does for target t: the spec given to `--material` (None: `--relight` the
+    scene's relight.exr instead), the image it scores, and how the target names its truth."""
+    if t == RELIT:
+        return {"spec": None, "image": "relit.png",
+                "kind": "relight", "about": {"relight": f"input material, its map turned {RELIGHT_TURN_DEG:.0f} deg"}}
+    return {"spec": TARGETS[t]["spec"], "image": "edited.png",
+            "kind": "exact" if TARGETS[t]["exact"] else "near", "about": TARGETS[t]}
 
 
 def record_geometry(rec):
@@ -1186,11 +1196,10 @@ def cmd_score(args):
             cases.append({"scene": rec["name"], "mesh": rec["mesh"], "target": t, "method": "unchanged",
                           "error": None, "seconds": None, **base})
             for m, extra in methods.items():
-                spec = TARGETS[t]["spec"] if t != RELIT else None
-                edited, secs, err = run_edit(args, d, spec, out / "edits" / m / f"{rec['name']}-{t}",
+                edited, secs, err = run_edit(args, d, scored_target(t)["spec"], out / "edits" / m / f"{rec['name']}-{t}",
                                              extra, project_spec(rec["input_mitsuba"]))
                 if err is None and edited.shape != photo.shape:
-                    err = (f"{'relit' if t == RELIT else 'edited'}.png is {edited.shape[1]}x{edited.shape[0]}, "
+                    err = (f"{scored_target(t)['image']} is {edited.shape[1]}x{edited.shape[0]}, "
                            f"the photo {photo.shape[1]}x{photo.shape[0]}")
                 case = {"scene": rec["name"], "mesh": rec["mesh"], "target": t, "method": m, "error": err,
                         "seconds": secs, "beats": False}
@@ -1210,17 +1219,13 @@ def cmd_score(args):
     print(f"\n{len(scenes)} scenes x {len(targets)} targets, scored on the object's pixels against Mitsuba truths\n")
     print(markdown([((m,), row) for m, row in overall.items()]))
     print()
-    kind = {t: "exact" if t in TARGETS and TARGETS[t]["exact"] else "near" if t in TARGETS else "relight"
-            for t in targets}
-    print(markdown([((f"{t} ({kind[t]})", m), row)
+    print(markdown([((f"{t} ({scored_target(t)['kind']})", m), row)
                     for t, table in per_target.items() for m, row in table.items()], first_col="target"))
     print(f"\nCommand: `{command}`")
     failures = [c for c in cases if c["error"]]
     if failures:
         print(f"\n{len(failures)} edits failed; first: {failures[0]['error'][-800:]}", file=sys.stderr)
-    targets_used = {t: TARGETS.get(t, {"relight": f"input material, its map turned {RELIGHT_TURN_DEG:.0f} deg"})
-                    for t in targets}
-    results = {"command": command, "scenes": len(scenes), "targets": targets_used,
+    results = {"command": command, "scenes": len(scenes), "targets": {t: scored_target(t)["about"] for t in targets},
                "methods": {m: shlex.join(a) for m, a in methods.items()}, "means": overall,
                "per_target": per_target, "cases": cases}
     json_path = Path(args.json) if args.json else out / ("results_relit.json" if RELIT in targets else "results.json")

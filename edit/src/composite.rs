@@ -6,6 +6,59 @@
 use super::Prepared;
 use super::photo::{Photo, luminance};
 
+/// How the re-rendered object goes back into the photo.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Composite {
+    /// The paper's: the object's pixels are O', rendered at the photo's resolution.
+    Render,
+    /// The photo's own luminance at every scale, times the change the render makes to it,
+    /// O''s luminance over I*'s blurred (σ = 15 % of the framing square), in O''s colour: the
+    /// layer says how much brighter or darker the object becomes and what colour, the photo
+    /// where its light and shade lie (not in the paper; the best measured on the photo
+    /// benchmark).
+    #[default]
+    Structure,
+    /// O' times the photo's fine detail: the photo's luminance over I*'s, divided by the same
+    /// ratio blurred; the large scale comes from the render, edges, texture and small shadows
+    /// from the photo (not in the paper).
+    Detail,
+    /// O' times the photo's luminance over I*'s: O''s colour with the photo's light and shade
+    /// (its edges, texture and what the layer does not model), achromatic, so the input's hue
+    /// does not survive (not in the paper).
+    Shading,
+    /// The photo plus the edit's change, I + O' − I*: what the rendering layer cannot explain
+    /// stays as the photo has it, its colour too (not in the paper).
+    Delta,
+    /// The photo times O'/I': the edit's change of shading and colour, with the photo's own
+    /// detail kept at full resolution (not in the paper).
+    Ratio,
+}
+
+impl Composite {
+    /// The composite measured best for relighting on the photo benchmark (its objects under
+    /// their own maps turned, docs/PERFORMANCE.md, "Relighting"): `ratio`, I × R(m*, L_new) /
+    /// R(m*, L*). The material is the same in both renders, so what m* gets wrong of it cancels
+    /// in the ratio, and the photo's own detail stays.
+    pub fn best_for_relighting() -> Self {
+        Self::Ratio
+    }
+
+    /// The composite measured best on the photo benchmark for what is known of the photo:
+    /// `ratio` when the object's material is known (I × R(m_t)/R(m*) is exact when m* is right);
+    /// `detail` when its light is given at a known level (O' is then at the right level and
+    /// shaded by the right light, which `structure`'s shrunk, blurred change would discard);
+    /// `structure` when both are the network's guesses (docs/PERFORMANCE.md, "The object's own
+    /// material, given", "The photo's structure" and "What a photo-keeping composite can reach").
+    pub fn best_for(known_material: bool, known_light: bool) -> Self {
+        match (known_material, known_light) {
+            (true, _) => Self::Ratio,
+            (false, true) => Self::Detail,
+            (false, false) => Self::Structure,
+        }
+    }
+}
+
 /// Largest factor [`Composite::Ratio`] and [`Composite::Shading`] apply (where I* is nearly
 /// black the ratio is noise).
 const MAX_RATIO: f32 = 16.0;
@@ -155,8 +208,7 @@ pub fn object_values(
         if coverage[k] <= 0.0 {
             continue;
         }
-        let (x, y) = ((k % p.width) as f64 + 0.5, (k / p.width) as f64 + 0.5);
-        let (u, v) = prep.framing.to_net(x, y);
+        let (u, v) = net_point(prep, p.width, k);
         let Some(r) = sample(render, &prep.mask, n, u, v) else {
             continue;
         };
@@ -201,63 +253,11 @@ pub fn object_values(
     out
 }
 
-/// How the re-rendered object goes back into the photo.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Composite {
-    /// The paper's: the object's pixels are O', rendered at the photo's resolution.
-    Render,
-    /// The photo's own luminance at every scale, times the change the render makes to it,
-    /// O''s luminance over I*'s blurred (σ = 15 % of the framing square), in O''s colour: the
-    /// layer says how much brighter or darker the object becomes and what colour, the photo
-    /// where its light and shade lie (not in the paper; the best measured on the photo
-    /// benchmark).
-    #[default]
-    Structure,
-    /// O' times the photo's fine detail: the photo's luminance over I*'s, divided by the same
-    /// ratio blurred; the large scale comes from the render, edges, texture and small shadows
-    /// from the photo (not in the paper).
-    Detail,
-    /// O' times the photo's luminance over I*'s: O''s colour with the photo's light and shade
-    /// (its edges, texture and what the layer does not model), achromatic, so the input's hue
-    /// does not survive (not in the paper).
-    Shading,
-    /// The photo plus the edit's change, I + O' − I*: what the rendering layer cannot explain
-    /// stays as the photo has it, its colour too (not in the paper).
-    Delta,
-    /// The photo times O'/I': the edit's change of shading and colour, with the photo's own
-    /// detail kept at full resolution (not in the paper).
-    Ratio,
-}
-
-impl Composite {
-    /// The composite measured best for relighting on the photo benchmark (its objects under
-    /// their own maps turned, docs/PERFORMANCE.md, "Relighting"): `ratio`, I × R(m*, L_new) /
-    /// R(m*, L*). The material is the same in both renders, so what m* gets wrong of it cancels
-    /// in the ratio, and the photo's own detail stays.
-    pub fn best_for_relighting() -> Self {
-        Self::Ratio
-    }
-
-    /// The composite measured best on the photo benchmark for what is known of the photo:
-    /// `ratio` when the object's material is known (I × R(m_t)/R(m*) is exact when m* is right);
-    /// `detail` when its light is given at a known level (O' is then at the right level and
-    /// shaded by the right light, which `structure`'s shrunk, blurred change would discard);
-    /// `structure` when both are the network's guesses (docs/PERFORMANCE.md, "The object's own
-    /// material, given", "The photo's structure" and "What a photo-keeping composite can reach").
-    pub fn best_for(known_material: bool, known_light: bool) -> Self {
-        match (known_material, known_light) {
-            (true, _) => Self::Ratio,
-            (false, true) => Self::Detail,
-            (false, false) => Self::Structure,
-        }
-    }
-}
-
 /// The blur of [`Composite::Structure`]'s change, as a fraction of the framing square's side
 /// (the CLI's help names it: keep the two together). The layer's estimates (n' at the network's
-/// resolution, a light it does not place) are right, if at all, at large scales only. 4 % to the whole square measured within 0.001 SSIM on the
-/// photo benchmark; 15 % had the most edits better than the photo.
+/// resolution, a light it does not place) are right, if at all, at large scales only. 4 % to
+/// the whole square measured within 0.001 SSIM on the photo benchmark; 15 % had the most edits
+/// better than the photo.
 pub const STRUCTURE_SIGMA_FRACTION: f64 = 0.15;
 
 /// The power [`Composite::Structure`]'s change is raised to: its logarithm shrunk by a quarter
@@ -283,7 +283,7 @@ fn structure_gain(p: &Photo, coverage: &[f32], prep: &Prepared, render: &[f32], 
         if coverage[k] <= 0.0 {
             continue;
         }
-        let (u, v) = prep.framing.to_net((k % w) as f64 + 0.5, (k / w) as f64 + 0.5);
+        let (u, v) = net_point(prep, w, k);
         if let (Some(r), Some(i)) = (
             sample(render, &prep.mask, n, u, v),
             sample(i_prime, &prep.mask, n, u, v),
@@ -313,6 +313,12 @@ fn structure_gain(p: &Photo, coverage: &[f32], prep: &Prepared, render: &[f32], 
         .collect()
 }
 
+/// Where the centre of photo pixel `k` (of a photo `width` wide) falls on the framing square,
+/// in the network's pixels: where the renders are sampled for it.
+fn net_point(prep: &Prepared, width: usize, k: usize) -> (f64, f64) {
+    prep.framing.to_net((k % width) as f64 + 0.5, (k / width) as f64 + 0.5)
+}
+
 /// [`Composite::Detail`]'s gain per photo pixel: the photo's luminance over I*'s (capped), over
 /// its own blur at σ = [`DETAIL_SIGMA_FRACTION`] of the framing's side. What the layer explains
 /// at large scale (the object's shading) divides out to 1; edges, texture, small shadows and
@@ -326,7 +332,7 @@ fn detail_gain(p: &Photo, coverage: &[f32], prep: &Prepared, i_prime: &[f32]) ->
         if coverage[k] <= 0.0 {
             continue;
         }
-        let (u, v) = prep.framing.to_net((k % w) as f64 + 0.5, (k / w) as f64 + 0.5);
+        let (u, v) = net_point(prep, w, k);
         if let Some(i) = sample(i_prime, &prep.mask, n, u, v) {
             let (lp, li) = (luminance(p.rgb[k]), luminance(i) * back);
             if li > 0.0 && lp.is_finite() && li.is_finite() {

@@ -659,20 +659,19 @@ fn edit_checked(
     };
     let t_load = t0.elapsed().as_secs_f64();
     let u = understand(model, read, &req.photo, req.optimize.as_ref(), &light, watcher)?;
-    let (material_known, light_known) = (light.input_material.is_some(), light.light_known(&u.light_level));
+    let look = Look::for_known(
+        req.composite,
+        req.range,
+        light.input_material.is_some(),
+        light.light_known(&u.light_level),
+    );
     finish(
         model,
         u,
         &targets,
         relight,
         req.light.as_deref(),
-        Look {
-            composite: req
-                .composite
-                .unwrap_or(Composite::best_for(material_known, light_known)),
-            relit: req.composite.unwrap_or(Composite::best_for_relighting()),
-            range: req.range.unwrap_or(Range::best_for(material_known || light_known)),
-        },
+        look,
         out,
         t0,
         t_load,

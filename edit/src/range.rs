@@ -62,12 +62,24 @@ pub struct Look {
 impl Look {
     /// The composite and range asked for, each where not given the one measured best
     /// ([`crate::Composite::best_for`], [`Range::best_for`]) for an object whose own material is
-    /// `known` or not.
+    /// `known` or not, under the network's light.
     pub fn chosen(composite: Option<crate::Composite>, range: Option<Range>, known: bool) -> Self {
+        Self::for_known(composite, range, known, false)
+    }
+
+    /// As [`Look::chosen`], with the light known too (a given map at a known level): the edit's
+    /// composite follows both, its range either, and a relit image is `ratio`'s unless a
+    /// composite is asked for ([`crate::Composite::best_for_relighting`]).
+    pub fn for_known(
+        composite: Option<crate::Composite>,
+        range: Option<Range>,
+        known_material: bool,
+        known_light: bool,
+    ) -> Self {
         Self {
-            composite: composite.unwrap_or(crate::Composite::best_for(known, false)),
+            composite: composite.unwrap_or(crate::Composite::best_for(known_material, known_light)),
             relit: composite.unwrap_or(crate::Composite::best_for_relighting()),
-            range: range.unwrap_or(Range::best_for(known)),
+            range: range.unwrap_or(Range::best_for(known_material || known_light)),
         }
     }
 }

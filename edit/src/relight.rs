@@ -53,11 +53,16 @@ pub fn mean_radiance(l: &[f32], env_height: usize) -> f64 {
 /// Refuses a relighting map that lights nothing (black, or no finite texel), before the edit
 /// runs: [`at_level`] would refuse it only after the network.
 pub fn check(l: &[f32], env_height: usize) -> Result<()> {
+    lit_mean(l, env_height).map(|_| ())
+}
+
+/// [`mean_radiance`] of a map that lights something; a black one refused.
+fn lit_mean(l: &[f32], env_height: usize) -> Result<f64> {
     let mean = mean_radiance(l, env_height);
     if !(mean.is_finite() && mean > 0.0) {
         bail!("the relighting map is black (mean radiance {mean:.3e}): it lights nothing");
     }
-    Ok(())
+    Ok(mean)
 }
 
 /// The relighting map `l` at `level`, in the network's units: scaled to the mean radiance of
@@ -73,10 +78,7 @@ pub fn at_level(
 ) -> Result<(Vec<f32>, RelightLevelReport)> {
     let scale = match level {
         RelightLevel::Given => exposure,
-        RelightLevel::Light => {
-            check(l, env_height)?;
-            mean_radiance(light, env_height) / mean_radiance(l, env_height)
-        }
+        RelightLevel::Light => mean_radiance(light, env_height) / lit_mean(l, env_height)?,
     };
     if !(scale.is_finite() && scale >= 0.0) {
         bail!("the relighting map's level cannot be set: its scale would be {scale:.3e}");
