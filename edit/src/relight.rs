@@ -219,4 +219,28 @@ mod tests {
         let e = at_level(&spike, &uniform(h, [1e4; 3]), h, RelightLevel::Light, 1.0).unwrap_err();
         assert!(e.to_string().contains("--relight-level light"), "{e}");
     }
+
+    #[test]
+    fn negative_texels_and_odd_exposures_never_give_a_non_finite_or_negative_scale() {
+        let h = 4;
+        let light = uniform(h, [1.0; 3]);
+        // HDR files carry small negative texels from their filtering: a map that is negative on
+        // the whole lights nothing; one that is positive on the whole is scaled as any other.
+        let e = at_level(&uniform(h, [-0.5; 3]), &light, h, RelightLevel::Light, 1.0).unwrap_err();
+        assert!(e.to_string().contains("black"), "{e}");
+        let mut mixed = uniform(h, [1.0; 3]);
+        mixed[1] = -0.01;
+        let (scaled, r) = at_level(&mixed, &light, h, RelightLevel::Light, 1.0).unwrap();
+        assert!(
+            r.scale.is_finite() && r.scale > 0.0 && scaled.iter().all(|v| v.is_finite()),
+            "{r:?}"
+        );
+        // An exposure below zero or beyond f64 is refused; a light that is black scales any map
+        // to black, never to NaN.
+        for bad in [-1.0, f64::INFINITY, f64::NEG_INFINITY] {
+            assert!(at_level(&light, &light, h, RelightLevel::Given, bad).is_err(), "{bad}");
+        }
+        let (dark, r) = at_level(&light, &uniform(h, [0.0; 3]), h, RelightLevel::Light, 1.0).unwrap();
+        assert!(r.scale == 0.0 && dark.iter().all(|&v| v == 0.0), "{r:?}");
+    }
 }
