@@ -6,9 +6,10 @@ use crate::alloc::PeakAlloc;
 use crate::baseline::lombardi::LombardiConfig;
 use crate::bench;
 use crate::eval::{EvalOptions, evaluate};
+use crate::parallel::Ranks;
 use crate::targets::{material_from_prediction, normalised_target};
 use crate::train::manifest;
-use crate::train::run::{Preempted, open_dataset_stream, run as run_manifest, stop_requested};
+use crate::train::run::{Preempted, open_dataset_stream, run_as, stop_requested};
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use matedit_contract::args::{count_in, finite_in};
@@ -255,15 +256,25 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
             resume,
             quiet,
         } => {
-            let plan = manifest::load(&path)?;
-            let out = out.unwrap_or_else(|| PathBuf::from(&plan.manifest.run.output));
             // A scheduler's notice (Slurm's --signal, Kubernetes' termination): checkpoint and stop.
             #[cfg(unix)]
             for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGUSR1] {
                 signal_hook::flag::register(sig, stop_requested().clone())
                     .context("cannot install the SIGTERM/SIGUSR1 handler")?;
             }
-            let summary = run_manifest(&plan, &out, resume, &open_dataset_stream, quiet)?;
+            let ranks = std::rc::Rc::new(Ranks::from_environment()?);
+            let threads = crate::parallel::ranks::set_threads(&ranks)?;
+            // Every rank reads the manifest; a rank that cannot is named on all of them.
+            let plan = ranks.agree(manifest::load(&path).map_err(anyhow::Error::from))?;
+            if ranks.size() > 1 && ranks.is_root() {
+                eprintln!("{} ranks, {threads} threads each", ranks.size());
+            }
+            let out = out.unwrap_or_else(|| PathBuf::from(&plan.manifest.run.output));
+            let summary = run_as(&ranks, &plan, &out, resume, &open_dataset_stream, quiet)?;
+            if !ranks.is_root() {
+                // Rank 0 alone evaluates and reports.
+                return Ok(());
+            }
             eprintln!(
                 "{} steps run; checkpoints: {}",
                 summary.steps_run,

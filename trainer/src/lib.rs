@@ -9,6 +9,7 @@
 //! * [`targets`]: the 108 DSBRDF parameters normalised to the tanh range [−0.95, 0.95]
 //!   (Sec. 3.2) and back;
 //! * [`train`]: losses (Eq. 5), steps, stages, checkpoints and training manifests;
+//! * [`parallel`]: training as several ranks over MPI (data parallelism), equal to one process;
 //! * [`metrics`]: the paper's metrics, shared by the losses and the evaluation;
 //! * [`post_optimisation`]: the refinement of Sec. 3.5 (Eq. 6);
 //! * [`eval`]: Tables 1–3; [`baseline`]: the comparison methods that are not networks;
@@ -29,6 +30,7 @@ pub mod data;
 pub mod eval;
 pub mod metrics;
 pub mod model;
+pub mod parallel;
 pub mod post_optimisation;
 pub mod render;
 pub mod targets;

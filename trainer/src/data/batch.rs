@@ -52,6 +52,17 @@ pub struct Batch {
 impl Batch {
     /// Stacks samples (all of one image and environment size) at the given stream positions.
     pub fn stack(samples: &[Sample], positions: &[u64], next_position: u64) -> Result<Batch> {
+        Self::stack_with_regions(samples, positions, next_position, 1)
+    }
+
+    /// [`Batch::stack`] with at least `regions` material regions (a part of a batch padded to
+    /// the whole batch's count).
+    pub fn stack_with_regions(
+        samples: &[Sample],
+        positions: &[u64],
+        next_position: u64,
+        regions: usize,
+    ) -> Result<Batch> {
         let Some(first) = samples.first() else {
             bail!("cannot stack an empty batch");
         };
@@ -71,7 +82,7 @@ impl Batch {
                 );
             }
         }
-        let regions = samples.iter().map(Sample::region_count).max().unwrap_or(1);
+        let regions = samples.iter().map(Sample::region_count).max().unwrap_or(1).max(regions);
         let b = samples.len();
         let (p, t) = (size * size, 2 * env_height * env_height);
         let mut out = Batch {

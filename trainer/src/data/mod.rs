@@ -20,7 +20,7 @@ pub use batch::{Batch, Skipped};
 pub use matedit_contract::records::SampleRecord;
 pub use matedit_contract::records::{DatasetRecord, MaterialRecord};
 pub use sample::{LoadError, Sample};
-pub use stream::{Epochs, Loader, LoaderConfig, OnCorrupt, epoch_order};
+pub use stream::{Epochs, Loader, LoaderConfig, OnCorrupt, Part, epoch_order};
 
 use anyhow::{Context, Result, bail};
 use matedit_contract::layout::{check_record, read_dataset_record, read_index};

@@ -91,6 +91,26 @@ pub struct LoaderConfig {
     pub epochs: Epochs,
     /// Stream position of the first sample (resume; see the module documentation).
     pub start_position: u64,
+    /// Which part of every batch this loader reads (a rank's slice in data-parallel training).
+    pub part: Part,
+}
+
+/// Part `index` of `of` of every batch: its samples `index·n/of .. (index+1)·n/of` of a batch
+/// of n, in stream order. The other parts are never decoded. A batch read in parts has the
+/// region count of the whole batch (the largest of its records'), so that the parts stack
+/// into tensors of the whole batch's shape. Corrupt samples cannot be skipped then (a part
+/// cannot know that another part's sample is unreadable, and the batches would drift apart).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Part {
+    /// This part, 0 ≤ index < of.
+    pub index: usize,
+    /// Parts per batch.
+    pub of: usize,
+}
+
+impl Part {
+    /// The whole batch.
+    pub const WHOLE: Part = Part { index: 0, of: 1 };
 }
 
 impl LoaderConfig {
@@ -107,6 +127,7 @@ impl LoaderConfig {
             verify_checksums: false,
             epochs: Epochs::Infinite,
             start_position: 0,
+            part: Part::WHOLE,
         }
     }
 
@@ -123,6 +144,7 @@ impl LoaderConfig {
             verify_checksums: true,
             epochs: Epochs::Finite(1),
             start_position: 0,
+            part: Part::WHOLE,
         }
     }
 }
@@ -236,6 +258,9 @@ impl Producer {
     }
 
     fn assemble(&mut self) -> Result<Item> {
+        if self.cfg.part != Part::WHOLE {
+            return self.assemble_part();
+        }
         let b = self.cfg.batch_size;
         let mut samples: Vec<Sample> = Vec::with_capacity(b);
         let mut positions = Vec::with_capacity(b);
@@ -289,6 +314,41 @@ impl Producer {
         }
         let mut batch = Batch::stack(&samples, &positions, self.pos)?;
         batch.skipped = skipped;
+        Ok(Item::Batch(Box::new(batch)))
+    }
+}
+
+impl Producer {
+    /// The next batch's part `cfg.part` (see [`Part`]): the whole batch's positions, this
+    /// part's samples decoded, padded to the whole batch's region count.
+    fn assemble_part(&mut self) -> Result<Item> {
+        let left = self.end.map_or(u64::MAX, |e| e.saturating_sub(self.pos));
+        let n = (self.cfg.batch_size as u64).min(left) as usize;
+        let Part { index, of } = self.cfg.part;
+        let (a, e) = crate::parallel::share::slice_of(index, of, n);
+        let whole: Vec<(u64, usize)> = (self.pos..self.pos + n as u64)
+            .map(|p| (p, self.record_at(p)))
+            .collect();
+        self.pos += n as u64;
+        if a == e {
+            return Ok(Item::End(Vec::new(), self.pos));
+        }
+        let records = self.dataset.records(&self.split);
+        let regions = whole
+            .iter()
+            .map(|&(_, k)| records[k].material_ids.len())
+            .max()
+            .unwrap_or(1);
+        let jobs = &whole[a..e];
+        let (ds, verify) = (&*self.dataset, self.cfg.verify_checksums);
+        let decode = |&(_, k): &(u64, usize)| ds.try_load(&records[k], verify);
+        let results: Vec<Result<Sample, LoadError>> = match &self.pool {
+            Some(pool) => pool.install(|| jobs.par_iter().map(decode).collect()),
+            None => jobs.iter().map(decode).collect(),
+        };
+        let samples = results.into_iter().collect::<Result<Vec<_>, _>>()?;
+        let positions: Vec<u64> = jobs.iter().map(|&(p, _)| p).collect();
+        let batch = Batch::stack_with_regions(&samples, &positions, self.pos, regions)?;
         Ok(Item::Batch(Box::new(batch)))
     }
 }
@@ -354,6 +414,16 @@ impl Loader {
         }
         if config.batch_size == 0 {
             bail!("batch_size must be at least 1");
+        }
+        let Part { index, of } = config.part;
+        if of == 0 || index >= of {
+            bail!("part {index} of {of} of a batch does not exist");
+        }
+        if of > 1 && config.on_corrupt == OnCorrupt::Skip {
+            bail!(
+                "corrupt samples cannot be skipped when every batch is read in {of} parts (data-parallel \
+                 training): a part cannot know that another part's sample is unreadable (on_corrupt = \"stop\")"
+            );
         }
         let start = config.start_position;
         let mut loader = Loader {

@@ -17,6 +17,7 @@ use super::encoder::{channels_at, down, levels_for, up};
 use super::illumination::LOG_RADIANCE_BOUND;
 use super::material::linear;
 use super::{Init, Widths, network_input};
+use crate::parallel::share::dropout;
 use burn::module::Module;
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d};
 use burn::nn::{Dropout, DropoutConfig, Linear, PaddingConfig2d};
@@ -105,8 +106,8 @@ impl EncoderDecoder {
         }
         let [n, c, sh, sw] = x.dims();
         let flat = x.reshape([n, c * sh * sw]);
-        let other = self.dropout.forward(relu(self.to_other.forward(flat.clone())));
-        let hidden = self.dropout.forward(relu(self.to_material[0].forward(flat)));
+        let other = dropout(&self.dropout, relu(self.to_other.forward(flat.clone())));
+        let hidden = dropout(&self.dropout, relu(self.to_material[0].forward(flat)));
         let material = tanh(self.to_material[1].forward(hidden));
         Encoded {
             skips,

@@ -6,6 +6,7 @@
 use super::encoder::{Encoder, levels_for, up};
 use super::material::linear;
 use super::{Init, Widths, network_input};
+use crate::parallel::share::dropout;
 use burn::module::Module;
 use burn::nn::conv::ConvTranspose2d;
 use burn::nn::{Dropout, DropoutConfig, Linear};
@@ -68,7 +69,7 @@ impl IlluminationNet {
         let [n, c, sh, sw] = x.dims();
         let mut x = x.reshape([n, c * sh * sw]);
         for fc in &self.fc {
-            x = self.dropout.forward(relu(fc.forward(x)));
+            x = dropout(&self.dropout, relu(fc.forward(x)));
         }
         let mut y = x.reshape([n, self.seed_channels, 2, 4]);
         let last = self.deconvs.len().saturating_sub(1);

@@ -4,6 +4,7 @@
 
 use super::encoder::{Encoder, levels_for};
 use super::{Init, Widths, network_input};
+use crate::parallel::share::dropout;
 use burn::module::Module;
 use burn::nn::{Dropout, DropoutConfig, Linear, LinearConfig};
 use burn::tensor::activation::{relu, tanh};
@@ -61,7 +62,7 @@ impl MaterialNet {
         for (i, fc) in self.fc.iter().enumerate() {
             x = fc.forward(x);
             if i < last {
-                x = self.dropout.forward(relu(x));
+                x = dropout(&self.dropout, relu(x));
             }
         }
         tanh(x).reshape([b, r, PARAMS])

@@ -12,6 +12,7 @@
 use super::encoder::{Encoder, down, levels_for};
 use super::material::linear;
 use super::{Init, Widths, network_input};
+use crate::parallel::share::dropout;
 use burn::module::Module;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{Dropout, DropoutConfig, Linear, PaddingConfig2d};
@@ -129,7 +130,7 @@ impl NormalNet {
         for (i, fc) in self.global_fc.iter().enumerate() {
             v = fc.forward(v);
             if i == 0 {
-                v = self.dropout.forward(relu(v));
+                v = dropout(&self.dropout, relu(v));
             }
         }
         let coarse = v.reshape([b, self.channels, self.coarse_side, self.coarse_side]);

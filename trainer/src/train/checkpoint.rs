@@ -46,6 +46,18 @@ pub struct State {
     /// resume refuses another). Absent for the fallback, so such checkpoints keep their bytes.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub perceptual: Option<String>,
+    /// How many ranks trained the step that wrote the checkpoint (data parallelism); absent
+    /// for one, so that one process's checkpoints keep their bytes.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub ranks: usize,
+}
+
+fn one() -> usize {
+    1
+}
+
+fn is_one(n: &usize) -> bool {
+    *n == 1
 }
 
 impl State {
@@ -65,6 +77,7 @@ impl State {
             model_checksum: String::new(),
             optimizer_checksum: String::new(),
             perceptual: None,
+            ranks: 1,
         }
     }
 }

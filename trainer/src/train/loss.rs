@@ -17,6 +17,7 @@
 //! **Structural loss** (an option, not in the paper): [`ssim_loss`], 1 − the evaluation's SSIM
 //! on the same tone map, added to the perceptual loss with its own weight (`[loss] ssim`).
 use crate::metrics::{SSIM_C1, SSIM_C2, SSIM_RADIUS, SSIM_SIGMA};
+use crate::parallel::share;
 use burn::tensor::module::{avg_pool2d, conv2d};
 use burn::tensor::ops::{AvgPoolOptions, ConvOptions};
 use burn::tensor::{Tensor, TensorData};
@@ -66,7 +67,12 @@ pub fn sum_all<const D: usize>(x: Tensor<D>) -> Tensor<1> {
 }
 
 /// The mean of every value of `x`, as `[1]` (see [`row_sums`]; the host keeps Burn's `mean`).
+/// Inside a data-parallel step `x` is this rank's part of the global batch, and the mean is
+/// this rank's share of the global batch's: its sum over the global count.
 pub fn mean<const D: usize>(x: Tensor<D>) -> Tensor<1> {
+    if let Some(n) = share::batch_count(x.shape().num_elements()) {
+        return sum_all(x).div_scalar(n.max(1.0));
+    }
     if crate::render::on_cube(&x.device()) {
         let n = x.shape().num_elements();
         sum_all(x).div_scalar(n.max(1) as f64)
@@ -79,7 +85,7 @@ pub fn mean<const D: usize>(x: Tensor<D>) -> Tensor<1> {
 /// weight does not depend on the resolution). `mask` is `[B, 1, H, W]`.
 pub fn normal_loss(pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -> Tensor<1> {
     let d = (pred - truth).powi_scalar(2).sum_dim(1) * mask.clone();
-    sum_all(d) / sum_all(mask).add_scalar(1e-6)
+    sum_all(d) / share::batch_total(sum_all(mask)).add_scalar(1e-6)
 }
 
 /// Mean squared difference of the normalised parameters (Eq. 4).
@@ -243,7 +249,8 @@ pub fn perceptual_fallback(pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -
             m = avg_pool2d(m, AvgPoolOptions::new([2, 2]).with_stride([2, 2]));
         }
         // Mean over covered pixels and channels.
-        let term = sum_all(d.clone().powi_scalar(2)) / sum_all(m.clone()).mul_scalar(3.0).add_scalar(1e-6);
+        let covered = share::batch_total(sum_all(m.clone()).mul_scalar(3.0));
+        let term = sum_all(d.clone().powi_scalar(2)) / covered.add_scalar(1e-6);
         total = Some(match total {
             Some(t) => t + term,
             None => term,

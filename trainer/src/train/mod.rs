@@ -3,6 +3,7 @@
 
 pub mod batch;
 pub mod checkpoint;
+pub mod data_parallel;
 pub mod loss;
 #[cfg(test)]
 mod loss_tests;

@@ -9,12 +9,14 @@
 //! metrics).
 
 use super::checkpoint::{self, State};
+use super::data_parallel;
 use super::manifest::{TrainPlan, check_device_name};
 use super::plot::MetricsLine;
 use super::step::{StepContext, StepKind, train_step};
 use crate::data;
-use crate::data::{Dataset, Epochs, Loader, LoaderConfig, OnCorrupt};
+use crate::data::{Dataset, Epochs, Loader, LoaderConfig, OnCorrupt, Part};
 use crate::model::network::Net;
+use crate::parallel::{Ranks, gradients};
 use crate::render::RenderingLayer;
 use anyhow::{Context, Result, bail};
 use burn::module::Module;
@@ -24,6 +26,7 @@ use matedit_contract::manifest::Named;
 use matedit_contract::progress::Progress;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::rc::Rc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
 
@@ -33,22 +36,28 @@ pub trait BatchSource {
     fn next_batch(&mut self) -> Result<data::Batch>;
     /// Position of the next sample in the stream.
     fn position(&self) -> u64;
+    /// What the ranks of a data-parallel run compare before they train on the stream: a
+    /// checksum of its dataset, and how to name it.
+    fn identity(&self) -> Option<(String, [u8; 32])> {
+        None
+    }
 }
 
-/// Opens the data stream of stage `stage` at `position`.
-pub type OpenStream<'a> = dyn Fn(&TrainPlan, usize, u64) -> Result<Box<dyn BatchSource>> + 'a;
+/// Opens the data stream of stage `stage` at `position`, reading `part` of every batch.
+pub type OpenStream<'a> = dyn Fn(&TrainPlan, usize, u64, Part) -> Result<Box<dyn BatchSource>> + 'a;
 
 /// The training stream of a stage from its dataset: shuffled from (run seed, stage), endless,
 /// decoded in the background, positioned for resume.
 pub struct DatasetStream {
     loader: Loader,
     reported: usize,
+    identity: (String, [u8; 32]),
 }
 
 impl DatasetStream {
-    /// Opens stage `stage`'s dataset and split at stream `position`, checking that its images
-    /// and environments have the network's sizes.
-    pub fn open(plan: &TrainPlan, stage: usize, position: u64) -> Result<Self> {
+    /// Opens stage `stage`'s dataset and split at stream `position` (reading `part` of every
+    /// batch), checking that its images and environments have the network's sizes.
+    pub fn open(plan: &TrainPlan, stage: usize, position: u64, part: Part) -> Result<Self> {
         let st = plan.manifest.stages[stage].get_ref();
         let dir = plan.stage_dataset(stage)?;
         let dataset = std::sync::Arc::new(Dataset::open(&dir)?);
@@ -108,10 +117,19 @@ impl DatasetStream {
             verify_checksums: d.verify_checksums,
             epochs: Epochs::Infinite,
             start_position: position,
+            part,
         };
+        // The dataset's record names its index's checksum: one hash covers both.
+        let record = std::fs::read(dir.join("dataset.json"))
+            .with_context(|| format!("cannot read {}", dir.join("dataset.json").display()))?;
+        let identity = (
+            format!("the dataset {}", dir.display()),
+            *blake3::hash(&record).as_bytes(),
+        );
         Ok(Self {
             loader: Loader::new(dataset, &st.split, config)?,
             reported: 0,
+            identity,
         })
     }
 }
@@ -134,11 +152,15 @@ impl BatchSource for DatasetStream {
     fn position(&self) -> u64 {
         self.loader.position()
     }
+
+    fn identity(&self) -> Option<(String, [u8; 32])> {
+        Some(self.identity.clone())
+    }
 }
 
 /// [`OpenStream`] over the stages' datasets.
-pub fn open_dataset_stream(plan: &TrainPlan, stage: usize, position: u64) -> Result<Box<dyn BatchSource>> {
-    Ok(Box::new(DatasetStream::open(plan, stage, position)?))
+pub fn open_dataset_stream(plan: &TrainPlan, stage: usize, position: u64, part: Part) -> Result<Box<dyn BatchSource>> {
+    Ok(Box::new(DatasetStream::open(plan, stage, position, part)?))
 }
 
 /// What a finished run produced.
@@ -240,19 +262,277 @@ pub struct Preempted {
     pub checkpoint: String,
 }
 
-/// Runs (or, with `resume`, continues) the manifest's stages into `out`.
+/// Runs (or, with `resume`, continues) the manifest's stages into `out`, as one process.
 pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet: bool) -> Result<RunSummary> {
-    let _lock = matedit_contract::lock::lock_output(out, matedit_contract::lock::Worker::ALL)
-        .with_context(|| format!("{} is in use by another trainer run", out.display()))?;
+    run_as(&Rc::new(Ranks::single()), plan, out, resume, open, quiet)
+}
+
+/// Refuses a stage whose batch the ranks cannot share equally (the same on every rank).
+fn check_batches(plan: &TrainPlan, ranks: &Ranks) -> Result<()> {
+    let w = ranks.size();
+    for (i, st) in plan.manifest.stages.iter().enumerate() {
+        let b = st.get_ref().batch_size;
+        if w > 1 && (b < w || b % w != 0) {
+            // The line of the stage's `batch_size` (the stage's own line where it is not found).
+            let span = st.span();
+            let at = plan
+                .text
+                .get(span.clone())
+                .and_then(|t| t.find("batch_size"))
+                .map_or(span.start, |k| span.start + k);
+            let line = matedit_contract::manifest::line_of(&plan.text, at);
+            bail!(
+                "{}:{line}: stages[{i}].batch_size = {b} cannot be shared by {w} ranks: every rank takes an equal part \
+                 of each batch, so batch_size must be a multiple of the rank count (e.g. {})",
+                plan.path.display(),
+                (b.div_ceil(w) * w).max(w)
+            );
+        }
+    }
+    Ok(())
+}
+
+/// [`run`] as rank `ranks.rank()` of `ranks.size()` (see `crate::parallel`): every rank
+/// trains on its part of each batch and applies the same update; rank 0 alone writes the
+/// folder (checkpoints, `metrics.jsonl`, `log.jsonl`, `loss.png`), the others wait for it.
+pub fn run_as(
+    ranks: &Rc<Ranks>,
+    plan: &TrainPlan,
+    out: &Path,
+    resume: bool,
+    open: &OpenStream,
+    quiet: bool,
+) -> Result<RunSummary> {
+    let root = ranks.is_root();
+    let quiet = quiet || !root;
+    check_batches(plan, ranks)?;
+    let what = format!("the manifest {}", plan.path.display());
+    ranks.same_as_root(&what, blake3::hash(plan.text.as_bytes()).as_bytes())?;
+    let _lock = ranks.agree(if root {
+        matedit_contract::lock::lock_output(out, matedit_contract::lock::Worker::ALL)
+            .map(Some)
+            .with_context(|| format!("{} is in use by another trainer run", out.display()))
+    } else {
+        Ok(None)
+    })?;
     let m = &plan.manifest;
     let metrics_path = out.join("metrics.jsonl");
-    checkpoint::remove_stale_temporaries(out)?;
+    ranks.agree(if root {
+        checkpoint::remove_stale_temporaries(out)
+    } else {
+        Ok(())
+    })?;
+    let setup = ranks.agree(set_up(plan, out, resume, root));
+    let Setup {
+        device,
+        perceptual,
+        mut net,
+        mut start,
+    } = setup?;
+    let layer = RenderingLayer::new(plan.net.env_height);
+    let layer_on = if crate::render::on_device(&device, plan.net.env_height).is_some() {
+        "the rendering layer's GPU kernels"
+    } else {
+        "the fused CPU rendering layer"
+    };
+    // Which perceptual loss trains the network, and where, is never silent, not even with --quiet.
+    if root {
+        eprintln!("{}", perceptual.description());
+    }
+    if ranks.size() > 1 {
+        eprintln!(
+            "rank {} of {} (rank {} of {} on this machine): device {} ({device:?}), {layer_on}",
+            ranks.rank(),
+            ranks.size(),
+            ranks.local_rank(),
+            ranks.local_size(),
+            plan.device.name()
+        );
+    } else {
+        eprintln!("device {} ({device:?}), {layer_on}", plan.device.name());
+    }
+    let ctx = StepContext {
+        layer: &layer,
+        weights: &plan.weights,
+        perceptual: &perceptual,
+        device: &device,
+    };
+    let mut files = if root {
+        Some(RunFiles::open(out, &metrics_path)?)
+    } else {
+        None
+    };
+    let mut summary = RunSummary {
+        out: out.to_path_buf(),
+        stage_checkpoints: Vec::new(),
+        steps_run: 0,
+    };
+    let mut global = start.as_ref().map_or(0, |(s, _)| s.global_step);
+    let part = Part {
+        index: ranks.rank(),
+        of: ranks.size(),
+    };
+    for (si, st) in m.stages.iter().enumerate() {
+        let st = st.get_ref();
+        let final_name = st.name.clone();
+        // Stages already finished before the resume.
+        if let Some((s, _)) = &start
+            && (si < s.stage || (si == s.stage && s.stage_done))
+        {
+            summary
+                .stage_checkpoints
+                .push((st.name.clone(), out.join("checkpoints").join(&final_name)));
+            continue;
+        }
+        let mut optim = adam(st);
+        let (mut step, position) = match start.take() {
+            Some((s, dir)) if s.stage == si => {
+                optim = ranks.agree(checkpoint::load_optimizer(&dir, optim))?;
+                (s.step, s.data_position)
+            }
+            _ => {
+                // A stage that branches from an earlier one starts from its final weights.
+                if let Some(src) = &st.from {
+                    let dir = out.join("checkpoints").join(src);
+                    net = ranks.agree(checkpoint::load_net(&dir, &device))?.0;
+                }
+                (0, 0)
+            }
+        };
+        let mut data = ranks.agree(open(plan, si, position, part))?;
+        if let Some((what, id)) = data.identity() {
+            ranks.same_as_root(&what, &id)?;
+        }
+        // Every rank must start from rank 0's weights (a different checkpoint, or a build that
+        // computes otherwise); checked again at every checkpoint.
+        if ranks.size() > 1 {
+            ranks.same_as_root("the network's weights", &gradients::checksum(&net))?;
+        }
+        let bar = Progress::new(
+            !quiet,
+            st.steps as u64,
+            &format!("{} steps", st.name),
+            "{prefix:>10} [{bar:30}] {pos}/{len} steps  {msg}  ETA {eta}",
+        );
+        bar.bar().set_prefix(st.name.clone());
+        bar.set_position(step as u64);
+        while step < st.steps {
+            let lr = st.lr_at(step);
+            let t0 = std::time::Instant::now();
+            let batch = data.next_batch();
+            device.seed(step_seed(m.run.seed, si, step));
+            let kind = StepKind {
+                kind: st.kind,
+                render_with: st.render_with,
+            };
+            let in_step = || format!("stage {}, step {}", st.name, step + 1);
+            let asked = stop_requested().load(Ordering::SeqCst);
+            let (n, losses, stop) = if ranks.size() == 1 {
+                let batch = batch?;
+                let (n, losses) = train_step(net, &mut optim, lr, &batch, kind, &ctx).with_context(in_step)?;
+                (n, losses, asked)
+            } else {
+                let at = data_parallel::Rank {
+                    ranks,
+                    global: st.batch_size,
+                    stop_asked: asked,
+                };
+                let o = data_parallel::step(at, net, &mut optim, lr, batch, kind, &ctx).with_context(in_step)?;
+                (o.net, o.losses, o.stop)
+            };
+            net = n;
+            step += 1;
+            global += 1;
+            summary.steps_run += 1;
+            let line = MetricsLine {
+                stage: st.name.clone(),
+                step,
+                global_step: global,
+                lr,
+                losses,
+            };
+            if let Some(f) = &mut files {
+                f.log(&line, t0.elapsed().as_secs_f64(), st.batch_size, ranks.size())?;
+            }
+            bar.set_message(format!("loss {:.4e}", losses.total));
+            bar.inc(1);
+            let done = step == st.steps;
+            if done || stop || (st.checkpoint_every > 0 && step % st.checkpoint_every == 0) {
+                let state = State {
+                    version: checkpoint::VERSION,
+                    manifest_hash: plan.hash(),
+                    stage: si,
+                    stage_name: st.name.clone(),
+                    step,
+                    global_step: global,
+                    data_position: data.position(),
+                    stage_done: done,
+                    net: plan.net.clone(),
+                    model_checksum: String::new(),
+                    optimizer_checksum: String::new(),
+                    perceptual: perceptual.identity(),
+                    ranks: ranks.size(),
+                };
+                let name = if done {
+                    final_name.clone()
+                } else {
+                    format!("{}-step-{step:07}", st.name)
+                };
+                // Rank 0 writes; the others wait here for it (and stop with it if it fails).
+                let saved = match &mut files {
+                    Some(f) => f.checkpoint(out, &name, &net, &optim, state, &st.name),
+                    None => Ok(()),
+                };
+                ranks.agree(saved)?;
+                if ranks.size() > 1 {
+                    ranks.same_as_root("the network's weights", &gradients::checksum(&net))?;
+                }
+                if stop {
+                    bar.abandon();
+                    return Err(Preempted {
+                        stage: st.name.clone(),
+                        step,
+                        checkpoint: name,
+                    }
+                    .into());
+                }
+            }
+        }
+        bar.finish();
+        summary
+            .stage_checkpoints
+            .push((st.name.clone(), out.join("checkpoints").join(&final_name)));
+    }
+    let plotted = match files {
+        Some(f) => {
+            drop(f);
+            read_metrics(&metrics_path)
+                .and_then(|lines| super::plot::loss_curves(&lines, &out.join("loss.png"), &plan.weights))
+        }
+        None => Ok(()),
+    };
+    ranks.agree(plotted)?;
+    Ok(summary)
+}
+
+/// What every rank builds before the first step: the device, the perceptual loss, and the
+/// network (fresh, from `run.init_from`, or the latest checkpoint with where it stood).
+struct Setup {
+    device: Device,
+    perceptual: super::perceptual::Perceptual,
+    net: Net,
+    start: Option<(State, PathBuf)>,
+}
+
+fn set_up(plan: &TrainPlan, out: &Path, resume: bool, root: bool) -> Result<Setup> {
+    let m = &plan.manifest;
+    let metrics_path = out.join("metrics.jsonl");
     let latest = checkpoint::latest(out)?;
     let device = device_for(plan.device.name())?;
     check_reductions(plan, &device)?;
     let perceptual = plan.perceptual(&device)?;
     // Where to start: a fresh run, or the latest checkpoint.
-    let (mut net, mut start): (Net, Option<(State, PathBuf)>) = match (&latest, resume) {
+    let (net, start): (Net, Option<(State, PathBuf)>) = match (&latest, resume) {
         (Some(_), false) => bail!(
             "{} already holds a run (latest.json); pass --resume to continue it, or choose another --out",
             out.display()
@@ -282,11 +562,13 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
                         .unwrap_or_default()
                 );
             }
-            truncate_lines(&metrics_path, state.global_step)?;
+            if root {
+                truncate_lines(&metrics_path, state.global_step)?;
+            }
             (net, Some((state, dir.clone())))
         }
         (None, _) => {
-            if metrics_path.exists() {
+            if root && metrics_path.exists() {
                 std::fs::remove_file(&metrics_path)?;
             }
             device.seed(m.run.seed);
@@ -314,148 +596,64 @@ pub fn run(plan: &TrainPlan, out: &Path, resume: bool, open: &OpenStream, quiet:
             (net, None)
         }
     };
-    matedit_contract::io::write_atomically(&out.join("manifest.toml"), |p| Ok(std::fs::write(p, &plan.text)?))?;
-    let layer = RenderingLayer::new(plan.net.env_height);
-    // Which perceptual loss trains the network, and where, is never silent, not even with --quiet.
-    eprintln!("{}", perceptual.description());
-    let layer_on = if crate::render::on_device(&device, plan.net.env_height).is_some() {
-        "the rendering layer's GPU kernels"
-    } else {
-        "the fused CPU rendering layer"
-    };
-    eprintln!("device {} ({device:?}), {layer_on}", plan.device.name());
-    let ctx = StepContext {
-        layer: &layer,
-        weights: &plan.weights,
-        perceptual: &perceptual,
-        device: &device,
-    };
-    let mut metrics = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(&metrics_path)?;
-    let mut log = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(out.join("log.jsonl"))?;
-    let mut summary = RunSummary {
-        out: out.to_path_buf(),
-        stage_checkpoints: Vec::new(),
-        steps_run: 0,
-    };
-    let mut global = start.as_ref().map_or(0, |(s, _)| s.global_step);
-    for (si, st) in m.stages.iter().enumerate() {
-        let st = st.get_ref();
-        let final_name = st.name.clone();
-        // Stages already finished before the resume.
-        if let Some((s, _)) = &start
-            && (si < s.stage || (si == s.stage && s.stage_done))
-        {
-            summary
-                .stage_checkpoints
-                .push((st.name.clone(), out.join("checkpoints").join(&final_name)));
-            continue;
-        }
-        let mut optim = adam(st);
-        let (mut step, position) = match start.take() {
-            Some((s, dir)) if s.stage == si => {
-                optim = checkpoint::load_optimizer(&dir, optim)?;
-                (s.step, s.data_position)
-            }
-            _ => {
-                // A stage that branches from an earlier one starts from its final weights.
-                if let Some(src) = &st.from {
-                    net = checkpoint::load_net(&out.join("checkpoints").join(src), &device)?.0;
-                }
-                (0, 0)
-            }
-        };
-        let mut data = open(plan, si, position)?;
-        let bar = Progress::new(
-            !quiet,
-            st.steps as u64,
-            &format!("{} steps", st.name),
-            "{prefix:>10} [{bar:30}] {pos}/{len} steps  {msg}  ETA {eta}",
-        );
-        bar.bar().set_prefix(st.name.clone());
-        bar.set_position(step as u64);
-        while step < st.steps {
-            let lr = st.lr_at(step);
-            let t0 = std::time::Instant::now();
-            let batch = data.next_batch()?;
-            device.seed(step_seed(m.run.seed, si, step));
-            let kind = StepKind {
-                kind: st.kind,
-                render_with: st.render_with,
-            };
-            let (n, losses) = train_step(net, &mut optim, lr, &batch, kind, &ctx)
-                .with_context(|| format!("stage {}, step {}", st.name, step + 1))?;
-            net = n;
-            step += 1;
-            global += 1;
-            summary.steps_run += 1;
-            let line = MetricsLine {
-                stage: st.name.clone(),
-                step,
-                global_step: global,
-                lr,
-                losses,
-            };
-            writeln!(metrics, "{}", serde_json::to_string(&line)?)?;
-            let secs = t0.elapsed().as_secs_f64();
-            writeln!(
-                log,
-                "{}",
-                serde_json::json!({"stage": st.name, "step": step, "seconds": secs, "images_per_second": batch.batch as f64 / secs})
-            )?;
-            bar.set_message(format!("loss {:.4e}", losses.total));
-            bar.inc(1);
-            let done = step == st.steps;
-            let stop = stop_requested().load(Ordering::SeqCst);
-            if done || stop || (st.checkpoint_every > 0 && step % st.checkpoint_every == 0) {
-                metrics.sync_data()?;
-                let state = State {
-                    version: checkpoint::VERSION,
-                    manifest_hash: plan.hash(),
-                    stage: si,
-                    stage_name: st.name.clone(),
-                    step,
-                    global_step: global,
-                    data_position: data.position(),
-                    stage_done: done,
-                    net: plan.net.clone(),
-                    model_checksum: String::new(),
-                    optimizer_checksum: String::new(),
-                    perceptual: perceptual.identity(),
-                };
-                let name = if done {
-                    final_name.clone()
-                } else {
-                    format!("{}-step-{step:07}", st.name)
-                };
-                checkpoint::save(out, &name, &net, &optim, state)?;
-                // Keep the stage ends and the newest intermediate checkpoint only.
-                remove_older_intermediates(out, &st.name, &name)?;
-                if stop {
-                    bar.abandon();
-                    return Err(Preempted {
-                        stage: st.name.clone(),
-                        step,
-                        checkpoint: name,
-                    }
-                    .into());
-                }
-            }
-        }
-        bar.finish();
-        summary
-            .stage_checkpoints
-            .push((st.name.clone(), out.join("checkpoints").join(&final_name)));
+    if root {
+        matedit_contract::io::write_atomically(&out.join("manifest.toml"), |p| Ok(std::fs::write(p, &plan.text)?))?;
     }
-    drop(metrics);
-    let lines = read_metrics(&metrics_path)?;
-    super::plot::loss_curves(&lines, &out.join("loss.png"), &plan.weights)?;
-    Ok(summary)
+    Ok(Setup {
+        device,
+        perceptual,
+        net,
+        start,
+    })
+}
+
+/// The files rank 0 writes as it trains.
+struct RunFiles {
+    metrics: std::fs::File,
+    log: std::fs::File,
+}
+
+impl RunFiles {
+    fn open(out: &Path, metrics_path: &Path) -> Result<RunFiles> {
+        let append = |p: &Path| {
+            std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(p)
+                .with_context(|| format!("cannot open {}", p.display()))
+        };
+        Ok(RunFiles {
+            metrics: append(metrics_path)?,
+            log: append(&out.join("log.jsonl"))?,
+        })
+    }
+
+    /// A step's line in `metrics.jsonl` and its wall-clock time in `log.jsonl`.
+    fn log(&mut self, line: &MetricsLine, secs: f64, batch: usize, ranks: usize) -> Result<()> {
+        writeln!(self.metrics, "{}", serde_json::to_string(line)?)?;
+        let mut entry = serde_json::json!({"stage": line.stage, "step": line.step, "seconds": secs, "images_per_second": batch as f64 / secs});
+        if ranks > 1 {
+            entry["ranks"] = ranks.into();
+        }
+        writeln!(self.log, "{entry}")?;
+        Ok(())
+    }
+
+    /// Writes checkpoint `name` (after the metrics it follows), keeping the stage ends and
+    /// the newest intermediate checkpoint of `stage` only.
+    fn checkpoint(
+        &mut self,
+        out: &Path,
+        name: &str,
+        net: &Net,
+        optim: &burn::optim::ModuleOptimizer,
+        state: State,
+        stage: &str,
+    ) -> Result<()> {
+        self.metrics.sync_data()?;
+        checkpoint::save(out, name, net, optim, state)?;
+        remove_older_intermediates(out, stage, name)
+    }
 }
 
 fn remove_older_intermediates(out: &Path, stage: &str, keep: &str) -> Result<()> {

@@ -243,8 +243,30 @@ pub fn train_step(
     step: StepKind,
     ctx: &StepContext,
 ) -> Result<(Net, Losses)> {
+    let (losses, grads) = losses_and_gradients(&net, host_batch, step, ctx)?;
+    check_finite(&losses, host_batch)?;
+    let net = optim.step(lr, net, grads);
+    Ok((net, losses))
+}
+
+/// Refuses a step whose loss is not finite (nothing is updated then).
+pub fn check_finite(losses: &Losses, host_batch: &data::Batch) -> Result<()> {
+    if !losses.total.is_finite() {
+        anyhow::bail!("the loss is not finite ({losses:?}) on batch {:?}", host_batch.ids);
+    }
+    Ok(())
+}
+
+/// A step's loss terms and the gradients of its total, without the update (a data-parallel
+/// step sums the gradients of the ranks before it updates). The loss need not be finite.
+pub fn losses_and_gradients(
+    net: &Net,
+    host_batch: &data::Batch,
+    step: StepKind,
+    ctx: &StepContext,
+) -> Result<(Losses, GradientsParams)> {
     if step.kind == StageKind::EncoderDecoder {
-        return encoder_decoder_step(net, optim, lr, host_batch, ctx);
+        return encoder_decoder_gradients(net, host_batch, ctx);
     }
     let (w, device) = (ctx.weights, ctx.device);
     let b = host_batch.to_device(device);
@@ -300,12 +322,8 @@ pub fn train_step(
         + w.ssim * losses.ssim
         + w.light_energy * losses.light_energy
         + w.light_direction * losses.light_direction;
-    if !losses.total.is_finite() {
-        anyhow::bail!("the loss is not finite ({losses:?}) on batch {:?}", host_batch.ids);
-    }
-    let grads = GradientsParams::from_grads(total.backward(), &net);
-    let net = optim.step(lr, net, grads);
-    Ok((net, losses))
+    let grads = GradientsParams::from_grads(total.backward(), net);
+    Ok((losses, grads))
 }
 
 /// The rendering layer's inputs in a joint step (each the prediction or the truth).
@@ -427,14 +445,13 @@ fn joint_on_device(
     Ok((vec![loss], losses))
 }
 
-/// One step of Baseline 1: f_m against m (Eq. 4), O' = D(f_o, E(m_t)) against O.
-fn encoder_decoder_step(
-    net: Net,
-    optim: &mut ModuleOptimizer,
-    lr: f64,
+/// The losses and gradients of one step of Baseline 1: f_m against m (Eq. 4),
+/// O' = D(f_o, E(m_t)) against O.
+fn encoder_decoder_gradients(
+    net: &Net,
     host_batch: &data::Batch,
     ctx: &StepContext,
-) -> Result<(Net, Losses)> {
+) -> Result<(Losses, GradientsParams)> {
     let w = ctx.weights;
     let ed = net
         .encoder_decoder
@@ -465,10 +482,6 @@ fn encoder_decoder_step(
         total = total + ls.mul_scalar(w.ssim);
     }
     losses.total = w.material * losses.material + w.perceptual * losses.perceptual + w.ssim * losses.ssim;
-    if !losses.total.is_finite() {
-        anyhow::bail!("the loss is not finite ({losses:?}) on batch {:?}", host_batch.ids);
-    }
-    let grads = GradientsParams::from_grads(total.backward(), &net);
-    let net = optim.step(lr, net, grads);
-    Ok((net, losses))
+    let grads = GradientsParams::from_grads(total.backward(), net);
+    Ok((losses, grads))
 }

@@ -1,0 +1,139 @@
+//! One training step as one of W ranks (`crate::parallel`): this rank's slice of the global
+//! batch forward and backward, one block that agrees on the step (the loss terms, whether any
+//! rank's loss is not finite, whether any rank was asked to stop), one all-reduce of the
+//! gradients, and the same Adam update on every rank.
+
+use super::step::{LossWeights, Losses, StepContext, StepKind, losses_and_gradients};
+use crate::data;
+use crate::model::network::Net;
+use crate::parallel::ranks::{Diverged, Ranks, Tag};
+use crate::parallel::{gradients, share};
+use anyhow::{Result, anyhow};
+use burn::optim::ModuleOptimizer;
+use std::rc::Rc;
+
+/// What a step gave every rank.
+pub struct Outcome {
+    /// The updated network (the same on every rank).
+    pub net: Net,
+    /// The global batch's loss terms (the same on every rank).
+    pub losses: Losses,
+    /// Whether some rank was asked to stop: every rank then checkpoints and stops here.
+    pub stop: bool,
+}
+
+/// Loss terms in the step's block, in this order.
+fn terms(l: &Losses) -> [f64; 8] {
+    [
+        l.total,
+        l.normal,
+        l.material,
+        l.perceptual,
+        l.illumination,
+        l.ssim,
+        l.light_energy,
+        l.light_direction,
+    ]
+}
+
+/// The global batch's losses from the ranks' summed parts; the total as one process forms it.
+fn global_losses(t: &[f64], w: &LossWeights) -> Losses {
+    let mut l = Losses {
+        total: 0.0,
+        normal: t[1],
+        material: t[2],
+        perceptual: t[3],
+        illumination: t[4],
+        ssim: t[5],
+        light_energy: t[6],
+        light_direction: t[7],
+    };
+    l.total = w.normal * l.normal
+        + w.material * l.material
+        + w.perceptual * l.perceptual
+        + w.illumination * l.illumination
+        + w.ssim * l.ssim
+        + w.light_energy * l.light_energy
+        + w.light_direction * l.light_direction;
+    l
+}
+
+/// Where a rank stands at a step.
+pub struct Rank<'a> {
+    /// The ranks.
+    pub ranks: &'a Rc<Ranks>,
+    /// Samples of the global batch (the stage's `batch_size`).
+    pub global: usize,
+    /// Whether this rank was asked to stop (SIGTERM, SIGUSR1).
+    pub stop_asked: bool,
+}
+
+/// One step of rank `at.ranks.rank()` on its slice `batch` (or its error reading it) of the
+/// global batch. Every rank returns the same: the same update, or the same error.
+pub fn step(
+    at: Rank,
+    net: Net,
+    optim: &mut ModuleOptimizer,
+    lr: f64,
+    batch: Result<data::Batch>,
+    kind: StepKind,
+    ctx: &StepContext,
+) -> Result<Outcome> {
+    let (ranks, global) = (at.ranks, at.global);
+    let batch = batch.map_err(|e| ranks.fail(e))?;
+    let slice = share::Share::of(ranks.clone(), global);
+    if batch.batch != slice.local {
+        let e = anyhow!(
+            "holds {} samples of the step's batch, not its {}",
+            batch.batch,
+            slice.local
+        );
+        return Err(ranks.fail(e));
+    }
+    let result = {
+        let _in = share::enter(slice.clone());
+        losses_and_gradients(&net, &batch, kind, ctx)
+    };
+    let (losses, mut grads) = result.map_err(|e| ranks.fail(e))?;
+    if slice.diverged() {
+        return Err(ranks.resolve(None));
+    }
+    // The step's block: the loss terms, then a flag per reason to stop.
+    let r = ranks.rank();
+    let mut block = terms(&losses).to_vec();
+    block.push(f64::from(u8::from(at.stop_asked)));
+    let not_finite = !losses.total.is_finite();
+    // Which ranks' losses are not finite, as bits (exact in f64 for the first 52 ranks).
+    block.push(if not_finite && r < 52 { (r as f64).exp2() } else { 0.0 });
+    block.push(f64::from(u8::from(not_finite)));
+    let summed = ranks
+        .exchange(Tag::Step, &block)
+        .map_err(|Diverged| ranks.resolve(None))?;
+    let losses = global_losses(&summed[..8], ctx.weights);
+    let (stop, bits, count) = (summed[8] > 0.0, summed[9] as u64, summed[10]);
+    let start = batch.positions.first().copied().unwrap_or(0) - slice.offset as u64;
+    if count > 0.0 {
+        let named: Vec<String> = (0..52).filter(|k| bits >> k & 1 == 1).map(|k| k.to_string()).collect();
+        anyhow::bail!(
+            "the loss is not finite ({losses:?}) on the global batch at stream positions {start}..{} (on rank {})",
+            start + global as u64,
+            if named.is_empty() {
+                "≥ 52".into()
+            } else {
+                named.join(", ")
+            }
+        );
+    }
+    let (mut flat, grad_device) = gradients::flatten(&net, &mut grads);
+    ranks.sum_f32_in_place(&mut flat);
+    if let Some(i) = flat.iter().position(|g| !g.is_finite()) {
+        anyhow::bail!(
+            "a gradient is not finite (value {i} of the summed buffer) on the global batch at stream positions {start}..{}",
+            start + global as u64
+        );
+    }
+    let device = grad_device.unwrap_or_else(|| ctx.device.clone().inner());
+    let grads = gradients::restore(&net, &flat, &device);
+    let net = optim.step(lr, net, grads);
+    Ok(Outcome { net, losses, stop })
+}
