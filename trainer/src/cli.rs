@@ -176,6 +176,20 @@ enum Command {
         #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=10_000))]
         steps: u64,
     },
+    /// What data-parallel training adds to a step: the all-reduce of the network's gradients
+    /// (alone, and with flattening and putting back) over the ranks this runs as
+    /// (`mpirun -np W trainer bench-ranks`; a build with `--features mpi`).
+    BenchRanks {
+        /// The network's widths: cpu-small or paper.
+        #[arg(long, default_value = "paper")]
+        widths: String,
+        /// Its input side (16–1024; the paper: 256).
+        #[arg(long, default_value_t = 256, value_parser = count_in(16, 1024), allow_negative_numbers = true)]
+        size: usize,
+        /// Timed repetitions (the median is printed; 1–1000).
+        #[arg(long, default_value_t = 10, value_parser = count_in(1, 1000), allow_negative_numbers = true)]
+        runs: usize,
+    },
 }
 
 /// `LABEL=FOLDER` as (label, folder), or a folder (an existing path is never split, even with
@@ -205,6 +219,43 @@ fn eval_to(checkpoints: &[PathBuf], opts: &EvalOptions, out: &std::path::Path) -
         }
     }
     eprintln!("wrote {} and {}", out.display(), md_path.display());
+    Ok(())
+}
+
+/// `trainer bench-ranks`: one line from rank 0.
+fn bench_ranks(widths: &str, size: usize, runs: usize) -> Result<()> {
+    use crate::model::Widths;
+    use crate::model::network::NetConfig;
+    let ranks = Ranks::from_environment()?;
+    let w = Widths::preset(widths)
+        .with_context(|| format!("--widths {widths:?}: unknown ({})", Widths::preset_names()))?;
+    let device = burn::tensor::Device::flex();
+    let net = NetConfig::new(size, w).init(&device);
+    let r = crate::parallel::bench::measure(&ranks, &net, &device, runs);
+    if ranks.is_root() && ranks.size() == 1 {
+        println!(
+            "1 rank, {widths} widths at {size}²: {} parameters; no all-reduce (one rank); flatten + put back median {:.2} ms; {runs} runs",
+            r.parameters,
+            r.step.median()
+        );
+    } else if ranks.is_root() {
+        let mib = r.buffer as f64 * 4.0 / (1 << 20) as f64;
+        let n = ranks.size() as f64;
+        // A ring all-reduce moves 2(W−1)/W of the buffer through each rank's link.
+        let moved = 2.0 * (n - 1.0) / n * r.buffer as f64 * 4.0;
+        let gbps = moved / (r.all_reduce.median() * 1e-3) / 1e9;
+        println!(
+            "{} rank{}, {widths} widths at {size}²: {} parameters ({mib:.1} MiB of f32 gradients); all-reduce median {:.2} ms \
+             (min {:.2}, max {:.2}; {gbps:.2} GB/s of ring traffic per rank); flatten + all-reduce + put back median {:.2} ms; {runs} runs",
+            ranks.size(),
+            if ranks.size() == 1 { "" } else { "s" },
+            r.parameters,
+            r.all_reduce.median(),
+            r.all_reduce.ms.first().copied().unwrap_or(f64::NAN),
+            r.all_reduce.ms.last().copied().unwrap_or(f64::NAN),
+            r.step.median()
+        );
+    }
     Ok(())
 }
 
@@ -363,6 +414,7 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
             eprintln!("wrote {}", out.display());
         }
         Command::GpuInfo { require_hardware } => gpu_info(require_hardware)?,
+        Command::BenchRanks { widths, size, runs } => bench_ranks(&widths, size, runs)?,
         Command::Bench {
             batch,
             size,

@@ -76,8 +76,20 @@ pub fn flatten<M: Module>(module: &M, grads: &mut GradientsParams) -> (Vec<f32>,
     let present: Vec<f32> = if take.parts.is_empty() {
         Vec::new()
     } else {
-        Tensor::cat(take.parts, 0).into_data().iter::<f32>().collect()
+        let data = Tensor::cat(take.parts, 0).into_data();
+        // Without a copy where the bytes are f32 already (as_slice checks what try_into_vec does).
+        match data.as_slice::<f32>() {
+            Ok(_) => data.try_into_vec::<f32>().unwrap_or_default(),
+            Err(_) => data.iter::<f32>().collect(),
+        }
     };
+    let slots = take.params.iter().map(|&(_, has)| if has { 1.0 } else { 0.0 });
+    if take.params.iter().all(|&(_, has)| has) {
+        // The usual case: the gradients are the buffer already.
+        let mut out = present;
+        out.extend(slots);
+        return (out, device);
+    }
     let mut out = Vec::with_capacity(present.len() + 2 * take.params.len());
     let mut from = 0;
     for &(n, has) in &take.params {
@@ -88,7 +100,7 @@ pub fn flatten<M: Module>(module: &M, grads: &mut GradientsParams) -> (Vec<f32>,
             out.extend(std::iter::repeat_n(0.0, n));
         }
     }
-    out.extend(take.params.iter().map(|&(_, has)| if has { 1.0 } else { 0.0 }));
+    out.extend(slots);
     (out, device)
 }
 
@@ -167,4 +179,68 @@ pub fn checksum<M: Module>(module: &M) -> [u8; 32] {
     let mut h = Hash(blake3::Hasher::new());
     module.visit(&mut h);
     *h.0.finalize().as_bytes()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::nn::{Linear, LinearConfig};
+    use burn::tensor::Distribution;
+
+    #[derive(Module, Debug)]
+    struct Two {
+        used: Linear,
+        unused: Linear,
+    }
+
+    /// Gradients flattened and put back are the gradients, in place and on the right device; a
+    /// parameter without a gradient stays without one (and a zero block holds its place).
+    #[test]
+    fn flattened_gradients_come_back_as_they_were() {
+        let device = Device::flex().autodiff();
+        let net = Two {
+            used: LinearConfig::new(3, 2).init(&device),
+            unused: LinearConfig::new(2, 4).init(&device),
+        };
+        let x = Tensor::<2>::random([5, 3], Distribution::Uniform(-1.0, 1.0), &device);
+        let loss = net.used.forward(x).powi_scalar(2).sum();
+        let mut grads = GradientsParams::from_grads(loss.backward(), &net);
+        let want_w: Vec<f32> = grads.get::<2>(net.used.weight.id).unwrap().into_data().iter().collect();
+        let want_b: Vec<f32> = grads
+            .get::<1>(net.used.bias.as_ref().unwrap().id)
+            .unwrap()
+            .into_data()
+            .iter()
+            .collect();
+        let layout = Layout::of(&net);
+        assert_eq!((layout.tensors(), layout.values()), (4, 6 + 2 + 8 + 4));
+        let (flat, dev) = flatten(&net, &mut grads);
+        assert_eq!(flat.len(), layout.buffer_len());
+        assert_eq!(&flat[..6], &want_w[..]);
+        assert_eq!(&flat[6..8], &want_b[..]);
+        assert!(flat[8..20].iter().all(|&v| v == 0.0), "the unused layer's block is not zero");
+        assert_eq!(&flat[20..], &[1.0, 1.0, 0.0, 0.0], "presence slots");
+        let back = restore(&net, &flat, &dev.expect("a gradient's device"));
+        let got: Vec<f32> = back.get::<2>(net.used.weight.id).unwrap().into_data().iter().collect();
+        assert_eq!(got, want_w);
+        assert!(back.get::<2>(net.unused.weight.id).is_none(), "a gradient appeared");
+        assert_eq!(back.len(), 2);
+    }
+
+    /// The checksum reads no parameter Burn has not initialised (that would draw it from the
+    /// random source out of turn) and tells weights apart.
+    #[test]
+    fn the_checksum_leaves_lazy_parameters_alone() {
+        let device = Device::flex();
+        let a = LinearConfig::new(3, 2).init(&device);
+        assert!(!a.weight.is_initialized(), "Burn initialises eagerly now: the test has no lazy parameter");
+        let before = checksum(&a);
+        assert!(!a.weight.is_initialized(), "the checksum initialised a parameter");
+        let _ = parameters(&a);
+        assert_ne!(checksum(&a), before, "initialised weights hash like lazy ones");
+        let b = LinearConfig::new(3, 2).init(&device);
+        let _ = parameters(&b);
+        assert_ne!(checksum(&a), checksum(&b));
+        assert_eq!(checksum(&a), checksum(&a.clone()));
+    }
 }

@@ -14,11 +14,12 @@
 //!   one small collective everything agrees through, so that a failure on one rank (a corrupt
 //!   file, a non-finite loss, a signal) stops every rank the same way and none is left waiting.
 //! * [`gradients`]: the gradients flattened in module-visit order into one buffer, summed in
-//!   one all-reduce, and put back before the optimiser's step.
+//!   one all-reduce, and put back before the optimiser's step; [`bench`] times that.
 //!
 //! One process (or an MPI build started without a launcher) never communicates and computes
 //! exactly what a build without MPI computes: the same bytes in `metrics.jsonl` and checkpoints.
 
+pub mod bench;
 pub mod gradients;
 pub mod ranks;
 pub mod share;

@@ -20,6 +20,8 @@ pub struct Outcome {
     pub losses: Losses,
     /// Whether some rank was asked to stop: every rank then checkpoints and stops here.
     pub stop: bool,
+    /// Seconds of this rank's gradient exchange (flatten, all-reduce, put back).
+    pub exchange_seconds: f64,
 }
 
 /// Loss terms in the step's block, in this order.
@@ -124,6 +126,7 @@ pub fn step(
             }
         );
     }
+    let t = std::time::Instant::now();
     let (mut flat, grad_device) = gradients::flatten(&net, &mut grads);
     ranks.sum_f32_in_place(&mut flat);
     if let Some(i) = flat.iter().position(|g| !g.is_finite()) {
@@ -134,6 +137,12 @@ pub fn step(
     }
     let device = grad_device.unwrap_or_else(|| ctx.device.clone().inner());
     let grads = gradients::restore(&net, &flat, &device);
+    let exchange_seconds = t.elapsed().as_secs_f64();
     let net = optim.step(lr, net, grads);
-    Ok(Outcome { net, losses, stop })
+    Ok(Outcome {
+        net,
+        losses,
+        stop,
+        exchange_seconds,
+    })
 }

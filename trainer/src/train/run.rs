@@ -194,6 +194,42 @@ pub fn device_for(name: &str) -> Result<Device> {
     }
 }
 
+/// Which GPU of its machine a rank takes: `MATEDIT_GPU`, else Slurm's `SLURM_LOCALID`, else
+/// the rank among those on its machine.
+pub fn gpu_index(ranks: &Ranks) -> Result<usize> {
+    for var in ["MATEDIT_GPU", "SLURM_LOCALID"] {
+        if let Ok(v) = std::env::var(var) {
+            return v
+                .trim()
+                .parse()
+                .map_err(|_| anyhow::anyhow!("{var} = {v:?}: expected a GPU index (0, 1, …)"));
+        }
+    }
+    Ok(ranks.local_rank())
+}
+
+/// [`device_for`] for one rank of a data-parallel run: on a GPU, the rank's own (see
+/// [`gpu_index`]); with the choice, for the log.
+pub fn device_for_rank(name: &str, ranks: &Ranks) -> Result<(Device, String)> {
+    check_device_name(name).map_err(|e| anyhow::anyhow!(e))?;
+    match name {
+        #[cfg(feature = "wgpu")]
+        "wgpu" if ranks.size() > 1 || std::env::var_os("MATEDIT_GPU").is_some() => {
+            let (d, why) = crate::render::gpu::wgpu_device_at(gpu_index(ranks)?).map_err(|e| anyhow::anyhow!(e))?;
+            Ok((d.autodiff(), why))
+        }
+        #[cfg(feature = "cuda")]
+        "cuda" if ranks.size() > 1 => {
+            let k = gpu_index(ranks)?;
+            Ok((Device::cuda(k).autodiff(), format!("CUDA device {k}")))
+        }
+        _ => {
+            let _ = ranks;
+            Ok((device_for(name)?, String::new()))
+        }
+    }
+}
+
 /// On a GPU device, refuses a run whose sizes Burn's reduction kernels get wrong there (see
 /// `render::gpu::adapter::inexact_reductions`): such a run would train on wrong gradients
 /// without a sign. `MATEDIT_ALLOW_INEXACT_REDUCTIONS=1` trains anyway (a speed measurement).
@@ -322,9 +358,10 @@ pub fn run_as(
     } else {
         Ok(())
     })?;
-    let setup = ranks.agree(set_up(plan, out, resume, root));
+    let setup = ranks.agree(set_up(plan, out, resume, ranks));
     let Setup {
         device,
+        chosen,
         perceptual,
         mut net,
         mut start,
@@ -341,12 +378,13 @@ pub fn run_as(
     }
     if ranks.size() > 1 {
         eprintln!(
-            "rank {} of {} (rank {} of {} on this machine): device {} ({device:?}), {layer_on}",
+            "rank {} of {} (rank {} of {} on this machine): device {} ({device:?}{}), {layer_on}",
             ranks.rank(),
             ranks.size(),
             ranks.local_rank(),
             ranks.local_size(),
-            plan.device.name()
+            plan.device.name(),
+            if chosen.is_empty() { String::new() } else { format!(": {chosen}") }
         );
     } else {
         eprintln!("device {} ({device:?}), {layer_on}", plan.device.name());
@@ -427,10 +465,10 @@ pub fn run_as(
             };
             let in_step = || format!("stage {}, step {}", st.name, step + 1);
             let asked = stop_requested().load(Ordering::SeqCst);
-            let (n, losses, stop) = if ranks.size() == 1 {
+            let (n, losses, stop, exchange) = if ranks.size() == 1 {
                 let batch = batch?;
                 let (n, losses) = train_step(net, &mut optim, lr, &batch, kind, &ctx).with_context(in_step)?;
-                (n, losses, asked)
+                (n, losses, asked, None)
             } else {
                 let at = data_parallel::Rank {
                     ranks,
@@ -438,7 +476,7 @@ pub fn run_as(
                     stop_asked: asked,
                 };
                 let o = data_parallel::step(at, net, &mut optim, lr, batch, kind, &ctx).with_context(in_step)?;
-                (o.net, o.losses, o.stop)
+                (o.net, o.losses, o.stop, Some(o.exchange_seconds))
             };
             net = n;
             step += 1;
@@ -452,7 +490,7 @@ pub fn run_as(
                 losses,
             };
             if let Some(f) = &mut files {
-                f.log(&line, t0.elapsed().as_secs_f64(), st.batch_size, ranks.size())?;
+                f.log(&line, t0.elapsed().as_secs_f64(), st.batch_size, exchange.map(|e| (ranks.size(), e)))?;
             }
             bar.set_message(format!("loss {:.4e}", losses.total));
             bar.inc(1);
@@ -519,16 +557,19 @@ pub fn run_as(
 /// network (fresh, from `run.init_from`, or the latest checkpoint with where it stood).
 struct Setup {
     device: Device,
+    /// Which GPU a rank took, and why (empty where there was no choice).
+    chosen: String,
     perceptual: super::perceptual::Perceptual,
     net: Net,
     start: Option<(State, PathBuf)>,
 }
 
-fn set_up(plan: &TrainPlan, out: &Path, resume: bool, root: bool) -> Result<Setup> {
+fn set_up(plan: &TrainPlan, out: &Path, resume: bool, ranks: &Ranks) -> Result<Setup> {
+    let root = ranks.is_root();
     let m = &plan.manifest;
     let metrics_path = out.join("metrics.jsonl");
     let latest = checkpoint::latest(out)?;
-    let device = device_for(plan.device.name())?;
+    let (device, chosen) = device_for_rank(plan.device.name(), ranks)?;
     check_reductions(plan, &device)?;
     let perceptual = plan.perceptual(&device)?;
     // Where to start: a fresh run, or the latest checkpoint.
@@ -601,6 +642,7 @@ fn set_up(plan: &TrainPlan, out: &Path, resume: bool, root: bool) -> Result<Setu
     }
     Ok(Setup {
         device,
+        chosen,
         perceptual,
         net,
         start,
@@ -628,12 +670,14 @@ impl RunFiles {
         })
     }
 
-    /// A step's line in `metrics.jsonl` and its wall-clock time in `log.jsonl`.
-    fn log(&mut self, line: &MetricsLine, secs: f64, batch: usize, ranks: usize) -> Result<()> {
+    /// A step's line in `metrics.jsonl` and its wall-clock time in `log.jsonl` (with the rank
+    /// count and rank 0's seconds of the gradient exchange in a data-parallel run).
+    fn log(&mut self, line: &MetricsLine, secs: f64, batch: usize, ranks: Option<(usize, f64)>) -> Result<()> {
         writeln!(self.metrics, "{}", serde_json::to_string(line)?)?;
         let mut entry = serde_json::json!({"stage": line.stage, "step": line.step, "seconds": secs, "images_per_second": batch as f64 / secs});
-        if ranks > 1 {
-            entry["ranks"] = ranks.into();
+        if let Some((w, exchange)) = ranks {
+            entry["ranks"] = w.into();
+            entry["exchange_seconds"] = exchange.into();
         }
         writeln!(self.log, "{entry}")?;
         Ok(())

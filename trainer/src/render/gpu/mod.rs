@@ -357,6 +357,37 @@ pub fn wgpu_device() -> Result<Device, String> {
         .clone()
 }
 
+/// The wgpu device of the rank that takes GPU `index` of its machine (data-parallel training):
+/// the `index`-th discrete GPU where wgpu sees several, and the default device where it sees
+/// one or none (a scheduler that gives each task its own GPU shows it only that one). Also
+/// what was chosen, for the run's log.
+pub fn wgpu_device_at(index: usize) -> Result<(Device, String), String> {
+    let discrete: Vec<adapter::Adapter> = adapter::adapters()
+        .into_iter()
+        .filter(|a| a.device_type == "DiscreteGpu" && a.backend == "Vulkan")
+        .collect();
+    if discrete.len() <= 1 {
+        let why = match discrete.first() {
+            Some(a) => format!("the only discrete GPU this task sees, {a}"),
+            None => "the default adapter (no discrete GPU seen)".to_string(),
+        };
+        return wgpu_device().map(|d| (d, why));
+    }
+    let Some(a) = discrete.get(index) else {
+        return Err(format!(
+            "GPU {index} was asked for (MATEDIT_GPU, SLURM_LOCALID or the rank on this machine), but wgpu sees {} \
+             discrete GPUs here",
+            discrete.len()
+        ));
+    };
+    let why = format!("discrete GPU {index} of {}, {a}", discrete.len());
+    Device::wgpu_options()
+        .device_kind(burn::tensor::DeviceKind::DiscreteGpu(index))
+        .init()
+        .map(|d| (d, why))
+        .map_err(|e| format!("cannot open discrete GPU {index}: {e}"))
+}
+
 /// The rendering layer for one environment resolution on one CubeCL device.
 #[derive(Clone, Debug)]
 pub struct DeviceLayer {
