@@ -13,19 +13,29 @@ installed from the registries this project reaches):
      every pod must stop within terminationGracePeriodSeconds; the Job must complete within
      backoffLimit, with the same metrics.jsonl as an uninterrupted run, and its log must carry
      plain progress lines.
+   - train_k8s_mpijob.yaml (an MPIJob of the Kubeflow training operator, data-parallel): its
+     fields are checked against the operator's API (the models of its PyPI SDK,
+     kubeflow-training: a misspelt field fails) and each replica's pod template against
+     Kubernetes' schema; mpirun's rank count must equal Worker replicas × slotsPerWorker. The
+     launcher's command is then run with the MPI trainer (--mpi-trainer), ranks on this machine:
+     SIGTERM to the launcher mid-run (a drain), SIGKILL to a rank (a worker lost), then a run
+     to the end; each restart counts against runPolicy.backoffLimit, and the result must equal
+     a one-process run within the rank tests' tolerance. Skipped, saying so, without the MPI
+     trainer, mpirun or kubeflow-training.
    - datagen_k8s_job.yaml (an Indexed Job): the worker count in the command must equal
      `completions`; shrunk to 4 indices of a small manifest, run all at once (parallelism), and
      again one at a time with index 2 killed between its shards and retried
      (backoffLimitPerIndex); both joined datasets must be byte-identical to a single-process
      run.
 
-    python3 scripts/test_k8s_jobs.py [--trainer PATH] [--datagen PATH] [--keep]
+    python3 scripts/test_k8s_jobs.py [--trainer PATH] [--datagen PATH] [--mpi-trainer PATH] [--keep]
 
 Without PyYAML and kubernetes-validate (pip install kubernetes-validate) it says so and skips.
 """
 
 import argparse
 import hashlib
+import json
 import os
 import pathlib
 import re
@@ -209,6 +219,143 @@ def training_job(job, trainer, root):
         f"{spec.get('backoffLimit')}), completed; metrics.jsonl identical to an uninterrupted run")
 
 
+def check_fields(value, model, where):
+    """`value` (YAML) against a model class of the operator's SDK: every key must be one of the
+    model's fields, recursively for nested models; Kubernetes types are left to validate()."""
+    import kubeflow.training.models as models
+    names = {v: k for k, v in model.attribute_map.items()}
+    for key, v in value.items():
+        if key not in names:
+            fail(f"{where}.{key}: not a field of {model.__name__} ({', '.join(sorted(names))})")
+        kind = model.openapi_types[names[key]]
+        m = re.fullmatch(r"dict\(str, (\w+)\)", kind)
+        if m and hasattr(models, m.group(1)):
+            for k, item in v.items():
+                check_fields(item, getattr(models, m.group(1)), f"{where}.{key}.{k}")
+        elif hasattr(models, kind):
+            check_fields(v, getattr(models, kind), f"{where}.{key}")
+        elif kind in ("int", "str", "bool") and not isinstance(v, {"int": int, "str": str, "bool": bool}[kind]):
+            fail(f"{where}.{key}: {v!r} is not a {kind}")
+
+
+def mpijob(job, mpi_trainer, root):
+    """Checks the MPIJob and runs its launcher's command (see the module documentation)."""
+    try:
+        import kubeflow.training.models as models
+    except ImportError as e:
+        say(f"MPIJob skipped: {e} (pip install kubeflow-training)")
+        return
+    if (job.get("apiVersion"), job.get("kind")) != ("kubeflow.org/v1", "MPIJob"):
+        fail("train_k8s_mpijob.yaml is not a kubeflow.org/v1 MPIJob")
+    check_fields(job["spec"], models.KubeflowOrgV1MPIJobSpec, "spec")
+    specs = job["spec"]["mpiReplicaSpecs"]
+    if set(specs) != {"Launcher", "Worker"}:
+        fail(f"mpiReplicaSpecs has {sorted(specs)}, not Launcher and Worker")
+    validate({f"the MPIJob's {role} pod template": {"apiVersion": "v1", "kind": "PodTemplate",
+                                                     "metadata": {"name": role.lower()},
+                                                     "template": spec["template"]}
+              for role, spec in specs.items()})
+    launcher = specs["Launcher"]
+    (container,) = launcher["template"]["spec"]["containers"]
+    command = container["command"]
+    if pathlib.PurePath(command[0]).name != "mpirun_preemptible.sh":
+        fail(f"the launcher does not run scripts/mpirun_preemptible.sh: {command}")
+    np_ = int(command[command.index("-np") + 1])
+    slots = specs["Worker"]["replicas"] * job["spec"].get("slotsPerWorker", 1)
+    if np_ != slots:
+        fail(f"mpirun starts {np_} ranks, the workers have {slots} slots")
+    t = command.index("trainer")
+    if command[t + 1] != "run" or "--resume" not in command:
+        fail(f"the launcher's command does not run `trainer run ... --resume`: {command}")
+    if mpi_trainer is None or not mpi_trainer.is_file() or shutil.which("mpirun") is None:
+        say("MPIJob: fields and pod templates valid; its run skipped: no MPI trainer (--mpi-trainer) or mpirun")
+        return
+    (mount,) = container["volumeMounts"]
+    volume = root / "mpi-volume"
+    volume.mkdir()
+    manifest = root / "train-mpi.toml"
+    # 200 steps: within the rank tests' tolerance of one process (see scripts/test_slurm.sh).
+    manifest.write_text(TRAINING.replace("@DATASET@", str(root / "data")).replace(
+        "steps = 150\nbatch_size = 4\nlearning_rate = [[0, 1e-4]]", "steps = 50\nbatch_size = 4\nlearning_rate = [[0, 1e-4]]"))
+    ranks = 2
+    paths = [(command[t + 2], str(manifest)), (mount["mountPath"], str(volume))]
+    argv = ([str(REPO / "scripts" / "mpirun_preemptible.sh"), "-np", str(ranks)]
+            + [mapped(a, paths) for a in command[3:t]] + [str(mpi_trainer)]
+            + [mapped(a, paths) for a in command[t + 1:]])
+    out = pathlib.Path(argv[argv.index("--out") + 1])
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1", MATEDIT_PROGRESS_SECS="1")
+    grace = launcher["template"]["spec"].get("terminationGracePeriodSeconds", 30)
+    reference = root / "train-mpi-ref"
+    r = subprocess.run([str(mpi_trainer), "run", str(manifest), "--out", str(reference), "--quiet"],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        fail(f"the one-process training run failed: {r.stderr[-500:]}")
+    metrics = out / "metrics.jsonl"
+    limit = job["spec"].get("runPolicy", {}).get("backoffLimit", 6)
+    restarts = 0
+    for what, after in [("SIGTERM to the launcher", 40), ("SIGKILL to rank 1", 120), (None, None)]:
+        log = root / f"mpijob-launcher-{restarts + 1}.log"
+        with open(log, "w") as f:
+            proc = subprocess.Popen(argv, env=env, stdout=f, stderr=subprocess.STDOUT, start_new_session=True)
+            if what is not None:
+                wait_for_lines(metrics, after, proc, f"launcher {restarts + 1}")
+                sent = time.time()
+                if what.startswith("SIGTERM"):
+                    proc.send_signal(signal.SIGTERM)
+                else:
+                    rank = next((p for p in pathlib.Path("/proc").iterdir() if p.name.isdigit()
+                                 and str(out) in (p / "cmdline").read_bytes().decode(errors="replace")
+                                 and b"OMPI_COMM_WORLD_RANK=1\0" in _environ(p)), None)
+                    if rank is None:
+                        fail("rank 1's process was not found")
+                    os.kill(int(rank.name), signal.SIGKILL)
+                try:
+                    proc.wait(timeout=grace)
+                except subprocess.TimeoutExpired:
+                    teardown(proc)
+                    fail(f"the launcher did not stop within {grace} s after {what}")
+                say(f"MPIJob launcher {restarts + 1}: {what} after {after} steps, stopped in "
+                    f"{time.time() - sent:.1f} s, exit code {exit_code(proc.returncode)}")
+            else:
+                proc.wait()
+            teardown(proc)
+        code = exit_code(proc.returncode)
+        if what is not None and what.startswith("SIGTERM") and code != 75:
+            fail(f"the launcher exited {code} after SIGTERM, not 75 (checkpoint written): {log.read_text()[-800:]}")
+        if code == 0:
+            break
+        restarts += 1
+        if restarts > limit:
+            fail(f"the MPIJob failed: {restarts} restarts > runPolicy.backoffLimit {limit}")
+    else:
+        fail("the MPIJob did not complete")
+    for name in out.joinpath("checkpoints").iterdir():
+        if name.name.startswith(".") or "tmp" in name.name:
+            fail(f"a partial checkpoint was left: {name}")
+    a = [json.loads(l) for l in (reference / "metrics.jsonl").read_text().splitlines()]
+    b = [json.loads(l) for l in metrics.read_text().splitlines()]
+    if len(a) != len(b):
+        fail(f"the MPIJob logged {len(b)} steps, one process {len(a)}")
+    worst = 0.0
+    for x, y in zip(a, b):
+        for k, v in x["losses"].items():
+            w = y["losses"][k]
+            d = abs(v - w) / max(abs(v), abs(w), 1e-30)
+            if d > 1e-4 and abs(v - w) > 1e-9:
+                fail(f"{k} at {x['stage']}/{x['step']}: {v} (one process) against {w} ({ranks} ranks)")
+            worst = max(worst, d)
+    say(f"MPIJob: {ranks} ranks, preempted and a rank killed, {restarts} restarts (backoffLimit {limit}), "
+        f"completed; {len(b)} steps equal to one process (worst relative difference {worst:.1e})")
+
+
+def _environ(proc_dir):
+    try:
+        return (proc_dir / "environ").read_bytes() + b"\0"
+    except OSError:
+        return b""
+
+
 def datagen_job(job, datagen, root):
     spec = job["spec"]
     if spec.get("completionMode") != "Indexed":
@@ -302,6 +449,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trainer", default=REPO / "target/release/trainer", type=pathlib.Path)
     ap.add_argument("--datagen", default=REPO / "target/release/datagen", type=pathlib.Path)
+    ap.add_argument("--mpi-trainer", default=REPO / "target/mpi/trainer", type=pathlib.Path,
+                    help="a trainer built with --features mpi, for the MPIJob")
     ap.add_argument("--keep", action="store_true", help="keep the temporary folder")
     a = ap.parse_args()
     try:
@@ -316,6 +465,7 @@ def main():
     docs = {name: yaml.safe_load((REPO / "scripts" / name).read_text())
             for name in ("train_k8s_job.yaml", "datagen_k8s_job.yaml")}
     validate(docs)
+    mpi = yaml.safe_load((REPO / "scripts" / "train_k8s_mpijob.yaml").read_text())
     root = pathlib.Path(tempfile.mkdtemp(prefix="matedit-k8s."))
     try:
         (root / "data.toml").write_text(DATASET)
@@ -325,6 +475,7 @@ def main():
             fail(f"the single-process dataset: {r.stderr[-500:]}")
         datagen_job(docs["datagen_k8s_job.yaml"], a.datagen.resolve(), root)
         training_job(docs["train_k8s_job.yaml"], a.trainer.resolve(), root)
+        mpijob(mpi, a.mpi_trainer.resolve() if a.mpi_trainer.is_file() else None, root)
     finally:
         if a.keep:
             say(f"kept {root}")
