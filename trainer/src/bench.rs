@@ -350,7 +350,7 @@ pub fn manifest_training(
         perceptual: &perceptual,
         device: &device,
     };
-    let mut data = crate::train::run::open_dataset_stream(plan, si, 0, crate::data::Part::WHOLE)?;
+    let mut data = crate::train::stream::open_dataset_stream(plan, si, 0, crate::data::Part::WHOLE)?;
     let mut next = || data.next_batch();
     let (net, warmup_steps, (object_pixels, shaded_fraction)) = match checkpoint {
         Some(dir) => {

@@ -9,7 +9,8 @@ use crate::eval::{EvalOptions, evaluate};
 use crate::parallel::Ranks;
 use crate::targets::{material_from_prediction, normalised_target};
 use crate::train::manifest;
-use crate::train::run::{Preempted, open_dataset_stream, run_as, stop_requested};
+use crate::train::run::{Preempted, run_as, stop_requested};
+use crate::train::stream::open_dataset_stream;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use matedit_contract::args::{count_in, finite_in};
@@ -227,8 +228,8 @@ fn bench_ranks(widths: &str, size: usize, runs: usize) -> Result<()> {
     use crate::model::Widths;
     use crate::model::network::NetConfig;
     let ranks = Ranks::from_environment()?;
-    let w = Widths::preset(widths)
-        .with_context(|| format!("--widths {widths:?}: unknown ({})", Widths::preset_names()))?;
+    let w =
+        Widths::preset(widths).with_context(|| format!("--widths {widths:?}: unknown ({})", Widths::preset_names()))?;
     let device = burn::tensor::Device::flex();
     let net = NetConfig::new(size, w).init(&device);
     let r = crate::parallel::bench::measure(&ranks, &net, &device, runs);

@@ -218,7 +218,10 @@ mod tests {
         assert_eq!(flat.len(), layout.buffer_len());
         assert_eq!(&flat[..6], &want_w[..]);
         assert_eq!(&flat[6..8], &want_b[..]);
-        assert!(flat[8..20].iter().all(|&v| v == 0.0), "the unused layer's block is not zero");
+        assert!(
+            flat[8..20].iter().all(|&v| v == 0.0),
+            "the unused layer's block is not zero"
+        );
         assert_eq!(&flat[20..], &[1.0, 1.0, 0.0, 0.0], "presence slots");
         let back = restore(&net, &flat, &dev.expect("a gradient's device"));
         let got: Vec<f32> = back.get::<2>(net.used.weight.id).unwrap().into_data().iter().collect();
@@ -233,7 +236,10 @@ mod tests {
     fn the_checksum_leaves_lazy_parameters_alone() {
         let device = Device::flex();
         let a = LinearConfig::new(3, 2).init(&device);
-        assert!(!a.weight.is_initialized(), "Burn initialises eagerly now: the test has no lazy parameter");
+        assert!(
+            !a.weight.is_initialized(),
+            "Burn initialises eagerly now: the test has no lazy parameter"
+        );
         let before = checksum(&a);
         assert!(!a.weight.is_initialized(), "the checksum initialised a parameter");
         let _ = parameters(&a);

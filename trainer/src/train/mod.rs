@@ -12,6 +12,7 @@ pub mod perceptual;
 pub mod plot;
 pub mod run;
 pub mod step;
+pub mod stream;
 pub mod synthetic;
 #[cfg(test)]
 mod tests;

@@ -1,20 +1,24 @@
 //! `trainer run MANIFEST`: the stages of a training manifest, in order, with checkpoints,
 //! `--resume`, metrics and loss curves.
 //!
-//! Reproducibility: the network is initialised from the run seed; every step re-seeds Burn's
-//! random source from (seed, stage, step) before its forward pass (dropout), and the data stream
-//! of a stage is a pure function of (seed, stage, position). A resumed run therefore continues
-//! with exactly the batches, dropout masks and optimiser state an uninterrupted run would have
-//! had, and writes the same `metrics.jsonl` (wall-clock times live in `log.jsonl`, not in the
-//! metrics).
+//! Reproducibility: every step re-seeds Burn's random source from (seed, stage, step) before
+//! its forward pass (dropout; and the first step's forward draws the fresh network's weights,
+//! which Burn initialises lazily, at their first use), and the data stream of a stage is a
+//! pure function of (seed, stage, position). A resumed run therefore continues with exactly the
+//! batches, dropout masks and optimiser state an uninterrupted run would have had, and writes
+//! the same `metrics.jsonl` (wall-clock times live in `log.jsonl`, not in the metrics).
+//!
+//! As W ranks ([`run_as`], `crate::parallel`) every rank makes the same draws in the same order
+//! (dropout draws the global batch's masks), so the W-rank run is the one-process run up to the
+//! order of its sums.
 
 use super::checkpoint::{self, State};
 use super::data_parallel;
 use super::manifest::{TrainPlan, check_device_name};
 use super::plot::MetricsLine;
 use super::step::{StepContext, StepKind, train_step};
-use crate::data;
-use crate::data::{Dataset, Epochs, Loader, LoaderConfig, OnCorrupt, Part};
+use super::stream::OpenStream;
+use crate::data::Part;
 use crate::model::network::Net;
 use crate::parallel::{Ranks, gradients};
 use crate::render::RenderingLayer;
@@ -29,139 +33,6 @@ use std::path::{Path, PathBuf};
 use std::rc::Rc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
-
-/// A stream of training batches that can be positioned (for resume).
-pub trait BatchSource {
-    /// The next batch.
-    fn next_batch(&mut self) -> Result<data::Batch>;
-    /// Position of the next sample in the stream.
-    fn position(&self) -> u64;
-    /// What the ranks of a data-parallel run compare before they train on the stream: a
-    /// checksum of its dataset, and how to name it.
-    fn identity(&self) -> Option<(String, [u8; 32])> {
-        None
-    }
-}
-
-/// Opens the data stream of stage `stage` at `position`, reading `part` of every batch.
-pub type OpenStream<'a> = dyn Fn(&TrainPlan, usize, u64, Part) -> Result<Box<dyn BatchSource>> + 'a;
-
-/// The training stream of a stage from its dataset: shuffled from (run seed, stage), endless,
-/// decoded in the background, positioned for resume.
-pub struct DatasetStream {
-    loader: Loader,
-    reported: usize,
-    identity: (String, [u8; 32]),
-}
-
-impl DatasetStream {
-    /// Opens stage `stage`'s dataset and split at stream `position` (reading `part` of every
-    /// batch), checking that its images and environments have the network's sizes.
-    pub fn open(plan: &TrainPlan, stage: usize, position: u64, part: Part) -> Result<Self> {
-        let st = plan.manifest.stages[stage].get_ref();
-        let dir = plan.stage_dataset(stage)?;
-        let dataset = std::sync::Arc::new(Dataset::open(&dir)?);
-        let records = dataset.split(&st.split).with_context(|| {
-            format!(
-                "{}: stage {}: the dataset {} has no split {:?} (splits: {})",
-                plan.path.display(),
-                st.name,
-                dir.display(),
-                st.split,
-                dataset.split_names().join(", ")
-            )
-        })?;
-        // The first readable sample gives the sizes; under `on_corrupt = "skip"` an unreadable
-        // one is passed over here too (the loader skips and reports it when it comes up).
-        let mut first = None;
-        for r in records {
-            match dataset.try_load(r, false) {
-                Ok(s) => {
-                    first = Some(s);
-                    break;
-                }
-                Err(_) if plan.skip_corrupt => continue,
-                Err(e) => return Err(e.into()),
-            }
-        }
-        if let Some(s) = first
-            && (s.size != plan.net.input_size || s.env_height != plan.net.env_height)
-        {
-            bail!(
-                "{}: stage {}: the dataset {} has {}² images with {}×{} environments, but [model] asks for \
-                 input_size = {} and env_height = {} (set them to the dataset's, or render the dataset at that size)",
-                plan.path.display(),
-                st.name,
-                dir.display(),
-                s.size,
-                s.env_height,
-                2 * s.env_height,
-                plan.net.input_size,
-                plan.net.env_height
-            );
-        }
-        let d = &plan.manifest.data;
-        let seed = blake3::hash(format!("{}/data/{stage}", plan.manifest.run.seed).as_bytes());
-        let config = LoaderConfig {
-            seed: u64::from_le_bytes(seed.as_bytes()[..8].try_into().unwrap_or([0; 8])),
-            shuffle: true,
-            shuffle_buffer: d.shuffle_buffer,
-            batch_size: st.batch_size,
-            workers: d.workers,
-            prefetch: 2,
-            on_corrupt: if plan.skip_corrupt {
-                OnCorrupt::Skip
-            } else {
-                OnCorrupt::Stop
-            },
-            verify_checksums: d.verify_checksums,
-            epochs: Epochs::Infinite,
-            start_position: position,
-            part,
-        };
-        // The dataset's record names its index's checksum: one hash covers both.
-        let record = std::fs::read(dir.join("dataset.json"))
-            .with_context(|| format!("cannot read {}", dir.join("dataset.json").display()))?;
-        let identity = (
-            format!("the dataset {}", dir.display()),
-            *blake3::hash(&record).as_bytes(),
-        );
-        Ok(Self {
-            loader: Loader::new(dataset, &st.split, config)?,
-            reported: 0,
-            identity,
-        })
-    }
-}
-
-impl BatchSource for DatasetStream {
-    fn next_batch(&mut self) -> Result<data::Batch> {
-        let b = self.loader.next_batch().context("the training stream ended")??;
-        for s in &self.loader.skipped()[self.reported..] {
-            eprintln!(
-                "warning: skipped corrupt sample {} ({}: {})",
-                s.id,
-                s.file.display(),
-                s.reason
-            );
-        }
-        self.reported = self.loader.skipped().len();
-        Ok(b)
-    }
-
-    fn position(&self) -> u64 {
-        self.loader.position()
-    }
-
-    fn identity(&self) -> Option<(String, [u8; 32])> {
-        Some(self.identity.clone())
-    }
-}
-
-/// [`OpenStream`] over the stages' datasets.
-pub fn open_dataset_stream(plan: &TrainPlan, stage: usize, position: u64, part: Part) -> Result<Box<dyn BatchSource>> {
-    Ok(Box::new(DatasetStream::open(plan, stage, position, part)?))
-}
 
 /// What a finished run produced.
 #[derive(Clone, Debug)]
@@ -384,7 +255,11 @@ pub fn run_as(
             ranks.local_rank(),
             ranks.local_size(),
             plan.device.name(),
-            if chosen.is_empty() { String::new() } else { format!(": {chosen}") }
+            if chosen.is_empty() {
+                String::new()
+            } else {
+                format!(": {chosen}")
+            }
         );
     } else {
         eprintln!("device {} ({device:?}), {layer_on}", plan.device.name());
@@ -490,7 +365,12 @@ pub fn run_as(
                 losses,
             };
             if let Some(f) = &mut files {
-                f.log(&line, t0.elapsed().as_secs_f64(), st.batch_size, exchange.map(|e| (ranks.size(), e)))?;
+                f.log(
+                    &line,
+                    t0.elapsed().as_secs_f64(),
+                    st.batch_size,
+                    exchange.map(|e| (ranks.size(), e)),
+                )?;
             }
             bar.set_message(format!("loss {:.4e}", losses.total));
             bar.inc(1);
