@@ -21,8 +21,10 @@ if ! command -v slurmctld >/dev/null || ! command -v munged >/dev/null; then
 fi
 [ "$(id -u)" = 0 ] || skip "needs root to start slurmd"
 cargo build --release --quiet -p matedit-datagen -p matedit-trainer --bins
-dg=$repo/target/release/datagen
-tr=$repo/target/release/trainer
+target=${CARGO_TARGET_DIR:-$repo/target}
+case $target in /*) ;; *) target=$repo/$target ;; esac
+dg=$target/release/datagen
+tr=$target/release/trainer
 
 root=$(mktemp -d /tmp/matedit-slurm.XXXXXX)
 pids=()
@@ -210,7 +212,7 @@ done
 # --- data-parallel training: 2 tasks (MPI ranks under srun --mpi=pmix) -----------------------------
 # Needs a trainer built with `--features mpi` (MPI_TRAINER, default target/mpi/trainer, which
 # .ci/run builds) and Slurm's PMIx plugin; skipped, saying so, without them.
-mpi_trainer=${MPI_TRAINER:-$repo/target/mpi/trainer}
+mpi_trainer=${MPI_TRAINER:-$target/mpi/trainer}
 if [ ! -x "$mpi_trainer" ]; then
   echo "test_slurm: 2-task training skipped: no MPI trainer at $mpi_trainer (cargo build --release -p matedit-trainer --features mpi)" >&2
 elif ! srun --mpi=list 2>&1 | grep -q pmix; then

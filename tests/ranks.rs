@@ -447,6 +447,14 @@ fn bad_input_is_refused_by_every_rank_with_one_message() {
         &mut train(&bin, 3, &m, &out("indivisible"), false),
         &["b4-three.toml:", "stages[0].batch_size = 4", "3 ranks"],
     );
+    // Skipping corrupt samples, which a rank cannot do for another's part of a batch.
+    let skip = manifest("b4-skip.toml", 4, &data());
+    let text = std::fs::read_to_string(&skip).unwrap().replace("workers = 1", "workers = 1\non_corrupt = \"skip\"");
+    std::fs::write(&skip, text).unwrap();
+    refused(
+        &mut train(&bin, 2, &skip, &out("skip"), false),
+        &["rank 0 of 2", "cannot be skipped", "on_corrupt"],
+    );
     // Two ranks with different manifests (MPMD: one program per rank).
     let other = manifest("b4-other.toml", 4, &data()).with_file_name("b4-other.toml");
     let std_m = manifest("b4-std.toml", 4, &data());
