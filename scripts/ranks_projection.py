@@ -13,7 +13,7 @@ cannot be handed to NCCL or a CUDA-aware MPI.
 Weak scaling: every GPU keeps its batch (the global batch grows with N), so the compute per
 step is the one-device step. Strong scaling (the global batch fixed) is printed too.
 
-    python3 scripts/ranks_projection.py --step 0.93 --batch 16 --buffer-mib 256.6 --here-ms 295.6 --memcpy-here 11.8
+    python3 scripts/ranks_projection.py --step 0.93 --batch 16 --buffer-mib 256.6 --here-ms 267.0 --memcpy-here 13.4
 """
 import argparse
 
@@ -25,7 +25,7 @@ def main():
     ap.add_argument("--buffer-mib", type=float, required=True, help="the gradient buffer (bench-ranks)")
     ap.add_argument("--here-ms", type=float, required=True, help="the 2-rank all-reduce measured here, ms")
     ap.add_argument("--memcpy-here", type=float, required=True, help="this machine's memcpy, GB/s")
-    ap.add_argument("--node-memcpy", type=float, nargs="+", default=[11.8, 75.0],
+    ap.add_argument("--node-memcpy", type=float, nargs="+", default=[13.4, 75.0, 150.0],
                     help="a node's memcpy bandwidth per rank, GB/s (one projection each)")
     ap.add_argument("--link", type=float, default=12.5, help="the network link, GB/s (100 Gb/s: 12.5)")
     ap.add_argument("--pcie", type=float, default=25.0, help="GPU↔host copies, GB/s (PCIe 4.0 x16: about 25)")

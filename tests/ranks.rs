@@ -449,7 +449,9 @@ fn bad_input_is_refused_by_every_rank_with_one_message() {
     );
     // Skipping corrupt samples, which a rank cannot do for another's part of a batch.
     let skip = manifest("b4-skip.toml", 4, &data());
-    let text = std::fs::read_to_string(&skip).unwrap().replace("workers = 1", "workers = 1\non_corrupt = \"skip\"");
+    let text = std::fs::read_to_string(&skip)
+        .unwrap()
+        .replace("workers = 1", "workers = 1\non_corrupt = \"skip\"");
     std::fs::write(&skip, text).unwrap();
     refused(
         &mut train(&bin, 2, &skip, &out("skip"), false),
