@@ -275,8 +275,12 @@ def mpijob(job, mpi_trainer, root):
     volume.mkdir()
     manifest = root / "train-mpi.toml"
     # 200 steps: within the rank tests' tolerance of one process (see scripts/test_slurm.sh).
-    manifest.write_text(TRAINING.replace("@DATASET@", str(root / "data")).replace(
-        "steps = 150\nbatch_size = 4\nlearning_rate = [[0, 1e-4]]", "steps = 50\nbatch_size = 4\nlearning_rate = [[0, 1e-4]]"))
+    text = TRAINING.replace("@DATASET@", str(root / "data"))
+    short = text.replace("steps = 150\nbatch_size = 4\nlearning_rate = [[0, 1e-4]]",
+                         "steps = 50\nbatch_size = 4\nlearning_rate = [[0, 1e-4]]")
+    if short == text:
+        fail("the joint stage of tests/fixtures/manifests/jobs-training.toml was not shortened (did it change?)")
+    manifest.write_text(short)
     ranks = 2
     paths = [(command[t + 2], str(manifest)), (mount["mountPath"], str(volume))]
     argv = ([str(REPO / "scripts" / "mpirun_preemptible.sh"), "-np", str(ranks)]
@@ -305,8 +309,8 @@ def mpijob(job, mpi_trainer, root):
                     proc.send_signal(signal.SIGTERM)
                 else:
                     rank = next((p for p in pathlib.Path("/proc").iterdir() if p.name.isdigit()
-                                 and str(out) in (p / "cmdline").read_bytes().decode(errors="replace")
-                                 and b"OMPI_COMM_WORLD_RANK=1\0" in _environ(p)), None)
+                                 and str(out) in _read(p / "cmdline").decode(errors="replace")
+                                 and b"OMPI_COMM_WORLD_RANK=1\0" in _read(p / "environ") + b"\0"), None)
                     if rank is None:
                         fail("rank 1's process was not found")
                     os.kill(int(rank.name), signal.SIGKILL)
@@ -318,7 +322,11 @@ def mpijob(job, mpi_trainer, root):
                 say(f"MPIJob launcher {restarts + 1}: {what} after {after} steps, stopped in "
                     f"{time.time() - sent:.1f} s, exit code {exit_code(proc.returncode)}")
             else:
-                proc.wait()
+                try:
+                    proc.wait(timeout=600)
+                except subprocess.TimeoutExpired:
+                    teardown(proc)
+                    fail(f"the last launcher did not finish within 10 minutes (hung ranks?): {log}")
             teardown(proc)
         code = exit_code(proc.returncode)
         if what is not None and what.startswith("SIGTERM") and code != 75:
@@ -339,6 +347,8 @@ def mpijob(job, mpi_trainer, root):
         fail(f"the MPIJob logged {len(b)} steps, one process {len(a)}")
     worst = 0.0
     for x, y in zip(a, b):
+        if (x["stage"], x["step"]) != (y["stage"], y["step"]):
+            fail(f"line {x['global_step']}: {x['stage']}/{x['step']} (one process) against {y['stage']}/{y['step']}")
         for k, v in x["losses"].items():
             w = y["losses"][k]
             d = abs(v - w) / max(abs(v), abs(w), 1e-30)
@@ -349,9 +359,10 @@ def mpijob(job, mpi_trainer, root):
         f"completed; {len(b)} steps equal to one process (worst relative difference {worst:.1e})")
 
 
-def _environ(proc_dir):
+def _read(path):
+    """A /proc file, or nothing where its process has gone."""
     try:
-        return (proc_dir / "environ").read_bytes() + b"\0"
+        return path.read_bytes()
     except OSError:
         return b""
 

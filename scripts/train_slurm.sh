@@ -35,15 +35,24 @@ if [ "${SLURM_NTASKS:-1}" -gt 1 ]; then
   [ -n "${SLURM_GPUS_PER_TASK:-}" ] && launch+=(--gpus-per-task="$SLURM_GPUS_PER_TASK")
   echo "job ${SLURM_JOB_ID:-?}: $SLURM_NTASKS ranks: ${launch[*]}" >&2
 fi
-"${launch[@]}" "$trainer" run "$manifest" --out "$out" --resume &
+# (`${a[@]+"${a[@]}"}`: an empty array under `set -u` on bash before 4.4.)
+${launch[@]+"${launch[@]}"} "$trainer" run "$manifest" --out "$out" --resume &
 pid=$!
-trap 'kill -USR1 "$pid" 2>/dev/null' USR1 TERM
+asked=0
+trap 'asked=1; kill -USR1 "$pid" 2>/dev/null' USR1 TERM
 # `wait` returns early when a trapped signal arrives; wait again until the trainer has exited.
 while :; do
   wait "$pid"
   status=$?
   kill -0 "$pid" 2>/dev/null || break
 done
+# Several tasks: every rank exits 75 once rank 0 has written the checkpoint, but srun's
+# --kill-on-bad-exit may kill a slower rank first (status 128 + 9 or 15): after our own stop
+# request that is the same preemption.
+if [ "$status" != 75 ] && [ "$asked" = 1 ] && [ "${#launch[@]}" -gt 0 ] && { [ "$status" = 137 ] || [ "$status" = 143 ]; }; then
+  echo "job ${SLURM_JOB_ID:-?}: srun ended with $status after the stop request; the checkpoint was written first" >&2
+  status=75
+fi
 if [ "$status" = 75 ]; then
   echo "job ${SLURM_JOB_ID:-?}: checkpoint written on the signal; requeueing" >&2
   if [ -n "${SLURM_JOB_ID:-}" ] && scontrol requeue "$SLURM_JOB_ID"; then

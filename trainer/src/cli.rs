@@ -315,7 +315,7 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
                     .context("cannot install the SIGTERM/SIGUSR1 handler")?;
             }
             let ranks = std::rc::Rc::new(Ranks::from_environment()?);
-            let threads = crate::parallel::ranks::set_threads(&ranks)?;
+            let threads = ranks.agree(crate::parallel::ranks::set_threads(&ranks))?;
             // Every rank reads the manifest; a rank that cannot is named on all of them.
             let plan = ranks.agree(manifest::load(&path).map_err(anyhow::Error::from))?;
             if ranks.size() > 1 && ranks.is_root() {
@@ -446,6 +446,12 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
     Ok(())
 }
 
+/// A line on stderr in one write, so that several ranks' lines reach a launcher's log whole.
+fn say(line: &str) {
+    use std::io::Write;
+    let _ = std::io::stderr().write_all(format!("{line}\n").as_bytes());
+}
+
 /// `trainer run`'s status when it stopped on a signal after writing a checkpoint (EX_TEMPFAIL:
 /// try again), which `scripts/train_slurm.sh` turns into a requeue.
 pub const EXIT_PREEMPTED: u8 = 75;
@@ -456,11 +462,11 @@ pub fn main(alloc: Option<&PeakAlloc>) -> ExitCode {
     match run(Cli::parse(), alloc) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) if e.downcast_ref::<Preempted>().is_some() => {
-            eprintln!("{e:#}");
+            say(&format!("{e:#}"));
             ExitCode::from(EXIT_PREEMPTED)
         }
         Err(e) => {
-            eprintln!("error: {e:#}");
+            say(&format!("error: {e:#}"));
             ExitCode::FAILURE
         }
     }

@@ -82,7 +82,9 @@ impl Ranks {
                 local_size: world.local_size,
                 mpi: (world.size > 1).then_some(world),
             };
-            check_slurm_tasks(ranks.size)?;
+            if ranks.size > 1 {
+                install_abort_on_panic(ranks.rank, ranks.size);
+            }
             return Ok(ranks);
         }
         #[cfg(not(feature = "mpi"))]
@@ -95,7 +97,11 @@ impl Ranks {
                 world_size_of_launcher()
             );
         }
-        check_slurm_tasks(1)?;
+        // Under a launcher the world is what it says (mpirun inside a Slurm allocation starts
+        // its own daemons through srun, whose task count is then the node count).
+        if launched.is_none() {
+            check_slurm_tasks()?;
+        }
         Ok(Ranks::single())
     }
 
@@ -191,7 +197,9 @@ impl Ranks {
             .collect();
         let Some(&first) = failed.first() else {
             return anyhow!(
-                "the ranks lost step with each other (no rank reported an error); the last checkpoint is intact"
+                "the ranks lost step with each other and no rank reported an error: they do not run the same \
+                 computation (a different build, or an environment variable that differs between ranks and changes \
+                 the run, such as VGG16_WEIGHTS); the last checkpoint is intact"
             );
         };
         let text = mine.map(|e| format!("{e:#}")).unwrap_or_default();
@@ -318,21 +326,35 @@ fn world_size_of_launcher() -> usize {
         .unwrap_or(1)
 }
 
-/// A Slurm step of several tasks whose processes MPI did not join would train W copies of
-/// the run into one folder.
-fn check_slurm_tasks(world: usize) -> Result<()> {
+/// A Slurm step of several tasks that no MPI launcher joined (`srun -n N` without
+/// `--mpi=pmix`) would train N copies of the run into one folder.
+fn check_slurm_tasks() -> Result<()> {
     let tasks: usize = std::env::var("SLURM_STEP_NUM_TASKS")
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(1);
-    if tasks > 1 && world != tasks {
+    if tasks > 1 {
         anyhow::bail!(
-            "srun started {tasks} tasks but MPI sees {world} rank{}: launch with `srun --mpi=pmix` and a trainer \
-             built with `--features mpi` (scripts/train_slurm.sh does both)",
-            if world == 1 { "" } else { "s" }
+            "srun started {tasks} tasks but no MPI launcher joined them: launch with `srun --mpi=pmix` and a trainer \
+             built with `--features mpi` (scripts/train_slurm.sh does both)"
         );
     }
     Ok(())
+}
+
+/// A panic on one rank must end the job: unwinding would finalise MPI while the other ranks
+/// wait in a collective, and the job would hang. After the usual message the process aborts,
+/// which `mpirun` and `srun --kill-on-bad-exit` turn into the end of every rank.
+#[cfg(feature = "mpi")]
+fn install_abort_on_panic(rank: usize, size: usize) {
+    let report = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        report(info);
+        eprintln!(
+            "rank {rank} of {size} panicked: ending the job (the last checkpoint is intact; resume with --resume)"
+        );
+        std::process::abort();
+    }));
 }
 
 #[cfg(feature = "mpi")]

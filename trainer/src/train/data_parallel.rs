@@ -66,8 +66,8 @@ pub struct Rank<'a> {
     pub ranks: &'a Rc<Ranks>,
     /// Samples of the global batch (the stage's `batch_size`).
     pub global: usize,
-    /// Whether this rank was asked to stop (SIGTERM, SIGUSR1).
-    pub stop_asked: bool,
+    /// Set when this rank is asked to stop (SIGTERM, SIGUSR1); read at the end of the step.
+    pub stop_asked: &'a std::sync::atomic::AtomicBool,
 }
 
 /// One step of rank `at.ranks.rank()` on its slice `batch` (or its error reading it) of the
@@ -96,14 +96,22 @@ pub fn step(
         let _in = share::enter(slice.clone());
         losses_and_gradients(&net, &batch, kind, ctx)
     };
-    let (losses, mut grads) = result.map_err(|e| ranks.fail(e))?;
+    // After a divergence the other ranks are resolving it already: join them.
+    let (losses, mut grads) = result.map_err(|e| {
+        if slice.diverged() {
+            ranks.resolve(Some(e))
+        } else {
+            ranks.fail(e)
+        }
+    })?;
     if slice.diverged() {
         return Err(ranks.resolve(None));
     }
     // The step's block: the loss terms, then a flag per reason to stop.
     let r = ranks.rank();
     let mut block = terms(&losses).to_vec();
-    block.push(f64::from(u8::from(at.stop_asked)));
+    let stop_asked = at.stop_asked.load(std::sync::atomic::Ordering::SeqCst);
+    block.push(f64::from(u8::from(stop_asked)));
     let not_finite = !losses.total.is_finite();
     // Which ranks' losses are not finite, as bits (exact in f64 for the first 52 ranks).
     block.push(if not_finite && r < 52 { (r as f64).exp2() } else { 0.0 });

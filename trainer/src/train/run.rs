@@ -212,9 +212,9 @@ pub fn run_as(
 ) -> Result<RunSummary> {
     let root = ranks.is_root();
     let quiet = quiet || !root;
-    check_batches(plan, ranks)?;
     let what = format!("the manifest {}", plan.path.display());
     ranks.same_as_root(&what, blake3::hash(plan.text.as_bytes()).as_bytes())?;
+    check_batches(plan, ranks)?;
     let _lock = ranks.agree(if root {
         matedit_contract::lock::lock_output(out, matedit_contract::lock::Worker::ALL)
             .map(Some)
@@ -237,6 +237,10 @@ pub fn run_as(
         mut net,
         mut start,
     } = setup?;
+    // The manifest's text is the same on every rank, but what it expands from the environment
+    // (VGG16_WEIGHTS) need not be.
+    let loss = perceptual.identity().unwrap_or_else(|| "fallback".into());
+    ranks.same_as_root("the perceptual loss", blake3::hash(loss.as_bytes()).as_bytes())?;
     let layer = RenderingLayer::new(plan.net.env_height);
     let layer_on = if crate::render::on_device(&device, plan.net.env_height).is_some() {
         "the rendering layer's GPU kernels"
@@ -247,8 +251,8 @@ pub fn run_as(
     if root {
         eprintln!("{}", perceptual.description());
     }
-    if ranks.size() > 1 {
-        eprintln!(
+    let line = if ranks.size() > 1 {
+        format!(
             "rank {} of {} (rank {} of {} on this machine): device {} ({device:?}{}), {layer_on}",
             ranks.rank(),
             ranks.size(),
@@ -260,21 +264,23 @@ pub fn run_as(
             } else {
                 format!(": {chosen}")
             }
-        );
+        )
     } else {
-        eprintln!("device {} ({device:?}), {layer_on}", plan.device.name());
-    }
+        format!("device {} ({device:?}), {layer_on}", plan.device.name())
+    };
+    // One write: the ranks' lines reach a launcher's log whole, not interleaved.
+    let _ = std::io::stderr().write_all(format!("{line}\n").as_bytes());
     let ctx = StepContext {
         layer: &layer,
         weights: &plan.weights,
         perceptual: &perceptual,
         device: &device,
     };
-    let mut files = if root {
-        Some(RunFiles::open(out, &metrics_path)?)
+    let mut files = ranks.agree(if root {
+        RunFiles::open(out, &metrics_path).map(Some)
     } else {
-        None
-    };
+        Ok(None)
+    })?;
     let mut summary = RunSummary {
         out: out.to_path_buf(),
         stage_checkpoints: Vec::new(),
@@ -339,16 +345,15 @@ pub fn run_as(
                 render_with: st.render_with,
             };
             let in_step = || format!("stage {}, step {}", st.name, step + 1);
-            let asked = stop_requested().load(Ordering::SeqCst);
             let (n, losses, stop, exchange) = if ranks.size() == 1 {
                 let batch = batch?;
                 let (n, losses) = train_step(net, &mut optim, lr, &batch, kind, &ctx).with_context(in_step)?;
-                (n, losses, asked, None)
+                (n, losses, false, None)
             } else {
                 let at = data_parallel::Rank {
                     ranks,
                     global: st.batch_size,
-                    stop_asked: asked,
+                    stop_asked: stop_requested(),
                 };
                 let o = data_parallel::step(at, net, &mut optim, lr, batch, kind, &ctx).with_context(in_step)?;
                 (o.net, o.losses, o.stop, Some(o.exchange_seconds))
@@ -364,16 +369,22 @@ pub fn run_as(
                 lr,
                 losses,
             };
-            if let Some(f) = &mut files {
-                f.log(
+            let logged = match &mut files {
+                Some(f) => f.log(
                     &line,
                     t0.elapsed().as_secs_f64(),
                     st.batch_size,
                     exchange.map(|e| (ranks.size(), e)),
-                )?;
-            }
+                ),
+                None => Ok(()),
+            };
+            // Rank 0's disk may fill: every rank stops with it.
+            ranks.agree(logged)?;
             bar.set_message(format!("loss {:.4e}", losses.total));
             bar.inc(1);
+            // One process reads the flag here, after the step, as it always has; ranks agreed
+            // on it inside the step.
+            let stop = stop || (ranks.size() == 1 && stop_requested().load(Ordering::SeqCst));
             let done = step == st.steps;
             if done || stop || (st.checkpoint_every > 0 && step % st.checkpoint_every == 0) {
                 let state = State {
