@@ -50,13 +50,7 @@ fn global_losses(t: &[f64], w: &LossWeights) -> Losses {
         light_energy: t[6],
         light_direction: t[7],
     };
-    l.total = w.normal * l.normal
-        + w.material * l.material
-        + w.perceptual * l.perceptual
-        + w.illumination * l.illumination
-        + w.ssim * l.ssim
-        + w.light_energy * l.light_energy
-        + w.light_direction * l.light_direction;
+    l.total = l.weighted_total(w);
     l
 }
 

@@ -183,6 +183,20 @@ pub struct Losses {
     pub light_direction: f64,
 }
 
+impl Losses {
+    /// Eq. 5's total of these terms under the weights `w` (every stage kind's terms not in use
+    /// are 0, and add nothing).
+    pub fn weighted_total(&self, w: &LossWeights) -> f64 {
+        w.normal * self.normal
+            + w.material * self.material
+            + w.perceptual * self.perceptual
+            + w.illumination * self.illumination
+            + w.ssim * self.ssim
+            + w.light_energy * self.light_energy
+            + w.light_direction * self.light_direction
+    }
+}
+
 /// What every step of a run shares.
 pub struct StepContext<'a> {
     /// The fused rendering layer.
@@ -315,13 +329,7 @@ pub fn losses_and_gradients(
             total = total + term;
         }
     }
-    losses.total = w.normal * losses.normal
-        + w.material * losses.material
-        + w.perceptual * losses.perceptual
-        + w.illumination * losses.illumination
-        + w.ssim * losses.ssim
-        + w.light_energy * losses.light_energy
-        + w.light_direction * losses.light_direction;
+    losses.total = losses.weighted_total(w);
     let grads = GradientsParams::from_grads(total.backward(), net);
     Ok((losses, grads))
 }
