@@ -282,27 +282,32 @@ impl Ranks {
 /// `MATEDIT_THREADS` variable, else the machine's cores shared by the ranks on it. One
 /// process without the variable keeps Rayon's default. Returns the thread count.
 pub fn set_threads(ranks: &Ranks) -> Result<usize> {
-    let given = match std::env::var("MATEDIT_THREADS") {
-        Ok(v) => Some(
-            v.trim()
-                .parse::<usize>()
-                .ok()
-                .filter(|n| (1..=4096).contains(n))
-                .ok_or_else(|| anyhow!("MATEDIT_THREADS = {v:?}: expected a thread count from 1 to 4096"))?,
-        ),
-        Err(_) => None,
-    };
+    let given = std::env::var("MATEDIT_THREADS").ok();
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let n = match given {
-        Some(n) => n,
-        None if ranks.local_size() > 1 => (cores / ranks.local_size()).max(1),
-        None => return Ok(rayon::current_num_threads()),
+    let Some(n) = thread_count(given.as_deref(), cores, ranks.local_size())? else {
+        return Ok(rayon::current_num_threads());
     };
     rayon::ThreadPoolBuilder::new()
         .num_threads(n)
         .build_global()
         .map_err(|e| anyhow!("cannot size the compute threads to {n}: {e}"))?;
     Ok(n)
+}
+
+/// The threads of a rank: `given` (`MATEDIT_THREADS`, 1–4096), else `cores` shared by the
+/// `local` ranks of its machine (at least 1); `None` for one process left to Rayon's default.
+fn thread_count(given: Option<&str>, cores: usize, local: usize) -> Result<Option<usize>> {
+    match given {
+        Some(v) => v
+            .trim()
+            .parse::<usize>()
+            .ok()
+            .filter(|n| (1..=4096).contains(n))
+            .map(Some)
+            .ok_or_else(|| anyhow!("MATEDIT_THREADS = {v:?}: expected a thread count from 1 to 4096")),
+        None if local > 1 => Ok(Some((cores / local).max(1))),
+        None => Ok(None),
+    }
 }
 
 /// How this process was started when a launcher started it: the variables OpenMPI's
@@ -421,6 +426,29 @@ mod mpi_world {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn thread_counts_over_the_whole_range_and_bad_values() {
+        assert_eq!(
+            thread_count(None, 16, 1).ok(),
+            Some(None),
+            "one process keeps Rayon's default"
+        );
+        assert_eq!(thread_count(None, 16, 4).ok(), Some(Some(4)));
+        assert_eq!(
+            thread_count(None, 2, 4).ok(),
+            Some(Some(1)),
+            "oversubscribed: at least one"
+        );
+        assert_eq!(thread_count(None, 1, usize::MAX).ok(), Some(Some(1)));
+        for (v, n) in [("1", 1), ("4096", 4096), (" 8 ", 8)] {
+            assert_eq!(thread_count(Some(v), 2, 2).ok(), Some(Some(n)), "{v:?}");
+        }
+        for v in ["0", "4097", "-1", "", "two", "1e3", "18446744073709551616"] {
+            let e = thread_count(Some(v), 2, 2).expect_err(v).to_string();
+            assert!(e.contains("MATEDIT_THREADS") && e.contains("1 to 4096"), "{v:?}: {e}");
+        }
+    }
 
     #[test]
     fn one_process_agrees_with_itself_and_passes_errors_through() {
