@@ -101,6 +101,44 @@ pub struct PlanRecord {
     /// fingerprints existed).
     #[serde(default)]
     pub content: ContentRecord,
+    /// The program that planned the dataset (absent in datasets made before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub generator: Option<GeneratorRecord>,
+    /// Every source of the manifest with its origin and licence, in manifest order (empty in
+    /// datasets made before they were recorded).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sources: Vec<SourceRecord>,
+}
+
+/// Which build of the factory planned a dataset.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct GeneratorRecord {
+    /// `matedit-datagen`.
+    pub name: String,
+    /// Its version.
+    pub version: String,
+    /// The git commit it was built from, or `unknown`.
+    pub commit: String,
+}
+
+/// One `[[shapes]]`, `[[materials]]` or `[[environments]]` entry of the manifest: what it is,
+/// where its data comes from and under which licence.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SourceRecord {
+    /// `shapes`, `materials` or `environments`.
+    pub kind: String,
+    /// The entry's `source` (`procedural`, `folder`, `merl`, ...).
+    pub source: String,
+    /// What it provides, as the manifest writes it (category, families, `path` unexpanded).
+    pub provides: String,
+    /// Where its data comes from: the generator for embedded sources, the manifest's `origin`
+    /// for a path, else `unknown`.
+    pub origin: String,
+    /// Its licence: the project's for embedded sources, the manifest's `licence` for a path,
+    /// else `unknown` (never guessed).
+    pub licence: String,
 }
 
 /// A shape's, material's or environment's content, as recorded.

@@ -91,6 +91,29 @@ enum Command {
         #[arg(long)]
         split: Option<String>,
     },
+    /// Write the dataset card, DIR/README.md (Hugging Face's form: licences, splits with counts,
+    /// sources with origins, how it was made, how to load it), and DIR/inspect.png when missing.
+    /// `datagen run` writes it too.
+    Card {
+        /// The dataset directory.
+        dir: PathBuf,
+    },
+    /// Export a finished dataset in another form: `--webdataset OUT` writes WebDataset tar
+    /// shards (one key per sample: ID.exr, ID.env.exr, ID.json), checksummed in OUT/shards.json;
+    /// a rerun continues where a killed one stopped.
+    Export {
+        /// The dataset directory.
+        dir: PathBuf,
+        /// Output directory of the tar shards.
+        #[arg(long, value_name = "OUT")]
+        webdataset: PathBuf,
+        /// Samples per shard at most (1–1000000).
+        #[arg(long, default_value_t = 1000, value_parser = count_in(1, 1_000_000))]
+        shard_samples: usize,
+        /// Megabytes (MiB) per shard at most (1–1048576); a larger sample gets a shard alone.
+        #[arg(long, default_value_t = 1024, value_parser = count_in(1, 1 << 20))]
+        shard_mb: usize,
+    },
     /// Speed against error of shading options on a manifest's own samples (nothing written).
     Bench {
         /// The manifest (TOML).
@@ -362,7 +385,41 @@ mod dataset {
             worker,
             progress: true,
         };
-        eprint!("{}", r::run(&l, &opts)?.report(worker));
+        let summary = r::run(&l, &opts)?;
+        eprint!("{}", summary.report(worker));
+        if summary.joined {
+            let card = crate::dataset::card::write_card(&summary.dir)?;
+            eprintln!("wrote {} (the dataset card)", card.display());
+        }
+        Ok(())
+    }
+
+    pub fn card(dir: &std::path::Path) -> Result<()> {
+        let card = crate::dataset::card::write_card(dir)?;
+        eprintln!(
+            "wrote {} and {}",
+            card.display(),
+            dir.join(crate::dataset::card::SHEET).display()
+        );
+        Ok(())
+    }
+
+    pub fn export(dir: &std::path::Path, out: &std::path::Path, max_samples: usize, shard_mb: usize) -> Result<()> {
+        use crate::dataset::webdataset::{Limits, RECORD, export};
+        let limits = Limits {
+            max_samples,
+            max_bytes: shard_mb as u64 * (1 << 20),
+        };
+        let s = export(dir, out, limits, true)?;
+        let samples: usize = s.record.splits.iter().map(|sp| sp.samples).sum();
+        let tars: usize = s.record.splits.iter().map(|sp| sp.shards.len()).sum();
+        eprintln!(
+            "wrote {samples} samples in {tars} tar shards to {} ({} written now, {} finished before); record: {}",
+            out.display(),
+            s.written,
+            s.resumed,
+            out.join(RECORD).display()
+        );
         Ok(())
     }
 
@@ -370,6 +427,8 @@ mod dataset {
         let rec = store::join(dir, from, None)?;
         let total: usize = rec.counts.values().sum();
         eprintln!("{}: joined {total} samples ({:?})", dir.display(), rec.counts);
+        let card = crate::dataset::card::write_card(dir)?;
+        eprintln!("wrote {} (the dataset card)", card.display());
         Ok(())
     }
 
@@ -436,6 +495,13 @@ pub fn main() -> ExitCode {
             samples,
             split,
         } => dataset::inspect(&dir, out, samples, split),
+        Command::Card { dir } => dataset::card(&dir),
+        Command::Export {
+            dir,
+            webdataset,
+            shard_samples,
+            shard_mb,
+        } => dataset::export(&dir, &webdataset, shard_samples, shard_mb),
         Command::Bench {
             manifest,
             samples,

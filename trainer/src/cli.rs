@@ -177,6 +177,43 @@ enum Command {
         #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=10_000))]
         steps: u64,
     },
+    /// Write samples of a split as the trainer's batch holds them (channel-first tensors,
+    /// materials padded to the batch's region count) to a safetensors file: for checking
+    /// another reader of the dataset against the trainer.
+    DumpBatch {
+        /// Dataset folder.
+        data: PathBuf,
+        /// Split.
+        #[arg(long, default_value = "test")]
+        split: String,
+        /// Index position of the first sample in the split.
+        #[arg(long, default_value_t = 0)]
+        first: usize,
+        /// Samples (1–4096).
+        #[arg(long, default_value_t = 4, value_parser = count_in(1, 4096))]
+        count: usize,
+        /// Output file (.safetensors).
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// How fast the trainer's data loader reads a split: one pass in index order, checksums
+    /// verified, decoded ahead by --workers threads; prints samples/s (median of --runs passes).
+    BenchLoader {
+        /// Dataset folder.
+        data: PathBuf,
+        /// Split.
+        #[arg(long, default_value = "train")]
+        split: String,
+        /// Samples per batch (1–4096).
+        #[arg(long, default_value_t = 16, value_parser = count_in(1, 4096))]
+        batch_size: usize,
+        /// Background decoding threads (0: decode in the calling thread; 0–64).
+        #[arg(long, default_value_t = 2, value_parser = count_in(0, 64))]
+        workers: usize,
+        /// Timed passes (1–100).
+        #[arg(long, default_value_t = 3, value_parser = count_in(1, 100))]
+        runs: usize,
+    },
     /// What data-parallel training adds to a step: the all-reduce of the network's gradients
     /// (alone, and with flattening and putting back) over the ranks this runs as
     /// (`mpirun -np W trainer bench-ranks`; a build with `--features mpi`).
@@ -416,6 +453,39 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
         }
         Command::GpuInfo { require_hardware } => gpu_info(require_hardware)?,
         Command::BenchRanks { widths, size, runs } => bench_ranks(&widths, size, runs)?,
+        Command::BenchLoader {
+            data,
+            split,
+            batch_size,
+            workers,
+            runs,
+        } => {
+            let mut rates = Vec::new();
+            let mut samples = 0;
+            for _ in 0..runs {
+                let (n, s) = crate::data::rate::loader_rate(&data, &split, batch_size, workers, true)?;
+                samples = n;
+                rates.push(n as f64 / s.max(1e-9));
+            }
+            rates.sort_by(f64::total_cmp);
+            println!(
+                "{}: split {split}, {samples} samples, batch {batch_size}, {workers} workers, checksums verified: median {:.1} samples/s over {runs} passes (min {:.1}, max {:.1})",
+                data.display(),
+                rates[rates.len() / 2],
+                rates[0],
+                rates[rates.len() - 1]
+            );
+        }
+        Command::DumpBatch {
+            data,
+            split,
+            first,
+            count,
+            out,
+        } => {
+            let ids = crate::data::dump::dump_batch(&data, &split, first, count, &out)?;
+            eprintln!("wrote {} ({} samples: {})", out.display(), ids.len(), ids.join(", "));
+        }
         Command::Bench {
             batch,
             size,

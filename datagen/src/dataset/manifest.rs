@@ -428,6 +428,13 @@ pub struct ShapeSourceToml {
     pub if_missing: Option<Spanned<Choice<IfMissing>>>,
     /// Procedural shapes per category used when `if_missing = "procedural"` applies.
     pub fallback_count: Option<usize>,
+    /// Where the data at `path` comes from (recorded in the dataset card; `unknown` if absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub origin: Option<String>,
+    /// The licence of the data at `path` (e.g. `CC0-1.0`; recorded in the dataset card,
+    /// `unknown` if absent: a licence is never guessed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub licence: Option<String>,
 }
 
 /// A `[[materials]]` entry.
@@ -450,6 +457,13 @@ pub struct MaterialSourceToml {
     pub path: Option<String>,
     /// `error` (default) or `library`: what to do when `path` does not exist.
     pub if_missing: Option<Spanned<Choice<IfMissing>>>,
+    /// Where the data at `path` comes from (recorded in the dataset card; `unknown` if absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub origin: Option<String>,
+    /// The licence of the data at `path` (e.g. `CC0-1.0`; recorded in the dataset card,
+    /// `unknown` if absent: a licence is never guessed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub licence: Option<String>,
 }
 
 /// An `[[environments]]` entry.
@@ -470,6 +484,13 @@ pub struct EnvSourceToml {
     pub if_missing: Option<Spanned<Choice<IfMissing>>>,
     /// Procedural maps per family used when `if_missing = "procedural"` applies.
     pub fallback_count: Option<usize>,
+    /// Where the data at `path` comes from (recorded in the dataset card; `unknown` if absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub origin: Option<String>,
+    /// The licence of the data at `path` (e.g. `CC0-1.0`; recorded in the dataset card,
+    /// `unknown` if absent: a licence is never guessed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub licence: Option<String>,
 }
 
 /// A `[[splits]]` entry: counts (drawn with the seed) or explicit id lists.

@@ -13,11 +13,15 @@
 //! * [`store`]: atomic shards, `index.jsonl`, `dataset.json`, joining workers (the layout,
 //!   the records and their readers are the contract: `matedit_contract::{layout, records}`);
 //! * [`run`]: `plan` and `run` (locking, resuming, workers);
+//! * [`provenance`]: the factory's build and every source's origin and licence, recorded in the
+//!   dataset; [`card`]: the dataset card (`README.md`) made from them;
+//! * [`webdataset`]: the dataset as WebDataset tar shards (`datagen export --webdataset`);
 //! * [`verify`] and [`inspect`]: a dataset's content against its sources (the checks that need
 //!   only the files are `matedit_contract::verify`), and looking at a finished dataset;
 //! * [`bench`]: speed against error of the shading options on a manifest's samples.
 
 pub mod bench;
+pub mod card;
 pub mod catalogue;
 pub mod content;
 pub mod deal;
@@ -25,8 +29,10 @@ pub mod inspect;
 pub mod manifest;
 pub mod materials;
 pub mod plan;
+pub mod provenance;
 pub mod run;
 pub mod sample;
 pub mod spec;
 pub mod store;
 pub mod verify;
+pub mod webdataset;

@@ -10,6 +10,7 @@ use anyhow::{Context, Result, bail};
 use matedit_contract::layout::{read_plan, shard_done, shards_dir, write_plan};
 use matedit_contract::lock::{Worker, lock_output};
 use matedit_contract::progress::Progress;
+use matedit_contract::records::GeneratorRecord;
 use matedit_physics::BrdfModel;
 use matedit_physics::shading::Quality;
 use matedit_physics::shading::zonal::{ZonalPlan, ZonalRefusal};
@@ -312,6 +313,16 @@ pub fn run(l: &Loaded, opts: &RunOptions) -> Result<RunSummary> {
                 dir.display(),
                 old.manifest_hash,
                 record.manifest_hash
+            );
+        }
+        if old.generator != record.generator {
+            let commit =
+                |g: &Option<GeneratorRecord>| g.as_ref().map_or("an unrecorded build".into(), |g| g.commit.clone());
+            eprintln!(
+                "note: {} was planned by {}, this build is {}: plan.json keeps the first",
+                dir.display(),
+                commit(&old.generator),
+                commit(&record.generator)
             );
         }
     } else {

@@ -17,8 +17,8 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// The record of a plan.
-pub fn plan_record(plan: &Plan, manifest: &super::manifest::Manifest) -> Result<PlanRecord> {
-    let manifest = serde_json::to_value(manifest)?;
+pub fn plan_record(plan: &Plan, toml: &super::manifest::Manifest) -> Result<PlanRecord> {
+    let manifest = serde_json::to_value(toml)?;
     let cat = &plan.catalogue;
     let splits = plan
         .splits
@@ -58,6 +58,8 @@ pub fn plan_record(plan: &Plan, manifest: &super::manifest::Manifest) -> Result<
         splits,
         substitutions: cat.substitutions.clone(),
         content: content_record(plan),
+        generator: Some(super::provenance::generator()),
+        sources: super::provenance::sources(toml),
     })
 }
 

@@ -13,6 +13,8 @@
 //! (the same values datagen derived from `materials/ID.dsbrdf.json`).
 
 mod batch;
+pub mod dump;
+pub mod rate;
 mod sample;
 mod stream;
 

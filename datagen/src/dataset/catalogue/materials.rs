@@ -96,6 +96,8 @@ pub(super) fn materials_of(
             e.not_for(
                 "library",
                 &[
+                    ("origin", s.origin.is_some()),
+                    ("licence", s.licence.is_some()),
                     ("path", s.path.is_some()),
                     ("if_missing", s.if_missing.is_some()),
                     ("count", s.count.is_some()),
@@ -109,6 +111,8 @@ pub(super) fn materials_of(
             e.not_for(
                 "parametric",
                 &[
+                    ("origin", s.origin.is_some()),
+                    ("licence", s.licence.is_some()),
                     ("names", s.names.is_some()),
                     ("path", s.path.is_some()),
                     ("if_missing", s.if_missing.is_some()),

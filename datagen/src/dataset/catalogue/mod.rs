@@ -314,6 +314,8 @@ fn shapes_of(
             e.not_for(
                 "procedural",
                 &[
+                    ("origin", s.origin.is_some()),
+                    ("licence", s.licence.is_some()),
                     ("path", s.path.is_some()),
                     ("categories", s.categories.is_some()),
                     ("if_missing", s.if_missing.is_some()),
@@ -454,6 +456,8 @@ fn envs_of(
             e.not_for(
                 "procedural",
                 &[
+                    ("origin", s.origin.is_some()),
+                    ("licence", s.licence.is_some()),
                     ("path", s.path.is_some()),
                     ("if_missing", s.if_missing.is_some()),
                     ("fallback_count", s.fallback_count.is_some()),
