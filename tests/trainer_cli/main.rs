@@ -37,7 +37,7 @@ fn main() -> ExitCode {
         return matedit_trainer::cli::main(Some(&ALLOC));
     }
     let args = libtest_mimic::Arguments::from_args();
-    let tests: [(&str, fn()); 9] = [
+    let tests: [(&str, fn()); 10] = [
         (
             "the_perceptual_loss_is_said_and_a_resume_keeps_it",
             the_perceptual_loss_is_said_and_a_resume_keeps_it,
@@ -69,6 +69,10 @@ fn main() -> ExitCode {
         (
             "eval_scores_only_the_asked_categories",
             eval_scores_only_the_asked_categories,
+        ),
+        (
+            "dump_batch_writes_the_batch_and_refuses_what_the_dataset_has_not",
+            dump_batch_writes_the_batch_and_refuses_what_the_dataset_has_not,
         ),
         (
             "baseline_1_resumes_bit_identically_and_table_3_has_every_method",

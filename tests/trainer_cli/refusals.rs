@@ -188,3 +188,52 @@ pub(super) fn a_truncated_shard_file_stops_the_run_naming_it_or_is_skipped_and_r
     );
     assert_eq!(metric_lines(&out).len(), 28, "every step still ran");
 }
+
+pub(super) fn dump_batch_writes_the_batch_and_refuses_what_the_dataset_has_not() {
+    let data = dataset();
+    let out = root().join("dump.safetensors");
+    let dump = |split: &str, first: &str, count: &str| {
+        trainer()
+            .arg("dump-batch")
+            .arg(data)
+            .args(["--split", split, "--first", first, "--count", count, "--out"])
+            .arg(&out)
+            .output()
+            .unwrap()
+    };
+    let o = dump("train", "1", "3");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let bytes = std::fs::read(&out).unwrap();
+    let size = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let header: Value = serde_json::from_slice(&bytes[8..8 + size]).unwrap();
+    assert_eq!(header["input"]["shape"][0], 3);
+    assert_eq!(header["region_map"]["dtype"], "U8");
+    let ids: Vec<String> = serde_json::from_str(header["__metadata__"]["ids"].as_str().unwrap()).unwrap();
+    assert_eq!(ids, ["train-0000001", "train-0000002", "train-0000003"]);
+    let before = bytes.clone();
+    for (split, first, count, says) in [
+        ("val", "0", "1", "no split \"val\""),
+        ("train", "100000", "1", "--first 100000 --count 1"),
+        ("train", "0", "0", "outside 1–4096"),
+    ] {
+        let o = dump(split, first, count);
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && e.contains(says), "{split} {first} {count}: {e}");
+        assert_eq!(
+            std::fs::read(&out).unwrap(),
+            before,
+            "a refused dump leaves the file alone"
+        );
+    }
+    let o = trainer()
+        .arg("bench-loader")
+        .arg(data)
+        .args(["--workers", "0", "--runs", "1"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success() && text.contains("samples/s") && text.contains("checksums verified"),
+        "{text}"
+    );
+}
