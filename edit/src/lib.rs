@@ -32,6 +32,8 @@ pub mod camera;
 pub mod cli;
 pub mod composite;
 pub mod detail;
+#[cfg(test)]
+mod input_tests;
 pub mod light;
 pub mod light_estimate;
 #[cfg(test)]
@@ -594,12 +596,24 @@ fn check_request(req: &EditRequest, out: &Path) -> Result<()> {
     if req.materials.is_empty() && req.relight.is_none() {
         bail!("nothing to do: give --material (the edit) and/or --relight (another illumination)");
     }
-    let inputs = [
+    // Every file the edit reads, the ones named inside specs too.
+    let specs: Vec<PathBuf> = req
+        .materials
+        .iter()
+        .map(|(_, m)| m)
+        .chain(&req.input_material)
+        .filter_map(|m| output::material_file(m))
+        .chain(req.light.iter().chain(&req.relight).filter_map(|l| output::env_file(l)))
+        .collect();
+    let inputs: Vec<Option<&Path>> = [
         Some(req.photo.as_path()),
         req.mask.as_deref(),
         req.regions.as_deref(),
         req.normals.as_deref(),
-    ];
+    ]
+    .into_iter()
+    .chain(specs.iter().map(|p| Some(p.as_path())))
+    .collect();
     output::refuse_overwriting_inputs(out, &inputs)
 }
 

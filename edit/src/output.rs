@@ -131,37 +131,55 @@ pub struct Timings {
     pub total: f64,
 }
 
-/// Refuses an output folder in which an output would replace one of the inputs.
+/// Whether `name` is a file an edit writes into its output folder.
+pub fn is_output_name(name: &str) -> bool {
+    const STEMS: [&str; 8] = [
+        "edited",
+        "relit",
+        "input",
+        "i_prime",
+        "o_prime",
+        "relit_prime",
+        "normals",
+        "env",
+    ];
+    ["report.json", "sheet.png", "energy.png"].contains(&name)
+        || name.ends_with(".dsbrdf.json")
+        || STEMS
+            .iter()
+            .any(|stem| name == format!("{stem}.png") || name == format!("{stem}.exr"))
+}
+
+/// The file a material spec (`dsbrdf:PATH`, `merl:PATH`, `nbrdf:PATH`) reads, if any.
+pub fn material_file(spec: &str) -> Option<PathBuf> {
+    use matedit_physics::BrdfSpec;
+    match spec.trim().parse::<BrdfSpec>().ok()? {
+        BrdfSpec::Dsbrdf(p) | BrdfSpec::Merl(p) | BrdfSpec::Nbrdf(p) => Some(p),
+        _ => None,
+    }
+}
+
+/// The file an environment spec (a path, or `builtin:NAME`) reads, if any.
+pub fn env_file(spec: &str) -> Option<PathBuf> {
+    (!spec.starts_with("builtin:")).then(|| PathBuf::from(spec))
+}
+
+/// Refuses an output folder in which an output would replace one of the inputs (any file of
+/// the edit: photos, masks, region and normal maps, light probes, material files), whether
+/// it is named as given or through a link.
 pub fn refuse_overwriting_inputs(out: &Path, inputs: &[Option<&Path>]) -> Result<()> {
     let out_dir = std::fs::canonicalize(out).ok();
     for input in inputs.iter().flatten() {
         let (Some(dir), Ok(file)) = (&out_dir, std::fs::canonicalize(input)) else {
             continue;
         };
-        if file.parent() == Some(dir.as_path()) {
-            let name = file.file_name().and_then(|n| n.to_str()).unwrap_or_default();
-            let ours = name == "report.json"
-                || name == "sheet.png"
-                || name.ends_with(".dsbrdf.json")
-                || [
-                    "edited",
-                    "relit",
-                    "input",
-                    "i_prime",
-                    "o_prime",
-                    "relit_prime",
-                    "normals",
-                    "env",
-                ]
-                .iter()
-                .any(|stem| name == format!("{stem}.png") || name == format!("{stem}.exr"));
-            if ours {
-                bail!(
-                    "{}: the output folder {} would overwrite this input; choose another --out",
-                    input.display(),
-                    out.display()
-                );
-            }
+        let name = file.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+        if file.parent() == Some(dir.as_path()) && is_output_name(name) {
+            bail!(
+                "{}: the output folder {} would overwrite this input (an edit writes {name} there); choose another --out",
+                input.display(),
+                out.display()
+            );
         }
     }
     Ok(())
@@ -280,38 +298,50 @@ pub(crate) fn spheres(
         .collect()
 }
 
-/// A hidden folder beside the output folder that an edit's files are written into, then moved
-/// into the output folder together ([`Staging::publish`]); dropped unpublished (an error on the
-/// way), it is removed with what it holds.
+/// A hidden folder on the output folder's file system that an edit's files are written into,
+/// then moved into the output folder together ([`Staging::publish`]); dropped unpublished (an
+/// error on the way), it is removed with what it holds.
+///
+/// Where `out` exists, the stage is inside it (`out/.partial-…`): `out` may be a mount point or
+/// on another file system than its parent, and a move within one file system is a rename.
+/// Otherwise the stage is beside it and becomes `out` in one rename. A move that still crosses
+/// file systems is a copy and a rename within `out` ([`move_file`]).
 pub struct Staging {
     dir: PathBuf,
     out: PathBuf,
+    inside: bool,
     published: bool,
 }
 
 impl Staging {
-    /// Makes the staging folder for `out` (in `out`'s parent, so that moving is a rename).
+    /// Makes the staging folder for `out`.
     pub fn new(out: &Path) -> Result<Self> {
         let name = out
             .file_name()
             .with_context(|| format!("{}: the output folder needs a name", out.display()))?;
-        let parent = match out.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        std::fs::create_dir_all(&parent).with_context(|| format!("cannot create {}", parent.display()))?;
         let nanos = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_nanos());
-        let dir = parent.join(format!(
-            ".{}.partial-{}-{nanos}",
-            name.to_string_lossy(),
-            std::process::id()
-        ));
+        let tag = format!("partial-{}-{nanos}", std::process::id());
+        let inside = out.is_dir();
+        let dir = if inside {
+            out.join(format!(".{tag}"))
+        } else {
+            if out.exists() {
+                bail!("{}: exists and is not a folder; choose another --out", out.display());
+            }
+            let parent = match out.parent() {
+                Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+                _ => PathBuf::from("."),
+            };
+            std::fs::create_dir_all(&parent).with_context(|| format!("cannot create {}", parent.display()))?;
+            parent.join(format!(".{}.{tag}", name.to_string_lossy()))
+        };
         std::fs::create_dir(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
         Ok(Self {
             dir,
             out: out.to_path_buf(),
+            inside,
             published: false,
         })
     }
@@ -321,17 +351,13 @@ impl Staging {
         &self.dir
     }
 
-    /// Moves every file into the output folder: the folder itself when `out` does not exist or
-    /// is empty (one rename), else file by file with `report.json` last, so that a report
-    /// always describes files that are there.
+    /// Moves every file into the output folder: the folder itself when it did not exist (one
+    /// rename), else file by file with `report.json` last, so that a report always describes
+    /// files that are there.
     pub fn publish(mut self) -> Result<()> {
-        let empty = std::fs::read_dir(&self.out).map_or(true, |mut d| d.next().is_none());
-        if empty {
-            let _ = std::fs::remove_dir(&self.out);
-            if std::fs::rename(&self.dir, &self.out).is_ok() {
-                self.published = true;
-                return Ok(());
-            }
+        if !self.inside && !self.out.exists() && std::fs::rename(&self.dir, &self.out).is_ok() {
+            self.published = true;
+            return Ok(());
         }
         std::fs::create_dir_all(&self.out).with_context(|| format!("cannot create {}", self.out.display()))?;
         let mut names: Vec<_> = std::fs::read_dir(&self.dir)
@@ -340,16 +366,42 @@ impl Staging {
             .collect();
         names.sort_by_key(|n| n == "report.json");
         for n in names {
-            let (from, to) = (self.dir.join(&n), self.out.join(&n));
-            std::fs::rename(&from, &to)
-                .with_context(|| format!("cannot move {} to {}", from.display(), to.display()))?;
+            move_file(&self.dir.join(&n), &self.out.join(&n))?;
         }
         Ok(())
     }
 }
 
+/// Moves a file: a rename, or where `from` and `to` are on different file systems a copy to a
+/// hidden name beside `to` and a rename onto it, so that `to` is never seen half written.
+pub fn move_file(from: &Path, to: &Path) -> Result<()> {
+    let err = match std::fs::rename(from, to) {
+        Ok(()) => return Ok(()),
+        Err(e) => e,
+    };
+    if err.kind() != std::io::ErrorKind::CrossesDevices {
+        return Err(err).with_context(|| format!("cannot move {} to {}", from.display(), to.display()));
+    }
+    let name = to
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = to.with_file_name(format!(".{name}.copy-{}", std::process::id()));
+    let copied = std::fs::copy(from, &tmp)
+        .and_then(|_| std::fs::rename(&tmp, to))
+        .with_context(|| format!("cannot copy {} to {}", from.display(), to.display()));
+    if copied.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    copied?;
+    let _ = std::fs::remove_file(from);
+    Ok(())
+}
+
 impl Drop for Staging {
     fn drop(&mut self) {
+        // Published file by file, the stage is empty then; unpublished, it holds the edit's
+        // files. Either way it goes.
         if !self.published {
             let _ = std::fs::remove_dir_all(&self.dir);
         }
@@ -622,58 +674,5 @@ pub fn energy_plot(path: &Path, eq6: &super::Eq6Report) -> Result<()> {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn fresh(name: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("matedit-staging-{}-{name}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        d
-    }
-
-    fn hidden_left(parent: &Path) -> Vec<String> {
-        std::fs::read_dir(parent)
-            .unwrap()
-            .filter_map(|e| e.ok().map(|e| e.file_name().to_string_lossy().into_owned()))
-            .filter(|n| n.starts_with('.'))
-            .collect()
-    }
-
-    #[test]
-    fn outputs_appear_all_together_or_not_at_all() {
-        let parent = fresh("all");
-        // A failure on the way (the stage dropped unpublished): nothing in `out`, no stage left.
-        let out = parent.join("out");
-        {
-            let stage = Staging::new(&out).unwrap();
-            std::fs::write(stage.path().join("edited.png"), b"x").unwrap();
-        }
-        assert!(!out.exists());
-        assert!(hidden_left(&parent).is_empty());
-        // Published into a folder that does not exist: every file, one rename.
-        let stage = Staging::new(&out).unwrap();
-        for f in ["edited.png", "report.json"] {
-            std::fs::write(stage.path().join(f), f).unwrap();
-        }
-        stage.publish().unwrap();
-        assert_eq!(std::fs::read_to_string(out.join("report.json")).unwrap(), "report.json");
-        assert!(hidden_left(&parent).is_empty());
-        // Into a folder holding a user's file and an older edit: replaced, the user's file kept.
-        std::fs::write(out.join("notes.txt"), b"mine").unwrap();
-        let stage = Staging::new(&out).unwrap();
-        for f in ["edited.png", "report.json"] {
-            std::fs::write(stage.path().join(f), format!("new {f}")).unwrap();
-        }
-        stage.publish().unwrap();
-        assert_eq!(
-            std::fs::read_to_string(out.join("edited.png")).unwrap(),
-            "new edited.png"
-        );
-        assert_eq!(std::fs::read_to_string(out.join("notes.txt")).unwrap(), "mine");
-        assert!(hidden_left(&parent).is_empty());
-        // A relative output folder without a parent component works too.
-        assert!(Staging::new(Path::new("")).is_err());
-        std::fs::remove_dir_all(&parent).unwrap();
-    }
-}
+#[path = "output_tests.rs"]
+mod tests;

@@ -105,6 +105,15 @@ pub fn load_photo_shown(path: &Path) -> Result<(Photo, PhotoFile)> {
             matedit_contract::io::check_exr_size(path, &bytes)?;
             let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&bytes), false)
                 .with_context(|| format!("{what}: cannot decode the EXR header (truncated or corrupt?)"))?;
+            // One part, as the editing page requires: the pixel limit is a limit on what is
+            // decoded, and the RGBA reader takes the first part that has R, G and B, which
+            // need not be the first part.
+            if meta.headers.len() != 1 {
+                bail!(
+                    "{what}: an EXR photo must have one part (layer), this one has {}; write the photo alone",
+                    meta.headers.len()
+                );
+            }
             let size = meta.headers.first().map(|h| h.layer_size).unwrap_or_default();
             check_size(path, size.width() as u64, size.height() as u64)?;
             for n in ["R", "G", "B"] {
@@ -476,6 +485,11 @@ impl Framing {
     /// count as `T::default()`): every photo pixel whose centre falls in a network pixel adds to
     /// it; a network pixel no photo pixel centre falls in (a crop smaller than the input) takes
     /// the photo pixel under its centre.
+    ///
+    /// Linear in the photo's pixels and the crop's side: the crop of a thin object is a square
+    /// of its long side, mostly padding, so the padding is counted per row and column (the
+    /// network pixel of a lattice point depends on x alone for its column and on y alone for its
+    /// row), and only the photo's own pixels are visited, in the same order as before.
     pub fn area_average<const C: usize>(
         &self,
         width: usize,
@@ -484,23 +498,35 @@ impl Framing {
     ) -> Vec<[f32; C]> {
         let n = self.size;
         let mut sum = vec![[0.0_f64; C]; n * n];
-        let mut count = vec![0_u32; n * n];
         // Every lattice point (photo pixel centre, real or padding) inside the crop.
         let (xs, ys) = (self.x0.floor() as i64, self.y0.floor() as i64);
         let (xe, ye) = ((self.x0 + self.side).ceil() as i64, (self.y0 + self.side).ceil() as i64);
+        let s = n as f64 / self.side;
+        // The network column of lattice column x (row of lattice row y), if inside the input.
+        let cell = |t: i64, origin: f64| {
+            let u = (t as f64 + 0.5 - origin) * s;
+            (u >= 0.0 && u < n as f64).then_some(u as usize)
+        };
+        let (mut per_col, mut per_row) = (vec![0_u32; n], vec![0_u32; n]);
+        for x in xs..xe {
+            if let Some(u) = cell(x, self.x0) {
+                per_col[u] += 1;
+            }
+        }
         for y in ys..ye {
-            for x in xs..xe {
-                let (u, v) = self.to_net(x as f64 + 0.5, y as f64 + 0.5);
-                if u < 0.0 || v < 0.0 || u >= n as f64 || v >= n as f64 {
-                    continue;
-                }
-                let k = v as usize * n + u as usize;
-                count[k] += 1;
-                if x >= 0 && y >= 0 && (x as usize) < width && (y as usize) < height {
-                    let val = value(y as usize * width + x as usize);
-                    for c in 0..C {
-                        sum[k][c] += val[c] as f64;
-                    }
+            if let Some(v) = cell(y, self.y0) {
+                per_row[v] += 1;
+            }
+        }
+        let count: Vec<u32> = (0..n * n).map(|k| per_row[k / n] * per_col[k % n]).collect();
+        for y in ys.max(0)..ye.min(height as i64) {
+            let Some(v) = cell(y, self.y0) else { continue };
+            for x in xs.max(0)..xe.min(width as i64) {
+                let Some(u) = cell(x, self.x0) else { continue };
+                let k = v * n + u;
+                let val = value(y as usize * width + x as usize);
+                for c in 0..C {
+                    sum[k][c] += val[c] as f64;
                 }
             }
         }
@@ -620,3 +646,7 @@ pub fn prepare_framed(
         region_map,
     })
 }
+
+#[cfg(test)]
+#[path = "framing_tests.rs"]
+mod framing_tests;

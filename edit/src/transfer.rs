@@ -10,7 +10,7 @@ use anyhow::{Context, Result, bail};
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use matedit_trainer::post_optimisation;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -85,7 +85,15 @@ pub fn transfer_with(
 
 /// Refuses an output folder that holds any input of the two photos.
 fn refuse_overwriting(out: &Path, photos: [&Given; 2]) -> Result<()> {
-    let inputs: Vec<Option<&Path>> = photos.iter().flat_map(|g| g.inputs()).collect();
+    let files: Vec<PathBuf> = photos
+        .iter()
+        .filter_map(|g| g.material.and_then(output::material_file))
+        .collect();
+    let inputs: Vec<Option<&Path>> = photos
+        .iter()
+        .flat_map(|g| g.inputs())
+        .chain(files.iter().map(|p| Some(p.as_path())))
+        .collect();
     output::refuse_overwriting_inputs(out, &inputs)
 }
 

@@ -1,7 +1,8 @@
 //! `matedit` as a process: `serve` as a service manager runs it (SIGTERM ends the process within
 //! its grace period, 10 s, even while a client holds an unfinished upload, and leaves no work
-//! folder behind), and `edit | head -1` (a reader that closes the pipe early ends the output, not
-//! the command; the edit is written all the same).
+//! folder behind, also when it comes while the model loads; at its open-file limit it waits
+//! without spinning), and `edit | head -1` (a reader that closes the pipe early ends the output,
+//! not the command; the edit is written all the same).
 
 #![cfg(unix)]
 
@@ -136,5 +137,129 @@ fn an_edit_whose_reader_went_away_still_finishes_and_writes_everything() {
     for f in ["edited.png", "edited.exr", "report.json"] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// `matedit serve --port 0 --model MODEL` with `TMPDIR=tmp`, its open-file limit lowered to
+/// `nofile` when given.
+fn serve(model: &Path, tmp: &Path, nofile: Option<u64>) -> std::process::Child {
+    use std::os::unix::process::CommandExt as _;
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_matedit"));
+    cmd.args(["serve", "--port", "0", "--model"])
+        .arg(model)
+        .env("TMPDIR", tmp)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null());
+    if let Some(n) = nofile {
+        // SAFETY: setrlimit is async-signal-safe; nothing else runs between fork and exec.
+        unsafe {
+            cmd.pre_exec(move || {
+                let lim = libc::rlimit {
+                    rlim_cur: n,
+                    rlim_max: n,
+                };
+                if libc::setrlimit(libc::RLIMIT_NOFILE, &lim) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+    }
+    cmd.spawn().unwrap()
+}
+
+/// The address `matedit serve` says it listens on.
+fn address(child: &mut std::process::Child) -> String {
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    line.split("http://")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .unwrap_or_else(|| panic!("no address in {line:?}"))
+        .to_string()
+}
+
+fn wait_exit(child: &mut std::process::Child, limit: Duration) -> std::process::ExitStatus {
+    let t = Instant::now();
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return s;
+        }
+        if t.elapsed() > limit {
+            let _ = child.kill();
+            panic!("still running {:?} after SIGTERM", t.elapsed());
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn sigterm_at_any_moment_of_start_up_leaves_nothing_behind() {
+    let root = std::env::temp_dir().join(format!("matedit-startup-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let model = untrained_model(&root);
+    for delay_ms in [0, 5, 20, 50, 100, 200, 400] {
+        let tmp = root.join(format!("tmp-{delay_ms}"));
+        std::fs::create_dir_all(&tmp).unwrap();
+        let mut child = serve(&model, &tmp, None);
+        std::thread::sleep(Duration::from_millis(delay_ms));
+        // SAFETY: a signal to our own child.
+        assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
+        let status = wait_exit(&mut child, Duration::from_secs(20));
+        let left: Vec<_> = std::fs::read_dir(&tmp).unwrap().collect();
+        assert!(
+            left.is_empty(),
+            "SIGTERM after {delay_ms} ms: left {left:?} ({status:?})"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// Seconds of CPU the process `pid` has used (user and system).
+fn cpu_seconds(pid: u32) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
+    // After the command's name in parentheses: state is field 3, utime 14, stime 15.
+    let rest = stat.rsplit(')').next().unwrap();
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f[11].parse::<f64>().unwrap() + f[12].parse::<f64>().unwrap();
+    // SAFETY: sysconf reads a constant.
+    ticks / unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64
+}
+
+#[test]
+fn at_its_open_file_limit_the_server_waits_without_spinning_and_serves_again() {
+    let root = std::env::temp_dir().join(format!("matedit-emfile-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let model = untrained_model(&root);
+    let tmp = root.join("tmp");
+    std::fs::create_dir_all(&tmp).unwrap();
+    let mut child = serve(&model, &tmp, Some(128));
+    let addr = address(&mut child);
+    // More idle connections than the process has descriptors.
+    let idle: Vec<TcpStream> = (0..200).filter_map(|_| TcpStream::connect(&addr).ok()).collect();
+    assert!(idle.len() >= 150, "{} connections", idle.len());
+    std::thread::sleep(Duration::from_millis(500));
+    let before = cpu_seconds(child.id());
+    std::thread::sleep(Duration::from_secs(2));
+    let used = cpu_seconds(child.id()) - before;
+    assert!(
+        used < 0.5,
+        "the server used {used:.2} s of CPU in 2 s while out of descriptors"
+    );
+    drop(idle);
+    let t = Instant::now();
+    let mut s = TcpStream::connect(&addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    s.write_all(b"GET /api/info HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")
+        .unwrap();
+    let mut reply = String::new();
+    let _ = std::io::Read::read_to_string(&mut s, &mut reply);
+    assert!(reply.starts_with("HTTP/1.1 200"), "{reply:?}");
+    assert!(t.elapsed() < Duration::from_secs(3), "served after {:?}", t.elapsed());
+    // SAFETY: a signal to our own child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    wait_exit(&mut child, Duration::from_secs(20));
     let _ = std::fs::remove_dir_all(&root);
 }

@@ -93,12 +93,22 @@ pub(super) async fn read_fields(mut mp: Multipart) -> Result<Fields, Response> {
 
 pub(super) fn multipart_error(e: axum::extract::multipart::MultipartError) -> Response {
     let status = e.status();
-    let msg = if status == StatusCode::PAYLOAD_TOO_LARGE {
-        "the upload is larger than this server accepts (see its limits at the top of the page)".to_string()
-    } else {
-        format!("the upload could not be read: {}", e.body_text())
-    };
-    error(status, msg)
+    if status == StatusCode::PAYLOAD_TOO_LARGE {
+        return error(
+            status,
+            "the upload is larger than this server accepts (see its limits at the top of the page)",
+        );
+    }
+    // A body that breaks off or is malformed on the wire (a bad chunk size, a connection cut)
+    // reaches the multipart reader as a stream error, which it reports as the server's (500):
+    // it is the request's.
+    if status.is_server_error() {
+        return error(
+            StatusCode::BAD_REQUEST,
+            "the upload's body is malformed or was cut off (its transfer encoding could not be read)",
+        );
+    }
+    error(status, format!("the upload could not be read: {}", e.body_text()))
 }
 
 /// Saves and checks the uploads (decoding them as `matedit edit` does) and describes the job.

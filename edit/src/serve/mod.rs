@@ -19,6 +19,7 @@ mod form;
 pub mod guard;
 pub mod jobs;
 pub mod library;
+pub mod rate;
 #[cfg(test)]
 mod tests;
 pub mod upload;
@@ -86,6 +87,8 @@ pub struct Deadlines {
     /// On SIGTERM or Ctrl-C: how long connections and the running edit get to finish before
     /// they are dropped (the edit cancelled).
     pub grace: std::time::Duration,
+    /// The slowest an upload may arrive; a slower one is closed.
+    pub min_rate: rate::MinRate,
 }
 
 impl Default for Deadlines {
@@ -94,6 +97,7 @@ impl Default for Deadlines {
             headers: std::time::Duration::from_secs(10),
             upload: std::time::Duration::from_secs(60),
             grace: std::time::Duration::from_secs(10),
+            min_rate: rate::MinRate::default(),
         }
     }
 }
@@ -130,8 +134,10 @@ struct App {
     secret: [u8; 32],
     /// Uploads being decoded and checked at once (each may hold a large photo in memory).
     checking: Arc<tokio::sync::Semaphore>,
-    /// Uploads being received at once (each is held whole).
-    reading: tokio::sync::Semaphore,
+    /// KiB the uploads being received may hold together ([`rate`]).
+    receiving: rate::Receiving,
+    /// How slowly an upload may arrive.
+    min_rate: rate::MinRate,
     /// How long an upload may take.
     upload_deadline: std::time::Duration,
     /// MiB the edits in the server may still reserve ([`upload::memory_mb`] each, held from
@@ -139,6 +145,17 @@ struct App {
     memory: Arc<tokio::sync::Semaphore>,
     /// All of it.
     max_memory_mb: u64,
+}
+
+impl App {
+    /// A message as a client may see it: no path of the server's (the work folder's name holds
+    /// the process id and the start time), uploads named as the browser named them.
+    fn scrub(&self, message: &str, job: &std::path::Path) -> String {
+        message
+            .replace(&format!("{}/in/", job.display()), "")
+            .replace(&job.display().to_string(), "the edit's folder")
+            .replace(&self.work.display().to_string(), "the server's work folder")
+    }
 }
 
 /// A running server.
@@ -149,10 +166,51 @@ pub struct Server {
     shutdown: Option<tokio::sync::oneshot::Sender<()>>,
     task: tokio::task::JoinHandle<()>,
     worker: Option<std::thread::JoinHandle<()>>,
-    work: PathBuf,
-    remove_work: bool,
+    /// Held for its removal when the server is stopped (dropped).
+    _work: WorkFolder,
     grace: std::time::Duration,
 }
+
+/// The server's work folder, removed when dropped if the server made it: a start that fails
+/// or is interrupted (SIGTERM while the model loads) and a stop leave nothing behind.
+struct WorkFolder {
+    path: PathBuf,
+    remove: bool,
+}
+
+impl WorkFolder {
+    /// Creates `path` readable by this user only (0700), as everything the server writes in it
+    /// (the process's file mode mask is set to 0077 first): uploads, outputs and job ids are
+    /// nobody else's to list or read.
+    fn create(path: PathBuf, remove: bool) -> Result<Self> {
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::DirBuilderExt as _;
+            // SAFETY: umask only swaps the process's mask; it cannot fail.
+            unsafe { libc::umask(0o077) };
+            std::fs::DirBuilder::new()
+                .recursive(true)
+                .mode(0o700)
+                .create(&path)
+                .with_context(|| format!("cannot create the work folder {}", path.display()))?;
+        }
+        #[cfg(not(unix))]
+        std::fs::create_dir_all(&path).with_context(|| format!("cannot create the work folder {}", path.display()))?;
+        Ok(Self { path, remove })
+    }
+}
+
+impl Drop for WorkFolder {
+    fn drop(&mut self) {
+        if self.remove {
+            let _ = std::fs::remove_dir_all(&self.path);
+        }
+    }
+}
+
+/// How long a stopping server waits for the running edit to notice it was cancelled before it
+/// leaves it behind (the process then ends, and the edit with it).
+pub const CANCEL_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
 
 impl Server {
     /// Stops listening, gives open connections and the running edit the grace period to
@@ -169,41 +227,62 @@ impl Server {
         if let Some(w) = self.worker.take() {
             let mut join = tokio::task::spawn_blocking(move || w.join());
             if tokio::time::timeout_at(deadline, &mut join).await.is_err() {
-                // The running edit stops at its next check; then the worker ends.
+                // The running edit stops at its next phase or Eq. 6 iteration; an edit that
+                // does not within CANCEL_WAIT is left to end with the process.
                 self.queue.cancel_running();
-                let _ = join.await;
+                if tokio::time::timeout(CANCEL_WAIT, join).await.is_err() {
+                    eprintln!(
+                        "the running edit did not stop within {} s of its cancellation; leaving it",
+                        CANCEL_WAIT.as_secs()
+                    );
+                }
             }
         }
-        if self.remove_work {
-            let _ = std::fs::remove_dir_all(&self.work);
-        }
+        // The work folder goes with `self._work`, now.
     }
 
     /// Waits for Ctrl-C (SIGINT) or SIGTERM (what batch schedulers and service managers send),
     /// then [`stop`](Self::stop)s.
     pub async fn run_until_interrupted(self) {
-        #[cfg(unix)]
-        {
-            use tokio::signal::unix::{SignalKind, signal};
-            match signal(SignalKind::terminate()) {
-                Ok(mut term) => {
-                    tokio::select! {
-                        _ = tokio::signal::ctrl_c() => {}
-                        _ = term.recv() => {}
-                    }
-                }
-                Err(_) => {
-                    let _ = tokio::signal::ctrl_c().await;
-                }
-            }
-        }
-        #[cfg(not(unix))]
-        let _ = tokio::signal::ctrl_c().await;
+        let mut interrupt = Interrupt::new();
+        self.run_until(&mut interrupt).await;
+    }
+
+    async fn run_until(self, interrupt: &mut Interrupt) {
+        interrupt.wait().await;
         eprintln!(
             "stopping: open requests and the running edit get {} s to finish",
             self.grace.as_secs_f64()
         );
         self.stop().await;
+    }
+}
+
+/// Ctrl-C (SIGINT) or SIGTERM, listened for from the moment it is made (before the model loads,
+/// so that a signal during start-up is a clean stop, not the default action's kill).
+struct Interrupt {
+    #[cfg(unix)]
+    term: Option<tokio::signal::unix::Signal>,
+}
+
+impl Interrupt {
+    fn new() -> Self {
+        Self {
+            #[cfg(unix)]
+            term: tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok(),
+        }
+    }
+
+    async fn wait(&mut self) {
+        #[cfg(unix)]
+        if let Some(term) = self.term.as_mut() {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = term.recv() => {}
+            }
+            return;
+        }
+        let _ = tokio::signal::ctrl_c().await;
     }
 }
 
@@ -215,19 +294,14 @@ pub async fn start(cfg: ServeConfig) -> Result<Server> {
 
 /// [`start`] with temporary work folders made in `temp`.
 async fn start_in(cfg: ServeConfig, temp: &std::path::Path) -> Result<Server> {
-    let (work, remove_work) = match &cfg.work {
-        Some(w) => (w.clone(), false),
-        None => (
+    let work = match &cfg.work {
+        Some(w) => WorkFolder::create(w.clone(), false)?,
+        None => WorkFolder::create(
             temp.join(format!("matedit-serve-{}-{}", std::process::id(), nanos())),
             true,
-        ),
+        )?,
     };
-    std::fs::create_dir_all(&work).with_context(|| format!("cannot create the work folder {}", work.display()))?;
-    let started = serve_from(cfg, work.clone(), remove_work).await;
-    if started.is_err() && remove_work {
-        let _ = std::fs::remove_dir_all(&work);
-    }
-    started
+    serve_from(cfg, work).await
 }
 
 /// The model, with its light probe run ([`Model::light_skill`]): once here, not in the first
@@ -239,7 +313,7 @@ fn load_measured(path: &std::path::Path) -> Result<Model> {
 }
 
 /// [`start`] once the work folder exists.
-async fn serve_from(cfg: ServeConfig, work: PathBuf, remove_work: bool) -> Result<Server> {
+async fn serve_from(cfg: ServeConfig, work: WorkFolder) -> Result<Server> {
     // Bound first: a port in use is refused before the model is loaded and a worker started.
     let listener = tokio::net::TcpListener::bind((cfg.bind, cfg.port))
         .await
@@ -290,18 +364,23 @@ async fn serve_from(cfg: ServeConfig, work: PathBuf, remove_work: bool) -> Resul
         queue: queue.clone(),
         library: library::Library::default(),
         info,
-        work: work.clone(),
+        work: work.path.clone(),
         max_pixels: cfg.max_pixels,
         eq6: cfg.eq6.clone(),
         counter: AtomicU64::new(0),
         checking: Arc::new(tokio::sync::Semaphore::new(2)),
-        reading: tokio::sync::Semaphore::new(4),
+        // Eight uploads of the largest size at once; stalled ones hold what they sent, which is
+        // next to nothing, and are closed within seconds.
+        receiving: Arc::new(tokio::sync::Semaphore::new(
+            (8 * cfg.max_upload_bytes.div_ceil(1024)).min(tokio::sync::Semaphore::MAX_PERMITS),
+        )),
+        min_rate: cfg.deadlines.min_rate,
         upload_deadline: cfg.deadlines.upload,
         memory: Arc::new(tokio::sync::Semaphore::new(
             cfg.max_memory_mb.min(tokio::sync::Semaphore::MAX_PERMITS as u64) as usize,
         )),
         max_memory_mb: cfg.max_memory_mb,
-        secret: *blake3::hash(format!("{}:{}:{:?}", std::process::id(), nanos(), work).as_bytes()).as_bytes(),
+        secret: *blake3::hash(format!("{}:{}:{:?}", std::process::id(), nanos(), work.path).as_bytes()).as_bytes(),
     });
     let hosts = guard::Hosts {
         names: cfg.allow_hosts.iter().map(|h| h.to_ascii_lowercase()).collect(),
@@ -316,8 +395,7 @@ async fn serve_from(cfg: ServeConfig, work: PathBuf, remove_work: bool) -> Resul
         shutdown: Some(stx),
         task,
         worker: Some(worker),
-        work,
-        remove_work,
+        _work: work,
         grace: cfg.deadlines.grace,
     })
 }
@@ -332,10 +410,27 @@ async fn accept(
     headers: std::time::Duration,
 ) {
     let graceful = hyper_util::server::graceful::GracefulShutdown::new();
+    // Connections are capped below the open-file limit, which leaves descriptors for the files
+    // an edit opens; at the cap, the next connection waits in the listen queue until one closes
+    // (an idle one within the header deadline).
+    let open = Arc::new(tokio::sync::Semaphore::new(connection_cap()));
     loop {
+        let slot = tokio::select! {
+            slot = open.clone().acquire_owned() => slot,
+            _ = &mut stop => break,
+        };
+        let Ok(slot) = slot else { break };
         tokio::select! {
             conn = listener.accept() => {
-                let Ok((stream, _)) = conn else { continue };
+                let stream = match conn {
+                    Ok((stream, _)) => stream,
+                    // Out of descriptors (EMFILE, ENFILE) or another passing error: back off
+                    // rather than retry at once, which would spin a core while the error lasts.
+                    Err(_) => {
+                        tokio::time::sleep(ACCEPT_BACKOFF).await;
+                        continue;
+                    }
+                };
                 let service = hyper_util::service::TowerToHyperService::new(router.clone());
                 let conn = hyper::server::conn::http1::Builder::new()
                     .timer(hyper_util::rt::TokioTimer::new())
@@ -344,6 +439,7 @@ async fn accept(
                 let conn = graceful.watch(conn);
                 tokio::spawn(async move {
                     let _ = conn.await;
+                    drop(slot);
                 });
             }
             _ = &mut stop => break,
@@ -351,6 +447,27 @@ async fn accept(
     }
     drop(listener);
     graceful.shutdown().await;
+}
+
+/// How long the accept loop waits after a failed accept (out of file descriptors, say).
+const ACCEPT_BACKOFF: std::time::Duration = std::time::Duration::from_millis(100);
+
+/// Open connections at most: the open-file limit less 64 descriptors for the model, the edit's
+/// files and the runtime, at least 8 and at most 4096.
+fn connection_cap() -> usize {
+    #[cfg(unix)]
+    {
+        let mut lim = libc::rlimit {
+            rlim_cur: 0,
+            rlim_max: 0,
+        };
+        // SAFETY: getrlimit writes the struct it is given.
+        if unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut lim) } == 0 {
+            let soft = usize::try_from(lim.rlim_cur).unwrap_or(usize::MAX);
+            return soft.saturating_sub(64).clamp(8, 4096);
+        }
+    }
+    1024
 }
 
 fn nanos() -> u128 {
@@ -401,40 +518,55 @@ async fn thumbnail(State(app): State<Arc<App>>, UrlPath(name): UrlPath<String>) 
     }
 }
 
-async fn submit(State(app): State<Arc<App>>, headers: HeaderMap, mp: Multipart) -> Response {
-    if let Some(r) = from_the_page(&headers) {
+async fn submit(State(app): State<Arc<App>>, request: axum::extract::Request) -> Response {
+    use axum::extract::FromRequest as _;
+    if let Some(r) = from_the_page(request.headers()) {
         return r;
     }
     if let Err(full) = app.queue.has_room() {
         return error(StatusCode::SERVICE_UNAVAILABLE, full.to_string());
     }
-    // A few uploads are read at a time: each is held in memory whole. Waiting for a turn and
-    // sending the upload both count against the upload's deadline, so a client that stalls
-    // gives its turn back.
+    // No turns: an upload is admitted by the memory its bytes take as they arrive and read at a
+    // minimum rate ([`rate`]), so clients that stall cost a connection each for a few seconds
+    // and delay nobody. The whole upload still has its deadline.
     let deadline = tokio::time::Instant::now() + app.upload_deadline;
-    let too_slow = || {
+    let held = rate::Held::default();
+    let (parts, body) = request.into_parts();
+    let body = rate::limited(body, app.min_rate, app.receiving.clone(), held.clone());
+    let mp = match Multipart::from_request(axum::extract::Request::from_parts(parts, body), &()).await {
+        Ok(mp) => mp,
+        Err(r) => return r.into_response(),
+    };
+    let read = tokio::time::timeout_at(deadline, form::read_fields(mp)).await;
+    let slow = |why: String| {
         error(
             StatusCode::REQUEST_TIMEOUT,
-            format!(
-                "the upload did not arrive whole within {} s; try again (or on a faster connection)",
-                app.upload_deadline.as_secs()
-            ),
+            format!("{why}; try again (or on a faster connection)"),
         )
     };
-    let _reading = match tokio::time::timeout_at(deadline, app.reading.acquire()).await {
-        Ok(Ok(permit)) => permit,
-        Ok(Err(_)) => return error(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping"),
-        Err(_) => return too_slow(),
-    };
-    let fields = match tokio::time::timeout_at(deadline, form::read_fields(mp)).await {
+    let fields = match read {
+        _ if held.too_slow() => {
+            return slow(format!(
+                "the upload arrived slower than {:.0} KiB/s after its first {} s, so it was closed",
+                app.min_rate.bytes_per_second / 1024.0,
+                app.min_rate.grace.as_secs()
+            ));
+        }
         Ok(Ok(f)) => f,
         Ok(Err(r)) => return r,
-        Err(_) => return too_slow(),
+        Err(_) => {
+            return slow(format!(
+                "the upload did not arrive whole within {} s",
+                app.upload_deadline.as_secs()
+            ));
+        }
     };
     // Admitted by what its photos will need in memory, told by their headers before anything is
     // decoded; the reservation lasts until the edit ends.
+    // Masks and normal maps count too, as photos do (an upper bound): they are decoded at the
+    // photo's size before the edit starts.
     let need = upload::memory_mb(
-        ["photo", "source"]
+        ["photo", "source", "mask", "source_mask", "normals"]
             .iter()
             .filter_map(|role| fields.files.get(role).map(|p| p.bytes.as_ref())),
         app.max_pixels,
@@ -473,6 +605,8 @@ async fn submit(State(app): State<Arc<App>>, headers: HeaderMap, mp: Multipart) 
         let _permit = permit;
         let dir = app2.work.join(&id);
         let prepared = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| form::prepare(&app2, &dir, fields)));
+        // The uploads are on disk (or refused): their bytes no longer count against the budget.
+        held.release();
         let answer = match prepared {
             Ok(Ok((work, names))) => match app2
                 .queue
@@ -481,10 +615,7 @@ async fn submit(State(app): State<Arc<App>>, headers: HeaderMap, mp: Multipart) 
                 Ok((_, place)) => Ok((id.clone(), place)),
                 Err(full) => Err((StatusCode::SERVICE_UNAVAILABLE, full.to_string())),
             },
-            Ok(Err(e)) => Err((
-                StatusCode::UNPROCESSABLE_ENTITY,
-                format!("{e:#}").replace(&format!("{}/in/", dir.display()), ""),
-            )),
+            Ok(Err(e)) => Err((StatusCode::UNPROCESSABLE_ENTITY, app2.scrub(&format!("{e:#}"), &dir))),
             Err(_) => Err((
                 StatusCode::UNPROCESSABLE_ENTITY,
                 "the upload could not be read (its decoder failed)".to_string(),
@@ -589,15 +720,27 @@ pub fn serve(cfg: ServeConfig) -> Result<()> {
         .enable_all()
         .build()
         .context("cannot start the server's runtime")?;
-    rt.block_on(async move {
+    let served = rt.block_on(async move {
+        // Listening for the signals before anything is made: a SIGTERM while the model loads
+        // ends the start-up, and the work folder goes with it.
+        let mut interrupt = Interrupt::new();
         eprintln!("loading {} …", cfg.model.display());
         let public = !cfg.bind.is_loopback();
-        let server = start(cfg).await?;
+        let server = tokio::select! {
+            started = start(cfg) => started?,
+            _ = interrupt.wait() => {
+                eprintln!("stopped while starting");
+                return Ok(());
+            }
+        };
         say!("matedit serve: open http://{} (Ctrl-C stops)", server.addr);
         if public {
             eprintln!("note: listening beyond this machine; anyone who reaches it may queue edits");
         }
-        server.run_until_interrupted().await;
+        server.run_until(&mut interrupt).await;
         Ok(())
-    })
+    });
+    // A model still loading, or an edit left running (CANCEL_WAIT), is not waited for.
+    rt.shutdown_timeout(std::time::Duration::from_millis(200));
+    served
 }

@@ -79,7 +79,10 @@ impl std::str::FromStr for BrdfSpec {
                 .parse()
                 .map_err(|_| bad(format!("{what} {s:?} is not a number")))?;
             if !(lo..=hi).contains(&v) {
-                return Err(bad(format!("{what} {v} is outside [{lo}, {hi}]")));
+                // As written (at most 24 characters), not as Display writes the value: 1e-300
+                // would come back with 300 digits.
+                let shown: String = s.trim().chars().take(24).collect();
+                return Err(bad(format!("{what} {shown} is outside [{lo}, {hi}]")));
             }
             Ok(v)
         };
@@ -176,12 +179,15 @@ mod tests {
             ("lambert:0.5,x,0.5", "\"x\" is not a number"),
             ("lambert:0.5,NaN,0.5", "outside"),
             ("ggx:0:1,1,1", "ALPHA 0 is outside"),
+            ("ggx:1e-300:1,1,1", "ALPHA 1e-300 is outside"),
+            ("lambert:0.5,1e300,0.5", "1e300 is outside"),
             ("ggx:0.3", "expected ALPHA:F0"),
             ("phong:1", "unknown model"),
             ("dsbrdf:", "missing material file"),
         ] {
             let e = s.parse::<BrdfSpec>().unwrap_err().to_string();
             assert!(e.contains(needle), "{s}: {e}");
+            assert!(e.len() < 300, "{s}: numbers echoed in short form: {e}");
         }
         let e = "dsbrdf:/nonexistent/m.json"
             .parse::<BrdfSpec>()

@@ -15,6 +15,7 @@ use std::path::Path;
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
+mod defaults;
 mod edits;
 mod limits;
 mod uploads;
