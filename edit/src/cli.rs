@@ -265,8 +265,9 @@ file system. Binds to 127.0.0.1 unless --bind says otherwise.")]
         /// requests naming any other host are refused, which stops DNS rebinding.
         #[arg(long = "allow-host", value_parser = host_name)]
         allow_hosts: Vec<String>,
-        /// Seconds a client may take to send an upload whole (1–3600); a stalled upload gives
-        /// its place back when they are up.
+        /// Seconds a client may take to send an upload whole (1–3600). Uploads also have to
+        /// keep to 8 KiB/s after their first 5 s, or are closed (408): stalled clients hold
+        /// nothing another upload waits for.
         #[arg(long, default_value_t = 60, value_parser = count_in(1, 3600), allow_negative_numbers = true)]
         upload_seconds: usize,
     },

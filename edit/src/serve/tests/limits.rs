@@ -221,6 +221,24 @@ fn edits_are_admitted_by_the_memory_their_photos_need() {
     assert_eq!(s, 413, "{v}");
     assert!(v["error"].as_str().unwrap().contains("of memory"), "{v}");
     rt.block_on(server.stop());
+    // A mask counts as a photo does, from its header: a large one is refused before decoding.
+    let big_mask = png(image::GrayImage::new(4000, 4000));
+    let mut cfg = config(4);
+    cfg.max_pixels = 20_000_000;
+    cfg.max_upload_bytes = 8 << 20;
+    cfg.max_memory_mb = need + 10;
+    let server = rt.block_on(start(cfg)).unwrap();
+    let (s, v) = post_edit(
+        server.addr,
+        &[
+            ("photo", Some("car.png"), &photo),
+            ("mask", Some("huge-mask.png"), &big_mask),
+            ("material", None, b"library:gold-polished"),
+        ],
+    );
+    assert_eq!(s, 413, "{v}");
+    assert!(v["error"].as_str().unwrap().contains("of memory"), "{v}");
+    rt.block_on(server.stop());
     // A budget of one edit: edits one after another, each reservation given back at its end
     // (five in a row would wait forever otherwise).
     let mut cfg = config(4);
