@@ -389,7 +389,7 @@ pub fn work(queue: &Queue, model: &Model) {
         let state = match run {
             Ok(Ok(report)) => match job.publish_report(&report) {
                 Ok(()) => State::Done(Box::new(report)),
-                Err(e) => State::Failed(format!("the report could not be written: {e:#}")),
+                Err(e) => State::Failed(job.user_message(&format!("the report could not be written: {e:#}"))),
             },
             Ok(Err(e)) if e.downcast_ref::<Cancelled>().is_some() || job.progress.is_cancelled() => State::Cancelled,
             Ok(Err(e)) => State::Failed(job.user_message(&format!("{e:#}"))),

@@ -169,5 +169,48 @@ fn the_work_folder_and_everything_in_it_is_this_users_alone() {
         }
     }
     assert!(seen.0 >= 3 && seen.1 >= 5, "{seen:?}");
+    // Another user (nobody, through setpriv where this runs as root) cannot list the folder or
+    // read an upload.
+    let upload = walk_files(&work)
+        .into_iter()
+        .find(|p| p.to_string_lossy().contains("/in/photo"));
+    let setpriv = std::path::Path::new("/usr/bin/setpriv");
+    // SAFETY: geteuid reads this process's id.
+    if unsafe { libc::geteuid() } == 0 && setpriv.is_file() {
+        let upload = upload.expect("the saved photo");
+        for args in [
+            vec!["ls".to_string(), work.display().to_string()],
+            vec!["cat".to_string(), upload.display().to_string()],
+        ] {
+            let o = std::process::Command::new(setpriv)
+                .args(["--reuid=65534", "--regid=65534", "--clear-groups", "--"])
+                .args(&args)
+                .output()
+                .unwrap();
+            assert!(!o.status.success(), "nobody could {args:?}");
+            assert!(
+                String::from_utf8_lossy(&o.stderr).contains("Permission denied"),
+                "{o:?}"
+            );
+        }
+    } else {
+        eprintln!("not root (or no setpriv): the modes are checked, not another user's access");
+    }
     rt.block_on(server.stop());
+}
+
+fn walk_files(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).into_iter().flatten().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.push(p);
+            }
+        }
+    }
+    out
 }
