@@ -609,6 +609,7 @@ pub fn energy_plot(path: &Path, eq6: &super::Eq6Report) -> Result<()> {
         .fold((f64::INFINITY, 0.0_f64), |(a, b), &v| (a.min(v), b.max(v)));
     let (lo, hi) = (lo * 0.9, (hi * 1.1).max(lo * 1.01));
     let e = |e: DrawingAreaErrorKind<_>| anyhow::anyhow!("{}: {e}", path.display());
+    matedit_trainer::train::plot::embedded_font()?;
     let tmp = path.with_extension("tmp.png");
     {
         let root = BitMapBackend::new(&tmp, (800, 450)).into_drawing_area();

@@ -7,11 +7,27 @@ use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// DejaVu Sans (Bitstream Vera licence: `assets/fonts/LICENSE-DejaVu.txt`), the font of every
+/// plot, embedded: drawing text links no font library and looks up nothing on the machine.
+const FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
+
+/// Makes the embedded font plotters' `sans-serif`, once per process; every plot calls it first.
+pub fn embedded_font() -> Result<()> {
+    static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    let ok = *REGISTERED.get_or_init(|| plotters::style::register_font("sans-serif", FontStyle::Normal, FONT).is_ok());
+    if ok {
+        Ok(())
+    } else {
+        Err(anyhow!("the embedded plot font could not be read"))
+    }
+}
+
 /// Draws the curves of `lines` into `path` (PNG, 960×540).
 pub fn loss_curves(lines: &[MetricsLine], path: &Path, w: &LossWeights) -> Result<()> {
     if lines.is_empty() {
         return Ok(());
     }
+    embedded_font()?;
     let tmp = path.with_extension("tmp.png");
     {
         let root = BitMapBackend::new(&tmp, (960, 540)).into_drawing_area();
@@ -218,6 +234,15 @@ mod tests {
         ] {
             let n = img.pixels().filter(|p| p.0 == colour).count();
             assert!(n > 300, "colour {colour:?}: {n} pixels");
+        }
+        // The caption is drawn in the embedded font: dark pixels along the top.
+        let dark = (0..960)
+            .flat_map(|x| (0..36).map(move |y| (x, y)))
+            .filter(|&(x, y)| img.get_pixel(x, y).0.iter().all(|&c| c < 96))
+            .count();
+        assert!(dark > 100, "no caption text ({dark} dark pixels)");
+        if let Ok(keep) = std::env::var("MATEDIT_KEEP_PLOT") {
+            let _ = std::fs::copy(&path, keep);
         }
         let _ = std::fs::remove_file(&path);
     }
