@@ -180,13 +180,8 @@ fn check_batches(plan: &TrainPlan, ranks: &Ranks) -> Result<()> {
     for (i, st) in plan.manifest.stages.iter().enumerate() {
         let b = st.get_ref().batch_size;
         if w > 1 && (b < w || b % w != 0) {
-            // The line of the stage's `batch_size` (the stage's own line where it is not found).
-            let span = st.span();
-            let at = plan
-                .text
-                .get(span.clone())
-                .and_then(|t| t.find("batch_size"))
-                .map_or(span.start, |k| span.start + k);
+            // The line of the stage's `batch_size`.
+            let at = super::manifest::key_span(&plan.text, st.span(), "batch_size").start;
             let line = matedit_contract::manifest::line_of(&plan.text, at);
             bail!(
                 "{}:{line}: stages[{i}].batch_size = {b} cannot be shared by {w} ranks: every rank takes an equal part \

@@ -258,6 +258,30 @@ pub struct StageSection {
     pub checkpoint_every: usize,
 }
 
+/// Where `key = …` is written in the table that starts at `table` in `text` (toml gives an array
+/// of tables' entry the span of its header): the line, up to the next table header; or the
+/// table's own span when the key is not written there (a default).
+pub fn key_span(text: &str, table: std::ops::Range<usize>, key: &str) -> std::ops::Range<usize> {
+    let Some(body) = text.get(table.start..) else {
+        return table;
+    };
+    let mut offset = table.start;
+    for (n, line) in body.split_inclusive('\n').enumerate() {
+        let t = line.trim_start();
+        if n > 0 && t.starts_with('[') {
+            break;
+        }
+        if let Some(rest) = t.strip_prefix(key)
+            && rest.trim_start().starts_with('=')
+        {
+            let start = offset + (line.len() - t.len());
+            return start..start + t.trim_end().len();
+        }
+        offset += line.len();
+    }
+    table
+}
+
 fn default_split() -> String {
     "train".into()
 }
@@ -412,39 +436,39 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
     for (i, st) in m.stages.iter().enumerate() {
         let s = st.get_ref();
         let field = |f: &str| format!("stages[{i}].{f}");
-        if s.steps == 0 || s.batch_size == 0 {
-            return Err(bad(
-                st.span(),
-                &field("steps"),
-                "steps and batch_size must be positive".into(),
-            ));
+        // An error names the line of the key that is wrong, not the stage's first line.
+        let at = |key: &str| key_span(&text, st.span(), key);
+        for (key, v) in [("steps", s.steps), ("batch_size", s.batch_size)] {
+            if v == 0 {
+                return Err(bad(at(key), &field(key), format!("{key} must be positive")));
+            }
         }
         if s.learning_rate.is_empty()
             || s.learning_rate[0].0 != 0
             || s.learning_rate.windows(2).any(|w| w[1].0 <= w[0].0)
         {
             return Err(bad(
-                st.span(),
+                at("learning_rate"),
                 &field("learning_rate"),
                 "a list of [from_step, lr] starting at step 0, in increasing steps".into(),
             ));
         }
         if let Some((_, lr)) = s.learning_rate.iter().find(|(_, lr)| !(*lr > 0.0 && *lr <= 1.0)) {
             return Err(bad(
-                st.span(),
+                at("learning_rate"),
                 &field("learning_rate"),
                 format!("learning rates must lie in (0, 1], got {lr:e}"),
             ));
         }
         for (name, b) in [("beta1", s.beta1), ("beta2", s.beta2)] {
             if !(0.0..1.0).contains(&b) {
-                return Err(bad(st.span(), &field(name), format!("must lie in [0, 1), got {b}")));
+                return Err(bad(at(name), &field(name), format!("must lie in [0, 1), got {b}")));
             }
         }
         let rw = s.render_with;
         if s.kind != StageKind::Joint && rw != RenderWith::default() {
             return Err(bad(
-                st.span(),
+                at("render_with"),
                 &field("render_with"),
                 format!(
                     "a {} stage does not render; render_with applies to joint stages",
@@ -461,7 +485,7 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
             .any(|s| s.learns_through_layer())
         {
             return Err(bad(
-                st.span(),
+                at("render_with"),
                 &field("render_with"),
                 "with none of n, m and L \"predicted\" (all \"truth\" or \"detached\") the rendering layer trains nothing".into(),
             ));
@@ -470,14 +494,14 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
             && !m.stages[..i].iter().any(|o| &o.get_ref().name == src)
         {
             return Err(bad(
-                st.span(),
+                at("from"),
                 &field("from"),
                 format!("{src:?} is not an earlier stage"),
             ));
         }
         if m.stages[..i].iter().any(|o| o.get_ref().name == s.name) {
             return Err(bad(
-                st.span(),
+                at("name"),
                 &field("name"),
                 format!("stage name {:?} is used twice", s.name),
             ));
@@ -604,7 +628,7 @@ impl TrainPlan {
                 invalid(
                     &self.path,
                     &self.text,
-                    self.manifest.stages[i].span(),
+                    key_span(&self.text, self.manifest.stages[i].span(), "dataset"),
                     &format!("stages[{i}].dataset"),
                     e,
                 )

@@ -95,3 +95,71 @@ fn fields_outside_their_ranges_are_refused_naming_the_field() {
         assert!(parse(&path, text.replacen(from, to, 1)).is_ok(), "{to}");
     }
 }
+
+/// Every stage field's refusal names the line that field is written on, not the stage's first
+/// line (a wrong `batch_size` on line 49 was reported as line 44, `stages[0].steps`).
+#[test]
+fn every_stage_field_is_refused_at_its_own_line() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../manifests/train/quickstart.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let cases = [
+        // (stage, line as written, replacement, field)
+        (0, "steps = 1200", "steps = 0", "stages[0].steps"),
+        (0, "batch_size = 8", "batch_size = 0", "stages[0].batch_size"),
+        (
+            0,
+            "learning_rate = [[0, 1e-3], [900, 3e-4], [1100, 1e-4]]",
+            "learning_rate = [[0, 1e-3], [900, 3e-4], [800, 1e-4]]",
+            "stages[0].learning_rate",
+        ),
+        (
+            0,
+            "learning_rate = [[0, 1e-3], [900, 3e-4], [1100, 1e-4]]",
+            "learning_rate = [[0, 1e-3], [900, 3.0]]",
+            "stages[0].learning_rate",
+        ),
+        (0, "beta1 = 0.9", "beta1 = 1.0", "stages[0].beta1"),
+        (0, "beta2 = 0.999", "beta2 = -0.1", "stages[0].beta2"),
+        (
+            0,
+            "split = \"train\"",
+            "render_with = { normals = \"truth\" }",
+            "stages[0].render_with",
+        ),
+        (
+            1,
+            "render_with = { normals = \"truth\", material = \"truth\" }",
+            "render_with = { normals = \"truth\", material = \"truth\", illumination = \"truth\" }",
+            "stages[1].render_with",
+        ),
+        (1, "name = \"light\"", "name = \"pretrain\"", "stages[1].name"),
+        (1, "split = \"train\"", "from = \"joint\"", "stages[1].from"),
+    ];
+    for (stage, from, to, field) in cases {
+        // The stage's own occurrence of the line.
+        let starts: Vec<usize> = text.match_indices("[[stages]]").map(|(k, _)| k).collect();
+        let at = starts[stage] + text[starts[stage]..].find(from).unwrap_or_else(|| panic!("{from}"));
+        let changed = format!("{}{to}{}", &text[..at], &text[at + from.len()..]);
+        let line = changed[..at].matches('\n').count() + 1;
+        let e = parse(&path, changed).err().unwrap_or_else(|| panic!("{to}: accepted"));
+        let msg = e.to_string();
+        assert!(
+            msg.contains(&format!("quickstart.toml:{line}: {field}")),
+            "{to}: expected line {line} and {field}: {msg}"
+        );
+    }
+}
+
+#[test]
+fn a_key_is_found_on_its_own_line_and_a_default_falls_back_to_the_table() {
+    let text = "[[stages]]\nname = \"a\"\n  steps=3 # x\nbatch_sizes = 1\n\n[[stages]]\nbatch_size = 2\n";
+    let table = 0..10;
+    let steps = key_span(text, table.clone(), "steps");
+    assert_eq!(&text[steps.clone()], "steps=3 # x");
+    assert_eq!(
+        key_span(text, table.clone(), "batch_size"),
+        table,
+        "batch_sizes is another key, and the next table's is not this one's"
+    );
+    assert_eq!(key_span(text, 500..510, "steps"), 500..510, "a span outside the text");
+}
