@@ -39,25 +39,8 @@ fn sigterm_ends_the_server_within_its_grace_period_whatever_clients_do() {
     let model = untrained_model(&root);
     let tmp = root.join("tmp");
     std::fs::create_dir_all(&tmp).unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_matedit"))
-        .args(["serve", "--port", "0", "--model"])
-        .arg(&model)
-        .env("TMPDIR", &tmp)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    // "matedit serve: open http://127.0.0.1:PORT (Ctrl-C stops)"
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let addr = line
-        .split("http://")
-        .nth(1)
-        .and_then(|r| r.split_whitespace().next())
-        .unwrap_or_else(|| panic!("no address in {line:?}"))
-        .to_string();
+    let mut child = serve(&model, &tmp, None);
+    let addr = address(&mut child);
     // Two clients that stall: an upload that never ends, headers that never end.
     let mut upload = TcpStream::connect(&addr).unwrap();
     upload
@@ -75,16 +58,7 @@ fn sigterm_ends_the_server_within_its_grace_period_whatever_clients_do() {
         .status()
         .unwrap();
     assert!(term.success());
-    let status = loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            break s;
-        }
-        if t.elapsed() > Duration::from_secs(20) {
-            let _ = child.kill();
-            panic!("still running {:?} after SIGTERM", t.elapsed());
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    };
+    let status = wait_exit(&mut child, Duration::from_secs(20));
     assert!(status.success(), "{status:?}");
     assert!(t.elapsed() < Duration::from_secs(13), "took {:?}", t.elapsed());
     let left: Vec<_> = std::fs::read_dir(&tmp).unwrap().collect();
@@ -168,7 +142,8 @@ fn serve(model: &Path, tmp: &Path, nofile: Option<u64>) -> std::process::Child {
     cmd.spawn().unwrap()
 }
 
-/// The address `matedit serve` says it listens on.
+/// The address `matedit serve` says it listens on ("matedit serve: open http://127.0.0.1:PORT
+/// (Ctrl-C stops)").
 fn address(child: &mut std::process::Child) -> String {
     let mut line = String::new();
     BufReader::new(child.stdout.take().unwrap())

@@ -460,14 +460,7 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
             workers,
             runs,
         } => {
-            let mut rates = Vec::new();
-            let mut samples = 0;
-            for _ in 0..runs {
-                let (n, s) = crate::data::rate::loader_rate(&data, &split, batch_size, workers, true)?;
-                samples = n;
-                rates.push(n as f64 / s.max(1e-9));
-            }
-            rates.sort_by(f64::total_cmp);
+            let (samples, rates) = crate::data::rate::loader_rates(&data, &split, batch_size, workers, runs)?;
             println!(
                 "{}: split {split}, {samples} samples, batch {batch_size}, {workers} workers, checksums verified: median {:.1} samples/s over {runs} passes (min {:.1}, max {:.1})",
                 data.display(),

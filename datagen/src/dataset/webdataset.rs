@@ -283,16 +283,37 @@ fn inside(path: &Path, dir: &Path) -> bool {
 /// The tars a previous run of this export finished (checked against their checksums); refuses
 /// an `out` that holds the export of another dataset or of other limits.
 fn resume(out: &Path, source: &str, limits: Limits) -> Result<BTreeMap<String, TarRecord>> {
-    let finished = out.join(RECORD);
-    if finished.is_file() {
+    // What a previous run left: a finished export's record, else the progress of an unfinished
+    // one, read as one kind of record.
+    let (finished, partial) = (out.join(RECORD), out.join(PROGRESS));
+    let previous = if finished.is_file() {
         let r: ExportRecord = serde_json::from_slice(&std::fs::read(&finished)?)
             .with_context(|| format!("{}: not an export record", finished.display()))?;
-        if r.source_index_checksum != source || r.limits != limits {
-            bail!(
-                "{} holds an export of another dataset or with other shard limits: choose another OUT or delete it",
-                out.display()
-            );
-        }
+        Some(ProgressRecord {
+            source_index_checksum: r.source_index_checksum,
+            limits: r.limits,
+            done: r
+                .splits
+                .into_iter()
+                .flat_map(|s| s.shards)
+                .map(|t| (t.name.clone(), t))
+                .collect(),
+        })
+    } else if partial.is_file() {
+        Some(
+            serde_json::from_slice(&std::fs::read(&partial)?)
+                .with_context(|| format!("{}: not an export's progress", partial.display()))?,
+        )
+    } else {
+        None
+    };
+    if let Some(p) = &previous
+        && (p.source_index_checksum != source || p.limits != limits)
+    {
+        bail!(
+            "{} holds an export of another dataset or with other shard limits: choose another OUT or delete it",
+            out.display()
+        );
     }
     // Temporary files of a killed run.
     for e in std::fs::read_dir(out)? {
@@ -301,35 +322,17 @@ fn resume(out: &Path, source: &str, limits: Limits) -> Result<BTreeMap<String, T
             let _ = std::fs::remove_file(&p);
         }
     }
-    let p = out.join(PROGRESS);
-    let mut done = BTreeMap::new();
-    let previous = if finished.is_file() {
-        let r: ExportRecord = serde_json::from_slice(&std::fs::read(&finished)?)?;
-        r.splits
-            .into_iter()
-            .flat_map(|s| s.shards)
-            .map(|t| (t.name.clone(), t))
-            .collect()
-    } else if p.is_file() {
-        let r: ProgressRecord = serde_json::from_slice(&std::fs::read(&p)?)
-            .with_context(|| format!("{}: not an export's progress", p.display()))?;
-        if r.source_index_checksum != source || r.limits != limits {
-            bail!(
-                "{} holds part of an export of another dataset or with other shard limits: choose another OUT or delete it",
-                out.display()
-            );
-        }
-        r.done
-    } else {
-        BTreeMap::new()
+    let Some(previous) = previous else {
+        return Ok(BTreeMap::new());
     };
-    for (name, t) in previous {
-        let bytes = std::fs::read(out.join(&name)).unwrap_or_default();
-        if bytes.len() as u64 == t.bytes && checksum(&bytes) == t.checksum {
-            done.insert(name, t);
-        }
-    }
-    Ok(done)
+    Ok(previous
+        .done
+        .into_iter()
+        .filter(|(name, t)| {
+            let bytes = std::fs::read(out.join(name)).unwrap_or_default();
+            bytes.len() as u64 == t.bytes && checksum(&bytes) == t.checksum
+        })
+        .collect())
 }
 
 /// A sample's JSON member.

@@ -141,14 +141,10 @@ class Dataset:
     # -- opening ---------------------------------------------------------------------------------
 
     def _material(self, where: Path, mid: str, m: dict) -> Material:
-        raw = np.asarray(m.get("raw", []), dtype=np.float64)
-        norm = np.asarray(m.get("normalised", []), dtype=np.float64)
-        if norm.shape != (108,) or not np.isfinite(norm).all() or raw.shape != (108,):
-            raise DatasetError(where, f"material {mid}: expected 108 finite raw and normalised parameters")
         spec = None
         if self.kind == "folder":
             spec = "dsbrdf:" + str(self.dir / "materials" / f"{_file_stem(mid)}.dsbrdf.json")
-        return Material(mid, m.get("group", mid), raw, norm.astype(np.float32), spec)
+        return _material(where, f"material {mid}", mid, m, spec)
 
     def _check_record(self, at: str, rec: dict) -> None:
         regions = rec.get("regions", [])
@@ -221,7 +217,6 @@ class Dataset:
                 if not _plain(name) or "/" in name:
                     raise DatasetError(rec_path, f"shard {name!r} is not a file name")
                 shards.append(Shard(self, name, [None] * int(t["samples"]), tar=self.dir / name))
-                shards[-1].meta = t
             records = [None] * int(s.get("samples", 0))
             if sum(len(x) for x in shards) != len(records):
                 raise DatasetError(rec_path, f"split {s['name']}: its shards' samples do not add up to {len(records)}")
@@ -332,15 +327,21 @@ class Dataset:
         return self._decode(rec, members["exr"], members["env.exr"], name("exr"), name("env.exr"), table)
 
 
+def _material(where, what: str, mid: str, m: dict, spec: Optional[str]) -> Material:
+    """A material record (`raw`, `normalised`, `group`) as a :class:`Material`, checked."""
+    raw = np.asarray(m.get("raw", []), dtype=np.float64)
+    norm = np.asarray(m.get("normalised", []), dtype=np.float64)
+    if norm.shape != (108,) or raw.shape != (108,) or not np.isfinite(norm).all():
+        raise DatasetError(where, f"{what}: expected 108 finite raw and normalised parameters")
+    return Material(mid, m.get("group", mid), raw, norm.astype(np.float32), spec)
+
+
 def sample_materials(rec: dict, where) -> Dict[str, Material]:
     """The materials a WebDataset sample's JSON member carries, by id."""
     out = {}
     for m in rec.get("materials", []) + rec.get("target_materials", []):
-        raw = np.asarray(m.get("raw", []), dtype=np.float64)
-        norm = np.asarray(m.get("normalised", []), dtype=np.float64)
-        if norm.shape != (108,) or raw.shape != (108,) or not np.isfinite(norm).all():
-            raise DatasetError(where, f"sample {rec.get('id')}: material {m.get('id')}: expected 108 finite parameters")
-        out[m["id"]] = Material(m["id"], m.get("group", m["id"]), raw, norm.astype(np.float32), None)
+        mid = m.get("id", "")
+        out[mid] = _material(where, f"sample {rec.get('id')}: material {mid}", mid, m, None)
     for mid in rec.get("material_ids", []) + rec.get("target_material_ids", []):
         if mid not in out:
             raise DatasetError(where, f"sample {rec.get('id')}: material {mid} is not in its JSON member")

@@ -15,7 +15,7 @@ decodes it (``trainer/src/data/sample.rs``), so that both give the same numbers.
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Dict, List, Optional, Tuple
 
 import numpy as np
@@ -219,10 +219,3 @@ def decode_env(data: bytes) -> Tuple[np.ndarray, int]:
     env = np.stack([_take(ch, c, counter) for c in ("R", "G", "B")], axis=-1)
     return env, counter[0]
 
-
-@dataclass
-class _Files:
-    image: bytes
-    env: bytes
-    image_name: str = field(default="")
-    env_name: str = field(default="")

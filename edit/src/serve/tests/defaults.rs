@@ -37,16 +37,8 @@ fn with_the_defaults_stalled_uploads_delay_no_edit_and_are_closed_within_seconds
         dribbling
     });
     std::thread::sleep(Duration::from_millis(300));
-    let (photo, mask) = photo_and_mask();
     let t = Instant::now();
-    let (s, v) = post_edit(
-        addr,
-        &[
-            ("photo", Some("car.png"), &photo),
-            ("mask", Some("car-mask.png"), &mask),
-            ("material", None, b"library:gold-polished"),
-        ],
-    );
+    let (s, v) = post_gold_edit(addr);
     assert_eq!(s, 202, "{v}");
     assert!(t.elapsed() < Duration::from_secs(3), "accepted after {:?}", t.elapsed());
     // Every stalled upload is answered 408 (too slow) and closed within the grace period and
@@ -139,41 +131,22 @@ fn the_work_folder_and_everything_in_it_is_this_users_alone() {
     let mut cfg = defaults();
     cfg.work = Some(work.clone());
     let server = rt.block_on(start(cfg)).unwrap();
-    let (photo, mask) = photo_and_mask();
-    let (s, v) = post_edit(
-        server.addr,
-        &[
-            ("photo", Some("car.png"), &photo),
-            ("mask", Some("car-mask.png"), &mask),
-            ("material", None, b"library:gold-polished"),
-        ],
-    );
+    let (s, v) = post_gold_edit(server.addr);
     assert_eq!(s, 202, "{v}");
     let done = wait_for(server.addr, v["url"].as_str().unwrap(), &["done", "failed"]);
     assert_eq!(done["state"], "done", "{done}");
-    let mut seen = (0, 0);
-    let mut stack = vec![work.clone()];
-    while let Some(d) = stack.pop() {
-        let mode = std::fs::metadata(&d).unwrap().permissions().mode() & 0o777;
-        assert_eq!(mode, 0o700, "{}", d.display());
-        seen.0 += 1;
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                let mode = std::fs::metadata(&p).unwrap().permissions().mode() & 0o777;
-                assert_eq!(mode & 0o077, 0, "{} is {mode:o}", p.display());
-                seen.1 += 1;
-            }
-        }
+    let (dirs, files) = walk(&work);
+    let mode = |p: &std::path::Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+    for d in &dirs {
+        assert_eq!(mode(d), 0o700, "{}", d.display());
     }
-    assert!(seen.0 >= 3 && seen.1 >= 5, "{seen:?}");
+    for f in &files {
+        assert_eq!(mode(f) & 0o077, 0, "{} is {:o}", f.display(), mode(f));
+    }
+    assert!(dirs.len() >= 3 && files.len() >= 5, "{dirs:?} {files:?}");
     // Another user (nobody, through setpriv where this runs as root) cannot list the folder or
     // read an upload.
-    let upload = walk_files(&work)
-        .into_iter()
-        .find(|p| p.to_string_lossy().contains("/in/photo"));
+    let upload = files.iter().find(|p| p.to_string_lossy().contains("/in/photo"));
     let setpriv = std::path::Path::new("/usr/bin/setpriv");
     // SAFETY: geteuid reads this process's id.
     if unsafe { libc::geteuid() } == 0 && setpriv.is_file() {
@@ -199,8 +172,9 @@ fn the_work_folder_and_everything_in_it_is_this_users_alone() {
     rt.block_on(server.stop());
 }
 
-fn walk_files(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
-    let mut out = Vec::new();
+/// Every folder under `dir` (itself included) and every file.
+fn walk(dir: &std::path::Path) -> (Vec<std::path::PathBuf>, Vec<std::path::PathBuf>) {
+    let (mut dirs, mut files) = (Vec::new(), Vec::new());
     let mut stack = vec![dir.to_path_buf()];
     while let Some(d) = stack.pop() {
         for e in std::fs::read_dir(&d).into_iter().flatten().flatten() {
@@ -208,9 +182,10 @@ fn walk_files(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
             if p.is_dir() {
                 stack.push(p);
             } else {
-                out.push(p);
+                files.push(p);
             }
         }
+        dirs.push(d);
     }
-    out
+    (dirs, files)
 }

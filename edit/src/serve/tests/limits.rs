@@ -81,16 +81,8 @@ fn stalled_and_slow_clients_hold_nothing_for_longer_than_the_deadlines() {
     std::thread::sleep(Duration::from_millis(300));
     // Meanwhile a real client is served: its edit is accepted at once (stalled uploads hold no
     // turn) and runs.
-    let (photo, mask) = photo_and_mask();
     let t = Instant::now();
-    let (s, v) = post_edit(
-        addr,
-        &[
-            ("photo", Some("car.png"), &photo),
-            ("mask", Some("car-mask.png"), &mask),
-            ("material", None, b"library:gold-polished"),
-        ],
-    );
+    let (s, v) = post_gold_edit(addr);
     assert_eq!(s, 202, "{v}");
     assert!(t.elapsed() < Duration::from_secs(4), "accepted after {:?}", t.elapsed());
     let done = wait_for(addr, v["url"].as_str().unwrap(), &["done", "failed"]);

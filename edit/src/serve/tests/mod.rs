@@ -151,6 +151,19 @@ fn post_edit(addr: SocketAddr, parts: &[(&str, Option<&str>, &[u8])]) -> (u16, V
     (s, json_of(&b))
 }
 
+/// The test photo and its mask edited to polished gold: the edit most tests queue.
+fn post_gold_edit(addr: SocketAddr) -> (u16, Value) {
+    let (photo, mask) = photo_and_mask();
+    post_edit(
+        addr,
+        &[
+            ("photo", Some("car.png"), &photo),
+            ("mask", Some("car-mask.png"), &mask),
+            ("material", None, b"library:gold-polished"),
+        ],
+    )
+}
+
 fn wait_for(addr: SocketAddr, url: &str, states: &[&str]) -> Value {
     let t = Instant::now();
     loop {
