@@ -244,6 +244,22 @@ fn manifests_that_try_to_leak_or_ask_too_much_are_refused_with_field_and_line() 
             "may not share materials",
         ),
         (
+            "validation split borrowing training materials",
+            manifest(
+                "[[splits]]\nname = \"val\"\nshapes = { car = 1 }\nmaterials_from = \"train\"",
+                "",
+            ),
+            "splits[1].materials_from: split \"train\" has role train and this one val",
+        ),
+        (
+            "an unknown role",
+            manifest(
+                "[[splits]]\nname = \"held\"\nrole = \"holdout\"\nshapes = { car = 1 }\nmaterials = 2",
+                "",
+            ),
+            "splits[1].role: \"holdout\": expected train, val or test",
+        ),
+        (
             "too many shapes",
             manifest("[[splits]]\nname = \"test\"\nshapes = { car = 3 }\nmaterials = 2", ""),
             "splits[1].shapes.car",
@@ -540,6 +556,84 @@ fn the_command_line_refuses_a_second_run_and_names_bad_manifest_lines() {
         .unwrap()
         + 1;
     assert!(err.contains(&format!("bad.toml:{line}: render.shadows")), "{err}");
+
+    // `extends` and `--set`: a value's error names the option that gave it; the plan is the
+    // resolved manifest's.
+    let exp = write(&d, "exp.toml", "extends = \"m.toml\"\n[render]\nresolution = 32\n");
+    let o = Command::new(datagen())
+        .args(["plan"])
+        .arg(&exp)
+        .args(["--set", "render.shadows=sometimes"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("--set render.shadows=sometimes: render.shadows: \"sometimes\""),
+        "{err}"
+    );
+    let o = Command::new(datagen())
+        .args(["plan"])
+        .arg(&exp)
+        .args(["--set", "splits[test].materials=1"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let plan = String::from_utf8_lossy(&o.stdout);
+    assert!(plan.contains("32×32 images"), "extends: {plan}");
+    let test_line = plan.lines().find(|l| l.starts_with("split test")).unwrap();
+    assert!(test_line.contains("materials: 1;"), "--set: {test_line}");
+    let o = Command::new(datagen())
+        .args(["plan"])
+        .arg(&exp)
+        .args(["--set", "splits[nope].materials=1"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("no entry of splits is named \"nope\" (train, test)"),
+        "{err}"
+    );
+}
+
+/// A `val` split (validation while training) is dealt as a test split is: shapes and materials
+/// of its own, recorded with its role, and checked by `datagen verify` like any other.
+#[test]
+fn a_validation_split_is_dealt_apart_from_training_and_test() {
+    let d = scratch("val");
+    let text = manifest(
+        &format!("{TEST_SPLIT}\n[[splits]]\nname = \"val\"\nshapes = {{ car = 1, chair = 1 }}\nmaterials = 2\n"),
+        "quality = \"fast\"",
+    )
+    .replace("per_combination = 2", "per_combination = 1");
+    let m = write(&d, "m.toml", &text);
+    let out = d.join("out");
+    run_to(&m, &out);
+    let ds: Value = serde_json::from_str(&std::fs::read_to_string(out.join("dataset.json")).unwrap()).unwrap();
+    let splits = ds["plan"]["splits"].as_array().unwrap();
+    let role = |n: &str| splits.iter().find(|s| s["name"] == n).unwrap()["role"].clone();
+    assert_eq!(
+        (role("train"), role("test"), role("val")),
+        ("train".into(), "test".into(), "val".into())
+    );
+    let members = |n: &str, k: &str| -> BTreeSet<String> {
+        splits.iter().find(|s| s["name"] == n).unwrap()[k]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_str().unwrap().to_string())
+            .collect()
+    };
+    for k in ["shapes", "materials"] {
+        let (t, v, x) = (members("train", k), members("val", k), members("test", k));
+        assert!(
+            !v.is_empty() && t.is_disjoint(&v) && x.is_disjoint(&v),
+            "{k}: {t:?} {v:?} {x:?}"
+        );
+    }
+    let rep = verify(&out).unwrap();
+    assert!(rep.problems.is_empty(), "{:?}", rep.problems);
+    assert!(index(&out).iter().any(|r| r["split"] == "val"));
 }
 
 #[test]

@@ -46,6 +46,10 @@ enum Command {
     Plan {
         /// The manifest (TOML).
         manifest: PathBuf,
+        /// Override a manifest field, `PATH=VALUE` (e.g. `render.resolution=128`,
+        /// `splits[test].materials=8`); repeatable, applied in order after `extends`.
+        #[arg(long = "set", value_name = "PATH=VALUE")]
+        sets: Vec<String>,
     },
     /// Render a manifest's dataset (resumable: a rerun continues where it stopped).
     Run {
@@ -57,6 +61,10 @@ enum Command {
         /// Render only worker I of N's shards (for job arrays); then `datagen join`.
         #[arg(long, default_value = "0/1")]
         worker: Worker,
+        /// Override a manifest field, `PATH=VALUE`, as for `datagen plan`; the dataset records
+        /// the result (and a resumed run must be given the same).
+        #[arg(long = "set", value_name = "PATH=VALUE")]
+        sets: Vec<String>,
     },
     /// Join the shards of all workers into index.jsonl and dataset.json.
     Join {
@@ -368,14 +376,14 @@ mod dataset {
     use super::*;
     use crate::dataset::{inspect as ins, run as r, store, verify as v};
 
-    pub fn plan(manifest: &std::path::Path) -> Result<()> {
-        let l = r::load(manifest)?;
+    pub fn plan(manifest: &std::path::Path, sets: &[String]) -> Result<()> {
+        let l = r::load_with(manifest, sets)?;
         print!("{}", r::describe(&l));
         Ok(())
     }
 
-    pub fn run(manifest: &std::path::Path, out: Option<PathBuf>, worker: Worker) -> Result<()> {
-        let l = r::load(manifest)?;
+    pub fn run(manifest: &std::path::Path, sets: &[String], out: Option<PathBuf>, worker: Worker) -> Result<()> {
+        let l = r::load_with(manifest, sets)?;
         for note in &l.plan.catalogue.substitutions {
             eprintln!("note: {note}");
         }
@@ -485,8 +493,13 @@ pub fn main() -> ExitCode {
         Command::Render(a) => run_render(a),
         Command::Assets(c) => run_assets(c),
         Command::Fit { brdf, out } => run_fit(brdf, out),
-        Command::Plan { manifest } => dataset::plan(&manifest),
-        Command::Run { manifest, out, worker } => dataset::run(&manifest, out, worker),
+        Command::Plan { manifest, sets } => dataset::plan(&manifest, &sets),
+        Command::Run {
+            manifest,
+            out,
+            worker,
+            sets,
+        } => dataset::run(&manifest, &sets, out, worker),
         Command::Join { dir, from } => dataset::join(&dir, &from),
         Command::Verify { dir, sources } => return dataset::verify(&dir, sources.as_deref()),
         Command::Inspect {

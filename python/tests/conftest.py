@@ -42,6 +42,26 @@ def export(dataset, tmp_path_factory) -> Path:
     return out
 
 
+@pytest.fixture(scope="session")
+def network(dataset, tmp_path_factory) -> Path:
+    """A network the trainer under test trained (two steps) and exported."""
+    tmp = tmp_path_factory.mktemp("net")
+    run(
+        binary("trainer"), "run", Path(__file__).with_name("tiny-train.toml"), "--out", tmp / "run",
+        "--quiet", "--set", f"data.dataset={json_string(dataset)}", "--set", "eval.max_samples=2",
+    )
+    out = tmp / "net.safetensors"
+    run(binary("trainer"), "export", tmp / "run" / "checkpoints" / "pretrain", "--safetensors", out)
+    return out
+
+
+def json_string(p: Path) -> str:
+    """A path as a TOML basic string (JSON's escapes are TOML's)."""
+    import json
+
+    return json.dumps(str(p))
+
+
 def dump(data: Path, split: str, first: int, count: int, out: Path) -> dict:
     """The trainer's batch of those samples, as numpy arrays (and its metadata)."""
     from safetensors import safe_open

@@ -325,7 +325,7 @@ pub fn manifest_training(
         Some(name) => stages.iter().position(|s| s.get_ref().name == name).ok_or_else(|| {
             anyhow::anyhow!(
                 "{}: no stage named {name:?} (stages: {})",
-                plan.path.display(),
+                plan.path().display(),
                 stages
                     .iter()
                     .map(|s| s.get_ref().name.clone())
@@ -336,7 +336,12 @@ pub fn manifest_training(
         None => stages
             .iter()
             .rposition(|s| s.get_ref().kind == StageKind::Joint)
-            .ok_or_else(|| anyhow::anyhow!("{}: no joint stage to time; name one with --stage", plan.path.display()))?,
+            .ok_or_else(|| {
+                anyhow::anyhow!(
+                    "{}: no joint stage to time; name one with --stage",
+                    plan.path().display()
+                )
+            })?,
     };
     let st = stages[si].get_ref();
     // The manifest's device, as `trainer run` would use, unless the command line names one.
@@ -381,7 +386,7 @@ pub fn manifest_training(
     let terms = loss_terms(&plan.weights);
     let what = format!(
         "{} stage {:?} ({:?}, batch {}, {}²; loss terms on: {}; {})",
-        plan.path.display(),
+        plan.path().display(),
         st.name,
         st.kind,
         st.batch_size,
@@ -461,6 +466,8 @@ pub struct Options {
     pub train: Vec<String>,
     /// A training manifest whose stage is timed on its own dataset.
     pub manifest: Option<std::path::PathBuf>,
+    /// `--set PATH=VALUE` overrides of that manifest.
+    pub sets: Vec<String>,
     /// That stage's name (default: the last joint stage).
     pub stage: Option<String>,
     /// The network to time it with (default: initialised and warmed up).
@@ -544,7 +551,7 @@ pub fn report(device_arg: Option<&str>, opts: &Options, alloc: Option<&PeakAlloc
         out.push_str(&workload_line(b, &m, &w));
     }
     if let Some(path) = &opts.manifest {
-        let plan = crate::train::manifest::load(path)?;
+        let plan = crate::train::manifest::load(path, &opts.sets)?;
         let (what, batch, m, w) = manifest_training(
             &plan,
             opts.stage.as_deref(),

@@ -45,6 +45,11 @@ enum Command {
         /// No progress bars.
         #[arg(long)]
         quiet: bool,
+        /// Override a manifest field, `PATH=VALUE` (e.g. `stages[1].steps=60`,
+        /// `stages[joint].learning_rate=[[0, 1e-5]]`, `run.device=wgpu`); repeatable, applied in
+        /// order after `extends`. The run records (and `--resume` compares) the result.
+        #[arg(long = "set", value_name = "PATH=VALUE")]
+        sets: Vec<String>,
     },
     /// Score checkpoints on a dataset split: METRICS.json and Markdown tables shaped like the
     /// paper's Tables 1–3 (with both trivial baselines).
@@ -165,6 +170,9 @@ enum Command {
         /// settings, as `trainer run` steps it.
         #[arg(long)]
         manifest: Option<PathBuf>,
+        /// Override a field of --manifest, `PATH=VALUE`, as `trainer run --set` does.
+        #[arg(long = "set", value_name = "PATH=VALUE", requires = "manifest")]
+        sets: Vec<String>,
         /// The stage of --manifest (default: its last joint stage).
         #[arg(long, requires = "manifest")]
         stage: Option<String>,
@@ -176,6 +184,16 @@ enum Command {
         /// Timed steps of --manifest's stage (the median is printed).
         #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=10_000))]
         steps: u64,
+    },
+    /// Write a checkpoint's network as one safetensors file for any framework: every tensor
+    /// float32, named by its path in the network, the configuration in the metadata (the names,
+    /// shapes and layouts: docs/FORMAT.md, "A trained network").
+    Export {
+        /// Checkpoint folder (`OUT/checkpoints/STAGE`).
+        checkpoint: PathBuf,
+        /// The file to write (replaced atomically).
+        #[arg(long)]
+        safetensors: PathBuf,
     },
     /// Write samples of a split as the trainer's batch holds them (channel-first tensors,
     /// materials padded to the batch's region count) to a safetensors file: for checking
@@ -344,6 +362,7 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
             out,
             resume,
             quiet,
+            sets,
         } => {
             // A scheduler's notice (Slurm's --signal, Kubernetes' termination): checkpoint and stop.
             #[cfg(unix)]
@@ -354,7 +373,7 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
             let ranks = std::rc::Rc::new(Ranks::from_environment()?);
             let threads = ranks.agree(crate::parallel::ranks::set_threads(&ranks))?;
             // Every rank reads the manifest; a rank that cannot is named on all of them.
-            let plan = ranks.agree(manifest::load(&path).map_err(anyhow::Error::from))?;
+            let plan = ranks.agree(manifest::load(&path, &sets).map_err(anyhow::Error::from))?;
             if ranks.size() > 1 && ranks.is_root() {
                 eprintln!("{} ranks, {threads} threads each", ranks.size());
             }
@@ -469,6 +488,18 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
                 rates[rates.len() - 1]
             );
         }
+        Command::Export {
+            checkpoint,
+            safetensors,
+        } => {
+            let tensors = crate::model::export::export(&checkpoint, &safetensors)?;
+            let values: usize = tensors.iter().map(|t| t.shape.iter().product::<usize>()).sum();
+            eprintln!(
+                "wrote {} ({} tensors, {values} parameters)",
+                safetensors.display(),
+                tensors.len()
+            );
+        }
         Command::DumpBatch {
             data,
             split,
@@ -487,6 +518,7 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
             train,
             device,
             manifest,
+            sets,
             stage,
             checkpoint,
             steps,
@@ -498,6 +530,7 @@ fn run(cli: Cli, alloc: Option<&PeakAlloc>) -> Result<()> {
                 reference: !no_reference,
                 train,
                 manifest,
+                sets,
                 stage,
                 checkpoint,
                 steps: steps as usize,

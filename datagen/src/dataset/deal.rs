@@ -272,7 +272,7 @@ pub(super) fn deal_materials(
                 s.span(),
                 &field,
                 format!(
-                    "split {from:?} has role {} and this one {}: a training and a test split may not share materials",
+                    "split {from:?} has role {} and this one {}: splits of different roles (train, val, test) may not share materials",
                     roles[j], roles[i]
                 ),
             ));

@@ -9,9 +9,7 @@
 use crate::accel::Accel;
 use crate::render::Shadows;
 use crate::shapes::UpAxis;
-use matedit_contract::manifest::{
-    Choice, ManifestError, Named, choice, expand_vars, invalid, line_of, parse_toml, read_text,
-};
+use matedit_contract::manifest::{Choice, ManifestError, Named, Resolved, expand_vars, line_of};
 use matedit_physics::shading::Quality;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -499,8 +497,9 @@ pub struct EnvSourceToml {
 pub struct SplitToml {
     /// Split name (`train`, `test`, ...).
     pub name: String,
-    /// `train` or `test` (default: `test` for names starting with "test", else `train`).
-    /// Splits of one role may share materials (`materials_from`); never across roles.
+    /// `train`, `val` or `test` (default: `test` for names starting with "test", `val` for
+    /// names starting with "val", else `train`). Splits of one role may share materials
+    /// (`materials_from`); never across roles.
     pub role: Option<String>,
     /// Use the materials of this earlier split of the same role instead of drawing new ones
     /// (the paper's pretraining and finetuning share their 60 training materials).
@@ -524,59 +523,69 @@ pub struct SplitToml {
     pub environment_ids: Vec<String>,
 }
 
-/// A loaded manifest: its text (for line numbers), its path and its parsed form.
+/// A loaded manifest: its resolved source (for line numbers and the files values came from) and
+/// its parsed form.
 #[derive(Clone, Debug)]
 pub struct ManifestFile {
-    /// Path as given.
-    pub path: PathBuf,
-    /// Raw text.
-    pub text: String,
+    /// The manifest, resolved (`extends` followed, `--set` applied).
+    pub source: Resolved,
     /// Parsed content.
     pub manifest: Manifest,
 }
 
 impl ManifestFile {
-    /// Reads and parses `path`.
-    pub fn load(path: &Path) -> Result<ManifestFile, ManifestError> {
-        let text = read_text(path)?;
-        Self::parse(path, text)
+    /// Reads and parses `path`, its `extends` followed and `sets` (`PATH=VALUE`) applied.
+    pub fn load(path: &Path, sets: &[String]) -> Result<ManifestFile, ManifestError> {
+        Self::from_source(Resolved::read(path, sets)?)
     }
 
-    /// Parses manifest text that came from `path`.
+    /// Parses manifest text that came from `path` (its `extends` followed from there).
     pub fn parse(path: &Path, text: String) -> Result<ManifestFile, ManifestError> {
-        let manifest: Manifest = parse_toml(path, &text)?;
-        Ok(ManifestFile {
-            path: path.to_path_buf(),
-            text,
-            manifest,
-        })
+        Self::from_source(Resolved::resolve(path, text, &[])?)
     }
 
-    /// The 1-based line of a byte offset (line 1 for defaults, which have no span).
+    /// Parses a resolved manifest.
+    pub fn from_source(source: Resolved) -> Result<ManifestFile, ManifestError> {
+        let manifest: Manifest = source.parse()?;
+        Ok(ManifestFile { source, manifest })
+    }
+
+    /// The manifest named on the command line.
+    pub fn path(&self) -> &Path {
+        &self.source.path
+    }
+
+    /// The resolved text (the file's own for a manifest that neither extends nor is overridden).
+    pub fn text(&self) -> &str {
+        &self.source.text
+    }
+
+    /// The 1-based line of a byte offset in the resolved text (line 1 for defaults, which have
+    /// no span).
     pub fn line_of(&self, offset: usize) -> usize {
-        line_of(&self.text, offset)
+        line_of(&self.source.text, offset)
     }
 
     /// The value of a named choice, or a located error listing the accepted names.
     pub fn choice<T: Named>(&self, value: &Spanned<Choice<T>>, field: &str) -> Result<T, ManifestError> {
-        choice(&self.path, &self.text, value, field)
+        self.source.choice(value, field)
     }
 
-    /// An [`ManifestError::Invalid`] at `span`.
+    /// An [`ManifestError::Invalid`] at `span`, named by the file and line that wrote it.
     pub fn invalid(&self, span: std::ops::Range<usize>, field: &str, message: impl Into<String>) -> ManifestError {
-        invalid(&self.path, &self.text, span, field, message)
+        self.source.invalid(span, field, message)
     }
 
-    /// Resolves a path written in the manifest: `${VAR}` expanded, relative to the manifest's
-    /// folder. `Err` names an unset variable.
-    pub fn resolve_path(&self, written: &str) -> Result<PathBuf, String> {
+    /// Resolves a path written at byte `at` of the manifest: `${VAR}` expanded, relative to the
+    /// folder of the file that wrote it (the working directory for a `--set` option). `Err`
+    /// names an unset variable.
+    pub fn resolve_path(&self, written: &str, at: usize) -> Result<PathBuf, String> {
         let expanded = expand_vars(written)?;
         let p = PathBuf::from(expanded);
         if p.is_absolute() {
             return Ok(p);
         }
-        let base = self.path.parent().unwrap_or(Path::new(""));
-        Ok(base.join(p))
+        Ok(self.source.folder_of(at).join(p))
     }
 }
 
@@ -689,7 +698,7 @@ materials = 4
                 .contains("not set")
         );
         let m = ManifestFile::parse(Path::new("manifests/m.toml"), MINIMAL.into()).unwrap();
-        assert_eq!(m.resolve_path("assets").unwrap(), PathBuf::from("manifests/assets"));
-        assert_eq!(m.resolve_path("/abs").unwrap(), PathBuf::from("/abs"));
+        assert_eq!(m.resolve_path("assets", 0).unwrap(), PathBuf::from("manifests/assets"));
+        assert_eq!(m.resolve_path("/abs", 0).unwrap(), PathBuf::from("/abs"));
     }
 }

@@ -282,14 +282,17 @@ impl Plan {
             .enumerate()
             .map(|(i, s)| {
                 let s2 = s.get_ref();
+                // `val` (validation while training) is dealt as `test` is: it shares no shape,
+                // material or material group with a training split, nor with a test split.
                 match s2.role.as_deref() {
-                    Some(r @ ("train" | "test")) => Ok(r.to_string()),
+                    Some(r @ ("train" | "val" | "test")) => Ok(r.to_string()),
                     Some(other) => Err(mf.invalid(
-                        s.span(),
+                        matedit_contract::manifest::key_span(mf.text(), s.span(), "role"),
                         &format!("splits[{i}].role"),
-                        format!("{other:?}: expected train or test"),
+                        format!("{other:?}: expected train, val or test"),
                     )),
                     None if s2.name.starts_with("test") => Ok("test".into()),
+                    None if s2.name.starts_with("val") => Ok("val".into()),
                     None => Ok("train".into()),
                 }
             })

@@ -28,7 +28,12 @@ pub struct Loaded {
 
 /// Reads, resolves and plans a manifest; any problem names the file, line and field.
 pub fn load(path: &Path) -> Result<Loaded> {
-    let file = ManifestFile::load(path)?;
+    load_with(path, &[])
+}
+
+/// [`load`] with `--set PATH=VALUE` overrides, applied after the manifest's `extends`.
+pub fn load_with(path: &Path, sets: &[String]) -> Result<Loaded> {
+    let file = ManifestFile::load(path, sets)?;
     let catalogue = Catalogue::resolve(&file)?;
     let plan = Plan::new(&file, catalogue)?;
     Ok(Loaded { file, plan })
@@ -109,7 +114,7 @@ pub fn describe(l: &Loaded) -> String {
         "dataset {:?} (seed {}), from {}",
         p.name,
         p.seed,
-        l.file.path.display()
+        l.file.path().display()
     );
     for note in &p.catalogue.substitutions {
         let _ = writeln!(s, "  note: {note}");

@@ -17,6 +17,7 @@
 
 pub mod encoder;
 pub mod encoder_decoder;
+pub mod export;
 pub mod illumination;
 pub mod material;
 pub mod network;

@@ -11,8 +11,10 @@ pub mod manifest;
 pub mod perceptual;
 pub mod plot;
 pub mod run;
+pub mod schedule;
 pub mod step;
 pub mod stream;
 pub mod synthetic;
 #[cfg(test)]
 mod tests;
+pub mod validation;

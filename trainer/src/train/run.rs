@@ -137,17 +137,6 @@ pub fn adam(stage: &super::manifest::StageSection) -> ModuleOptimizer {
         .init()
 }
 
-/// Keeps the first `lines` lines of `path` (drops what a killed run wrote after its last
-/// checkpoint), atomically.
-fn truncate_lines(path: &Path, lines: usize) -> Result<()> {
-    if !path.exists() {
-        return Ok(());
-    }
-    let text = std::fs::read_to_string(path)?;
-    let kept: String = text.lines().take(lines).map(|l| format!("{l}\n")).collect();
-    matedit_contract::io::write_atomically(path, |p| Ok(std::fs::write(p, kept)?))
-}
-
 /// Set when the run is asked to stop (by `trainer run`'s SIGTERM and SIGUSR1 handler: a
 /// scheduler's notice before preemption or the time limit). The run finishes the step in
 /// progress, writes a checkpoint and stops with [`Preempted`]; `--resume` continues it to the
@@ -181,12 +170,11 @@ fn check_batches(plan: &TrainPlan, ranks: &Ranks) -> Result<()> {
         let b = st.get_ref().batch_size;
         if w > 1 && (b < w || b % w != 0) {
             // The line of the stage's `batch_size`.
-            let at = super::manifest::key_span(&plan.text, st.span(), "batch_size").start;
-            let line = matedit_contract::manifest::line_of(&plan.text, at);
+            let at = matedit_contract::manifest::key_span(&plan.source.text, st.span(), "batch_size").start;
             bail!(
-                "{}:{line}: stages[{i}].batch_size = {b} cannot be shared by {w} ranks: every rank takes an equal part \
+                "{}: stages[{i}].batch_size = {b} cannot be shared by {w} ranks: every rank takes an equal part \
                  of each batch, so batch_size must be a multiple of the rank count (e.g. {})",
-                plan.path.display(),
+                plan.source.place(at),
                 (b.div_ceil(w) * w).max(w)
             );
         }
@@ -207,8 +195,8 @@ pub fn run_as(
 ) -> Result<RunSummary> {
     let root = ranks.is_root();
     let quiet = quiet || !root;
-    let what = format!("the manifest {}", plan.path.display());
-    ranks.same_as_root(&what, blake3::hash(plan.text.as_bytes()).as_bytes())?;
+    let what = format!("the manifest {}", plan.path().display());
+    ranks.same_as_root(&what, blake3::hash(plan.source.text.as_bytes()).as_bytes())?;
     check_batches(plan, ranks)?;
     let _lock = ranks.agree(if root {
         matedit_contract::lock::lock_output(out, matedit_contract::lock::Worker::ALL)
@@ -276,6 +264,24 @@ pub fn run_as(
     } else {
         Ok(None)
     })?;
+    // A checkpoint whose validation a kill cut short is scored before the run goes on.
+    if let (Some(v), Some((s, dir))) = (&plan.validation, &start) {
+        let scored = match &mut files {
+            Some(f)
+                if v.due(s.global_step, s.stage_done)
+                    && !super::validation::recorded(&metrics_path, s.global_step)? =>
+            {
+                let name = dir
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                v.run(out, &name, &s.stage_name, s.step, s.global_step)
+                    .and_then(|l| f.validation(&l))
+            }
+            _ => Ok(()),
+        };
+        ranks.agree(scored)?;
+    }
     let mut summary = RunSummary {
         out: out.to_path_buf(),
         stage_checkpoints: Vec::new(),
@@ -330,8 +336,10 @@ pub fn run_as(
         );
         bar.bar().set_prefix(st.name.clone());
         bar.set_position(step as u64);
+        // The schedule as a function of the step: a resumed stage reads its rate where it stopped.
+        let rates = st.rates();
         while step < st.steps {
-            let lr = st.lr_at(step);
+            let lr = rates[step];
             let t0 = std::time::Instant::now();
             let batch = data.next_batch();
             device.seed(step_seed(m.run.seed, si, step));
@@ -381,7 +389,10 @@ pub fn run_as(
             // on it inside the step.
             let stop = stop || (ranks.size() == 1 && stop_requested().load(Ordering::SeqCst));
             let done = step == st.steps;
-            if done || stop || (st.checkpoint_every > 0 && step % st.checkpoint_every == 0) {
+            // A validation scores the checkpoint it follows (not on a stop: the resumed run
+            // scores it).
+            let validate = !stop && plan.validation.as_ref().is_some_and(|v| v.due(global, done));
+            if done || stop || validate || (st.checkpoint_every > 0 && step % st.checkpoint_every == 0) {
                 let state = State {
                     version: checkpoint::VERSION,
                     manifest_hash: plan.hash(),
@@ -411,6 +422,13 @@ pub fn run_as(
                 if ranks.size() > 1 {
                     ranks.same_as_root("the network's weights", &gradients::checksum(&net))?;
                 }
+                if let (true, Some(v)) = (validate, &plan.validation) {
+                    let scored = match &mut files {
+                        Some(f) => v.run(out, &name, &st.name, step, global).and_then(|l| f.validation(&l)),
+                        None => Ok(()),
+                    };
+                    ranks.agree(scored)?;
+                }
                 if stop {
                     bar.abandon();
                     return Err(Preempted {
@@ -430,8 +448,8 @@ pub fn run_as(
     let plotted = match files {
         Some(f) => {
             drop(f);
-            read_metrics(&metrics_path)
-                .and_then(|lines| super::plot::loss_curves(&lines, &out.join("loss.png"), &plan.weights))
+            super::validation::read_records(&metrics_path)
+                .and_then(|records| super::plot::loss_curves(&records, &out.join("loss.png"), &plan.weights))
         }
         None => Ok(()),
     };
@@ -457,6 +475,9 @@ fn set_up(plan: &TrainPlan, out: &Path, resume: bool, ranks: &Ranks) -> Result<S
     let latest = checkpoint::latest(out)?;
     let (device, chosen) = device_for_rank(plan.device.name(), ranks)?;
     check_reductions(plan, &device)?;
+    if let Some(v) = &plan.validation {
+        v.check()?;
+    }
     let perceptual = plan.perceptual(&device)?;
     // Where to start: a fresh run, or the latest checkpoint.
     let (net, start): (Net, Option<(State, PathBuf)>) = match (&latest, resume) {
@@ -469,7 +490,7 @@ fn set_up(plan: &TrainPlan, out: &Path, resume: bool, ranks: &Ranks) -> Result<S
             if state.manifest_hash != plan.hash() {
                 bail!(
                     "{}: the manifest changed since this run started (hash {} ≠ {}); resume with the original manifest",
-                    plan.path.display(),
+                    plan.path().display(),
                     plan.hash(),
                     state.manifest_hash
                 );
@@ -490,7 +511,7 @@ fn set_up(plan: &TrainPlan, out: &Path, resume: bool, ranks: &Ranks) -> Result<S
                 );
             }
             if root {
-                truncate_lines(&metrics_path, state.global_step)?;
+                super::validation::truncate_records(&metrics_path, state.global_step)?;
             }
             (net, Some((state, dir.clone())))
         }
@@ -509,7 +530,7 @@ fn set_up(plan: &TrainPlan, out: &Path, resume: bool, ranks: &Ranks) -> Result<S
                     if shape != plan.net {
                         bail!(
                             "{}: run.init_from {} holds a network of another shape ({:?}), the manifest's [model] is {:?}",
-                            plan.path.display(),
+                            plan.path().display(),
                             dir.display(),
                             state.net,
                             plan.net
@@ -524,7 +545,9 @@ fn set_up(plan: &TrainPlan, out: &Path, resume: bool, ranks: &Ranks) -> Result<S
         }
     };
     if root {
-        matedit_contract::io::write_atomically(&out.join("manifest.toml"), |p| Ok(std::fs::write(p, &plan.text)?))?;
+        matedit_contract::io::write_atomically(&out.join("manifest.toml"), |p| {
+            Ok(std::fs::write(p, &plan.source.text)?)
+        })?;
     }
     Ok(Setup {
         device,
@@ -569,6 +592,13 @@ impl RunFiles {
         Ok(())
     }
 
+    /// A validation's line in `metrics.jsonl`, on disk before the run goes on.
+    fn validation(&mut self, line: &super::validation::ValidationLine) -> Result<()> {
+        writeln!(self.metrics, "{}", serde_json::to_string(line)?)?;
+        self.metrics.sync_data()?;
+        Ok(())
+    }
+
     /// Writes checkpoint `name` (after the metrics it follows), keeping the stage ends and
     /// the newest intermediate checkpoint of `stage` only.
     fn checkpoint(
@@ -602,13 +632,13 @@ fn remove_older_intermediates(out: &Path, stage: &str, keep: &str) -> Result<()>
     Ok(())
 }
 
-/// Reads `metrics.jsonl`.
+/// Reads the steps' lines of `metrics.jsonl` (not the validations').
 pub fn read_metrics(path: &Path) -> Result<Vec<MetricsLine>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    text.lines()
-        .enumerate()
-        .map(|(i, l)| {
-            serde_json::from_str(l).with_context(|| format!("{}:{}: not a metrics line", path.display(), i + 1))
+    Ok(super::validation::read_records(path)?
+        .into_iter()
+        .filter_map(|r| match r {
+            super::validation::Record::Step(s) => Some(s),
+            super::validation::Record::Validation(_) => None,
         })
-        .collect()
+        .collect())
 }

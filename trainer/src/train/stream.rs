@@ -41,7 +41,7 @@ impl DatasetStream {
         let records = dataset.split(&st.split).with_context(|| {
             format!(
                 "{}: stage {}: the dataset {} has no split {:?} (splits: {})",
-                plan.path.display(),
+                plan.path().display(),
                 st.name,
                 dir.display(),
                 st.split,
@@ -67,7 +67,7 @@ impl DatasetStream {
             bail!(
                 "{}: stage {}: the dataset {} has {}² images with {}×{} environments, but [model] asks for \
                  input_size = {} and env_height = {} (set them to the dataset's, or render the dataset at that size)",
-                plan.path.display(),
+                plan.path().display(),
                 st.name,
                 dir.display(),
                 s.size,

@@ -249,7 +249,9 @@ impl Entry<'_> {
                 }
             },
         };
-        let resolved = match self.mf.resolve_path(written) {
+        // Relative to the file that wrote the path (a base manifest's own folder).
+        let at = matedit_contract::manifest::key_span(self.mf.text(), self.span.clone(), "path").start;
+        let resolved = match self.mf.resolve_path(written, at) {
             Ok(p) if p.exists() => return Ok(Some(p)),
             Ok(p) => format!("{} does not exist", p.display()),
             Err(e) => e,

@@ -3,12 +3,14 @@
 //! the line and the field, before any work starts.
 
 use super::perceptual::{DEFAULT_LAYERS, Perceptual};
+use super::schedule::{Decay, ScheduleSpec};
 use super::step::{LossWeights, RenderWith, StageKind};
+use super::validation::{BestMetric, Validation};
 use crate::data::OnCorrupt;
 use crate::model::network::{Exposure, NetConfig};
 use crate::model::vgg16::Layer;
 use crate::model::{Init, Widths};
-use matedit_contract::manifest::{Choice, ManifestError, Named, choice, expand_vars, invalid, parse_toml, read_text};
+use matedit_contract::manifest::{Choice, ManifestError, Named, Resolved, expand_vars, key_span, table_key_span};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use toml::Spanned;
@@ -245,8 +247,28 @@ pub struct StageSection {
     pub steps: usize,
     /// Samples per step.
     pub batch_size: usize,
-    /// Learning-rate schedule: `[[from_step, lr], …]` (the paper: 1e-4, later 1e-6 and 1e-8).
+    /// Learning rates: `[[from_step, lr], …]` (the paper: 1e-4, later 1e-6 and 1e-8); the
+    /// starting rate of a `cosine`, `linear` or `step` decay (`[[0, lr]]`).
     pub learning_rate: Vec<(usize, f64)>,
+    /// Steps of linear warm-up before the schedule (default 0: none).
+    #[serde(default)]
+    pub warmup: usize,
+    /// The fraction of the first rate the warm-up starts from (default 0.01).
+    #[serde(default = "default_warmup_start")]
+    pub warmup_start: f64,
+    /// After the warm-up: `piecewise` (default: `learning_rate` as written), `cosine` or
+    /// `linear` (to `final_lr` at the stage's last step), `step` (× `gamma` every `decay_every`).
+    #[serde(default = "default_decay")]
+    pub decay: Choice<Decay>,
+    /// The rate at the stage's last step, for `cosine` and `linear` (default 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub final_lr: Option<f64>,
+    /// Steps between two decays, for `step`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub decay_every: Option<usize>,
+    /// The factor of each decay, for `step` (default 0.1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gamma: Option<f64>,
     /// Adam β1 (the paper: 0.9, later 0.5).
     #[serde(default = "default_beta1")]
     pub beta1: f64,
@@ -258,30 +280,12 @@ pub struct StageSection {
     pub checkpoint_every: usize,
 }
 
-/// Where `key = …` is written in the table that starts at `table` in `text` (toml gives an array
-/// of tables' entry the span of its header): the line, up to the next table header; or the
-/// table's own span when the key is not written there (a default).
-pub fn key_span(text: &str, table: std::ops::Range<usize>, key: &str) -> std::ops::Range<usize> {
-    let Some(body) = text.get(table.start..) else {
-        return table;
-    };
-    let mut offset = table.start;
-    for (n, line) in body.split_inclusive('\n').enumerate() {
-        let t = line.trim_start();
-        if n > 0 && t.starts_with('[') {
-            break;
-        }
-        if let Some(rest) = t.strip_prefix(key)
-            && rest.trim_start().starts_with('=')
-        {
-            let start = offset + (line.len() - t.len());
-            return start..start + t.trim_end().len();
-        }
-        offset += line.len();
-    }
-    table
+fn default_warmup_start() -> f64 {
+    0.01
 }
-
+fn default_decay() -> Choice<Decay> {
+    Choice::Known(Decay::Piecewise, Decay::Piecewise.name().to_owned())
+}
 fn default_split() -> String {
     "train".into()
 }
@@ -293,13 +297,31 @@ fn default_beta2() -> f64 {
 }
 
 impl StageSection {
+    /// The stage's learning-rate schedule (an unknown `decay` name reads as `piecewise`: the
+    /// manifest's check has refused it before any schedule is asked for).
+    pub fn schedule(&self) -> ScheduleSpec {
+        ScheduleSpec {
+            rates: self.learning_rate.clone(),
+            warmup: self.warmup,
+            warmup_start: self.warmup_start,
+            decay: match self.decay {
+                Choice::Known(d, _) => d,
+                Choice::Unknown(_) => Decay::Piecewise,
+            },
+            final_lr: self.final_lr,
+            decay_every: self.decay_every,
+            gamma: self.gamma,
+        }
+    }
+
+    /// The learning rate of every step of the stage (entry k: step k's).
+    pub fn rates(&self) -> Vec<f64> {
+        self.schedule().rates(self.steps)
+    }
+
     /// The learning rate at `step`.
     pub fn lr_at(&self, step: usize) -> f64 {
-        self.learning_rate
-            .iter()
-            .rev()
-            .find(|(from, _)| *from <= step)
-            .map_or(self.learning_rate[0].1, |&(_, lr)| lr)
+        self.schedule().lr_at(step, self.steps)
     }
 }
 
@@ -316,6 +338,32 @@ pub struct EvalSection {
     /// Score only these shape categories (default: all; the paper's Table 2 is on cars).
     #[serde(default)]
     pub categories: Vec<String>,
+    /// Validate while training every this many steps of the run, and at each stage's end
+    /// (default 0: only the evaluation after the last stage).
+    #[serde(default = "default_every")]
+    pub every: Spanned<usize>,
+    /// The split validated on (default `val`: a dataset split of role `val`).
+    #[serde(default = "default_val")]
+    pub val_split: String,
+    /// At most this many samples per validation (0: all).
+    #[serde(default = "default_val_samples")]
+    pub val_samples: usize,
+    /// The score `checkpoints/best` is kept by (default `o_l2`).
+    #[serde(default = "default_best")]
+    pub best: Spanned<Choice<BestMetric>>,
+}
+
+fn default_every() -> Spanned<usize> {
+    Spanned::new(0..0, 0)
+}
+fn default_val() -> String {
+    "val".into()
+}
+fn default_val_samples() -> usize {
+    64
+}
+fn default_best() -> Spanned<Choice<BestMetric>> {
+    Choice::default_to(BestMetric::OL2)
 }
 
 fn default_test() -> String {
@@ -328,6 +376,10 @@ impl Default for EvalSection {
             split: default_test(),
             max_samples: 0,
             categories: Vec::new(),
+            every: default_every(),
+            val_split: default_val(),
+            val_samples: default_val_samples(),
+            best: default_best(),
         }
     }
 }
@@ -335,10 +387,9 @@ impl Default for EvalSection {
 /// A validated manifest with its resolved values.
 #[derive(Clone, Debug)]
 pub struct TrainPlan {
-    /// Manifest path.
-    pub path: PathBuf,
-    /// The manifest's text (hashed into checkpoints so a resume refuses a changed manifest).
-    pub text: String,
+    /// The manifest, resolved (`extends` followed, `--set` applied): its path, and the text that
+    /// is hashed into checkpoints (so a resume refuses a changed manifest) and saved with the run.
+    pub source: Resolved,
     /// As written.
     pub manifest: TrainManifest,
     /// Network configuration.
@@ -355,17 +406,26 @@ pub struct TrainPlan {
     pub skip_corrupt: bool,
     /// The device the run trains on.
     pub device: DeviceName,
+    /// Validation while training (`[eval] every`), if asked for.
+    pub validation: Option<Validation>,
 }
 
-/// Reads and validates a training manifest.
-pub fn load(path: &Path) -> Result<TrainPlan, ManifestError> {
-    parse(path, read_text(path)?)
+/// Reads and validates a training manifest, its `extends` followed and `sets` (`--set
+/// PATH=VALUE`) applied.
+pub fn load(path: &Path, sets: &[String]) -> Result<TrainPlan, ManifestError> {
+    validate(Resolved::read(path, sets)?)
 }
 
-/// Validates manifest text that came from `path`.
+/// Validates manifest text that came from `path` (its `extends` followed from there).
 pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
-    let m: TrainManifest = parse_toml(path, &text)?;
-    let bad = |span: std::ops::Range<usize>, field: &str, msg: String| invalid(path, &text, span, field, msg);
+    validate(Resolved::resolve(path, text, &[])?)
+}
+
+/// Validates a resolved manifest.
+pub fn validate(source: Resolved) -> Result<TrainPlan, ManifestError> {
+    let m: TrainManifest = source.parse()?;
+    let text = &source.text;
+    let bad = |span: std::ops::Range<usize>, field: &str, msg: String| source.invalid(span, field, msg);
     let widths = match m.model.widths.get_ref() {
         WidthsSpec::Preset(p) => Widths::preset(p).ok_or_else(|| {
             bad(
@@ -392,8 +452,8 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
             Widths::new(*base_channels, *max_channels, *hidden, *normal_channels).with_dropout(*dropout)
         }
     };
-    let init = choice(path, &text, &m.model.init, "model.init")?;
-    let exposure = choice(path, &text, &m.model.exposure, "model.exposure")?;
+    let init = source.choice(&m.model.init, "model.init")?;
+    let exposure = source.choice(&m.model.exposure, "model.exposure")?;
     let kinds = |k: StageKind| m.stages.iter().filter(|s| s.get_ref().kind == k).count();
     if kinds(StageKind::EncoderDecoder) > 0
         && let Some(other) = m.stages.iter().find(|s| s.get_ref().kind != StageKind::EncoderDecoder)
@@ -425,11 +485,11 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
             e,
         ));
     }
-    let device = choice(path, &text, &m.run.device, "run.device")?;
+    let device = source.choice(&m.run.device, "run.device")?;
     if let Err(e) = device.check_built() {
         return Err(bad(m.run.device.span(), "run.device", e));
     }
-    let skip_corrupt = choice(path, &text, &m.data.on_corrupt, "data.on_corrupt")? == OnCorrupt::Skip;
+    let skip_corrupt = source.choice(&m.data.on_corrupt, "data.on_corrupt")? == OnCorrupt::Skip;
     if m.stages.is_empty() {
         return Err(bad(0..0, "stages", "at least one [[stages]] entry is needed".into()));
     }
@@ -437,28 +497,17 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         let s = st.get_ref();
         let field = |f: &str| format!("stages[{i}].{f}");
         // An error names the line of the key that is wrong, not the stage's first line.
-        let at = |key: &str| key_span(&text, st.span(), key);
+        let at = |key: &str| key_span(text, st.span(), key);
         for (key, v) in [("steps", s.steps), ("batch_size", s.batch_size)] {
             if v == 0 {
                 return Err(bad(at(key), &field(key), format!("{key} must be positive")));
             }
         }
-        if s.learning_rate.is_empty()
-            || s.learning_rate[0].0 != 0
-            || s.learning_rate.windows(2).any(|w| w[1].0 <= w[0].0)
-        {
-            return Err(bad(
-                at("learning_rate"),
-                &field("learning_rate"),
-                "a list of [from_step, lr] starting at step 0, in increasing steps".into(),
-            ));
+        if let Choice::Unknown(name) = &s.decay {
+            return Err(bad(at("decay"), &field("decay"), Decay::refusal(name)));
         }
-        if let Some((_, lr)) = s.learning_rate.iter().find(|(_, lr)| !(*lr > 0.0 && *lr <= 1.0)) {
-            return Err(bad(
-                at("learning_rate"),
-                &field("learning_rate"),
-                format!("learning rates must lie in (0, 1], got {lr:e}"),
-            ));
+        if let Err((key, msg)) = s.schedule().check(s.steps) {
+            return Err(bad(at(key), &field(key), msg));
         }
         for (name, b) in [("beta1", s.beta1), ("beta2", s.beta2)] {
             if !(0.0..1.0).contains(&b) {
@@ -499,6 +548,16 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
                 format!("{src:?} is not an earlier stage"),
             ));
         }
+        if s.name == "best" || s.name.is_empty() || s.name.starts_with('.') || s.name.contains(['/', '\\']) {
+            return Err(bad(
+                at("name"),
+                &field("name"),
+                format!(
+                    "{:?} cannot name a checkpoint folder (\"best\" is the best checkpoint's; no slashes or leading dot)",
+                    s.name
+                ),
+            ));
+        }
         if m.stages[..i].iter().any(|o| o.get_ref().name == s.name) {
             return Err(bad(
                 at("name"),
@@ -508,19 +567,21 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         }
     }
     let resolve = |w: &str, field: &str| -> Result<PathBuf, ManifestError> {
-        expand_vars(w).map(PathBuf::from).map_err(|e| bad(0..0, field, e))
+        expand_vars(w)
+            .map(PathBuf::from)
+            .map_err(|e| bad(table_key_span(text, "data", "dataset"), field, e))
     };
     let dataset = resolve(&m.data.dataset, "data.dataset")?;
     if m.data.workers > 256 {
         return Err(bad(
-            0..0,
+            table_key_span(text, "data", "workers"),
             "data.workers",
             format!("at most 256 decoding threads, got {}", m.data.workers),
         ));
     }
     if m.data.shuffle_buffer > 1_000_000 {
         return Err(bad(
-            0..0,
+            table_key_span(text, "data", "shuffle_buffer"),
             "data.shuffle_buffer",
             format!("at most 1000000 samples, got {}", m.data.shuffle_buffer),
         ));
@@ -582,6 +643,23 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
             Some(p)
         }
     };
+    let e = &m.eval;
+    let best = source.choice(&e.best, "eval.best")?;
+    if *e.every.get_ref() > 1_000_000_000 {
+        return Err(bad(
+            e.every.span(),
+            "eval.every",
+            format!("at most 1e9 steps, got {}", e.every.get_ref()),
+        ));
+    }
+    let validation = (*e.every.get_ref() > 0).then(|| Validation {
+        every: *e.every.get_ref(),
+        data: dataset.clone(),
+        split: e.val_split.clone(),
+        samples: e.val_samples,
+        categories: e.categories.clone(),
+        best,
+    });
     let weights = LossWeights {
         normal: *l.normal.get_ref(),
         material: *l.material.get_ref(),
@@ -592,7 +670,8 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         light_direction: *l.light_direction.get_ref(),
     };
     Ok(TrainPlan {
-        path: path.to_path_buf(),
+        validation,
+        source,
         manifest: m,
         net,
         dataset,
@@ -601,7 +680,6 @@ pub fn parse(path: &Path, text: String) -> Result<TrainPlan, ManifestError> {
         init_from,
         skip_corrupt,
         device,
-        text,
     })
 }
 
@@ -625,10 +703,8 @@ impl TrainPlan {
     pub fn stage_dataset(&self, i: usize) -> Result<PathBuf, ManifestError> {
         match &self.manifest.stages[i].get_ref().dataset {
             Some(d) => expand_vars(d).map(PathBuf::from).map_err(|e| {
-                invalid(
-                    &self.path,
-                    &self.text,
-                    key_span(&self.text, self.manifest.stages[i].span(), "dataset"),
+                self.source.invalid(
+                    key_span(&self.source.text, self.manifest.stages[i].span(), "dataset"),
                     &format!("stages[{i}].dataset"),
                     e,
                 )
@@ -637,9 +713,14 @@ impl TrainPlan {
         }
     }
 
-    /// blake3 of the manifest text.
+    /// blake3 of the resolved manifest's text.
     pub fn hash(&self) -> String {
-        blake3::hash(self.text.as_bytes()).to_hex().to_string()
+        blake3::hash(self.source.text.as_bytes()).to_hex().to_string()
+    }
+
+    /// The manifest named on the command line.
+    pub fn path(&self) -> &Path {
+        &self.source.path
     }
 }
 

@@ -1,6 +1,12 @@
 //! The manifest error kit both manifests use (datagen's dataset manifests and the trainer's):
 //! reading, parsing with a guard on nesting, and problems located as `FILE:LINE: FIELD: message`.
-//! Syntax and type errors come from the TOML parser with their line and column.
+//! Syntax and type errors come from the TOML parser with their line and column. A manifest built
+//! from others (`extends`, `--set`) is resolved first ([`resolve`]), and its problems are named
+//! by the file and line, or the option, that wrote the value.
+
+pub mod resolve;
+
+pub use resolve::{Origin, Resolved};
 
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
@@ -35,6 +41,17 @@ pub enum ManifestError {
         /// 1-based line of the field (or of its table).
         line: usize,
         /// Dotted field path, e.g. `splits[1].shapes.car`.
+        field: String,
+        /// What is wrong and what would be accepted.
+        message: String,
+    },
+    /// A `--set PATH=VALUE` option that cannot be applied, or that gave a value which cannot
+    /// be honoured.
+    #[error("--set {option}: {field}: {message}")]
+    Set {
+        /// The option as given.
+        option: String,
+        /// Dotted field path.
         field: String,
         /// What is wrong and what would be accepted.
         message: String,
@@ -128,6 +145,46 @@ pub fn invalid(
         field: field.to_string(),
         message: message.into(),
     }
+}
+
+/// Where `key = …` is written in the table that starts at `table` in `text` (toml gives an array
+/// of tables' entry the span of its header): the line, up to the next table header; or the
+/// table's own span when the key is not written there (a default).
+pub fn key_span(text: &str, table: std::ops::Range<usize>, key: &str) -> std::ops::Range<usize> {
+    let Some(body) = text.get(table.start..) else {
+        return table;
+    };
+    let mut offset = table.start;
+    for (n, line) in body.split_inclusive('\n').enumerate() {
+        let t = line.trim_start();
+        if n > 0 && t.starts_with('[') {
+            break;
+        }
+        if let Some(rest) = t.strip_prefix(key)
+            && rest.trim_start().starts_with('=')
+        {
+            let start = offset + (line.len() - t.len());
+            return start..start + t.trim_end().len();
+        }
+        offset += line.len();
+    }
+    table
+}
+
+/// Where `key = …` is written in the top-level table `[table]` of `text` (for fields that keep
+/// no span of their own); the header's line when the key is not written there, line 1 when the
+/// table is not.
+pub fn table_key_span(text: &str, table: &str, key: &str) -> std::ops::Range<usize> {
+    let header = format!("[{table}]");
+    let mut offset = 0;
+    for line in text.split_inclusive('\n') {
+        let t = line.trim();
+        if t == header || (t.starts_with(&header) && t[header.len()..].trim_start().starts_with('#')) {
+            return key_span(text, offset..offset + line.len(), key);
+        }
+        offset += line.len();
+    }
+    0..0
 }
 
 /// An enum written as a name in a manifest: its names, in the one list everything else (the

@@ -1,0 +1,395 @@
+//! Validation while training (`[eval] every = N`): every N steps of the run and at the end of each
+//! stage, the checkpoint just written is scored on `[eval].val_split` (a dataset's `val` split, or
+//! `test`) with the paper's metrics, the scores are a line of `metrics.jsonl`, a contact sheet goes
+//! to `validation/STEP.png`, and the checkpoint with the best score by `[eval].best` is kept as
+//! `checkpoints/best` (its `best.json` says which step and score).
+//!
+//! Order, so that a kill at any moment resumes to what an uninterrupted run writes: the step's
+//! line, the checkpoint, the best checkpoint (replaced atomically, and only when strictly better),
+//! then the validation line. A resumed run keeps the lines up to its checkpoint's step and, where
+//! that step's validation has no line yet, scores the checkpoint again: the same scores, so the
+//! same line, and a best that a tie leaves as it is.
+
+use crate::eval::run::{EvalOptions, evaluate};
+use crate::eval::{I_PRIME, Metrics, O_PRIME};
+use anyhow::{Context, Result, bail};
+use matedit_contract::manifest::Named;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The score the best checkpoint is kept by.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BestMetric {
+    /// The tone-mapped L2 of O' against O (the paper's edit error; lower is better).
+    OL2,
+    /// SSIM of O' against O (higher is better).
+    OSsim,
+    /// The tone-mapped L2 of I' against I (lower is better).
+    IL2,
+    /// SSIM of I' against I (higher is better).
+    ISsim,
+    /// Mean cosine of n' and n (higher is better).
+    NormalCosine,
+    /// L2 of the normalised m' and m (lower is better).
+    MaterialL2,
+}
+
+impl Named for BestMetric {
+    const NAMES: &'static [(&'static str, Self)] = &[
+        ("o_l2", BestMetric::OL2),
+        ("o_ssim", BestMetric::OSsim),
+        ("i_l2", BestMetric::IL2),
+        ("i_ssim", BestMetric::ISsim),
+        ("normal_cosine", BestMetric::NormalCosine),
+        ("material_l2", BestMetric::MaterialL2),
+    ];
+}
+
+impl BestMetric {
+    /// Whether a larger value is better.
+    pub fn higher_is_better(self) -> bool {
+        matches!(self, BestMetric::OSsim | BestMetric::ISsim | BestMetric::NormalCosine)
+    }
+
+    /// Its value in `scores`.
+    pub fn of(self, s: &Scores) -> Option<f64> {
+        match self {
+            BestMetric::OL2 => s.o_l2,
+            BestMetric::OSsim => s.o_ssim,
+            BestMetric::IL2 => s.i_l2,
+            BestMetric::ISsim => s.i_ssim,
+            BestMetric::NormalCosine => s.normal_cosine,
+            BestMetric::MaterialL2 => s.material_l2,
+        }
+    }
+
+    /// Whether `new` beats `old` (strictly: a tie keeps the earlier checkpoint).
+    pub fn beats(self, new: f64, old: f64) -> bool {
+        if self.higher_is_better() { new > old } else { new < old }
+    }
+}
+
+/// One validation's scores (the metrics of `trainer eval`'s "network" row).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Scores {
+    /// The split scored.
+    pub split: String,
+    /// Samples scored.
+    pub samples: u64,
+    /// Tone-mapped L2 of O' = R(n', m_t, L') against O.
+    pub o_l2: Option<f64>,
+    /// SSIM of O' against O.
+    pub o_ssim: Option<f64>,
+    /// Tone-mapped L2 of I' = R(n', m', L') against I.
+    pub i_l2: Option<f64>,
+    /// SSIM of I' against I.
+    pub i_ssim: Option<f64>,
+    /// Mean cosine of n' and n.
+    pub normal_cosine: Option<f64>,
+    /// L2 of the normalised m' and m.
+    pub material_l2: Option<f64>,
+}
+
+impl Scores {
+    /// The scores of an evaluation's network row.
+    pub fn of(split: &str, m: &Metrics) -> Self {
+        Self {
+            split: split.to_string(),
+            samples: m.samples,
+            o_l2: m.image_l2(O_PRIME),
+            o_ssim: m.image_ssim(O_PRIME),
+            i_l2: m.image_l2(I_PRIME),
+            i_ssim: m.image_ssim(I_PRIME),
+            normal_cosine: m.normal_cosine.value(),
+            material_l2: m.material_l2_normalised.value(),
+        }
+    }
+
+    /// Every score by its name, in [`BestMetric::NAMES`]' order.
+    pub fn named(&self) -> Vec<(&'static str, f64)> {
+        BestMetric::NAMES
+            .iter()
+            .filter_map(|(n, m)| m.of(self).map(|v| (*n, v)))
+            .collect()
+    }
+}
+
+/// A validation's line in `metrics.jsonl` (a step's line has `losses` instead).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ValidationLine {
+    /// The stage.
+    pub stage: String,
+    /// Steps completed in the stage.
+    pub step: usize,
+    /// Steps completed in the run.
+    pub global_step: usize,
+    /// The scores.
+    pub validation: Scores,
+}
+
+/// `checkpoints/best/best.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Best {
+    /// The metric's name.
+    pub metric: String,
+    /// Its value.
+    pub value: f64,
+    /// The validation it came from.
+    pub line: ValidationLine,
+    /// The checkpoint copied (its name under `checkpoints/`).
+    pub checkpoint: String,
+}
+
+/// What a run validates, and when.
+#[derive(Clone, Debug)]
+pub struct Validation {
+    /// Validate every this many steps of the run (and at each stage's end).
+    pub every: usize,
+    /// The dataset folder.
+    pub data: PathBuf,
+    /// The split.
+    pub split: String,
+    /// At most this many samples (0: all).
+    pub samples: usize,
+    /// Only these shape categories (all when empty).
+    pub categories: Vec<String>,
+    /// What the best checkpoint is kept by.
+    pub best: BestMetric,
+}
+
+impl Validation {
+    /// Whether the step that brought the run to `global` steps (ending its stage when
+    /// `stage_done`) is validated.
+    pub fn due(&self, global: usize, stage_done: bool) -> bool {
+        self.every > 0 && (stage_done || global.is_multiple_of(self.every))
+    }
+
+    /// Refuses a dataset without the split, before the first step.
+    pub fn check(&self) -> Result<()> {
+        let ds = crate::data::Dataset::open(&self.data)?;
+        if ds.split(&self.split).is_none() {
+            bail!(
+                "[eval].val_split = {:?}: the dataset {} has no such split (splits: {}); give the dataset a split \
+                 with role = \"val\" (manifests/README.md), or validate on \"test\"",
+                self.split,
+                self.data.display(),
+                ds.split_names().join(", ")
+            );
+        }
+        Ok(())
+    }
+
+    /// Scores checkpoint `name` of run `out` (after `stage`'s `step`-th step, `global` in the
+    /// run), writes its sheet and, where it is the best so far, copies it to `checkpoints/best`.
+    /// Returns the line for `metrics.jsonl`.
+    pub fn run(&self, out: &Path, name: &str, stage: &str, step: usize, global: usize) -> Result<ValidationLine> {
+        let ckpt = out.join("checkpoints").join(name);
+        let sheets = out.join("validation");
+        std::fs::create_dir_all(&sheets).with_context(|| format!("cannot create {}", sheets.display()))?;
+        let opts = EvalOptions {
+            data: self.data.clone(),
+            split: self.split.clone(),
+            train_data: None,
+            batch: 8,
+            max_samples: self.samples,
+            categories: self.categories.clone(),
+            progress: false,
+            sheet: Some((sheets.join(format!("{global:07}.png")), 4)),
+            eq6: None,
+            lombardi: None,
+            names: Vec::new(),
+        };
+        let report = evaluate(std::slice::from_ref(&ckpt), &opts)
+            .with_context(|| format!("validating {} on split {}", ckpt.display(), self.split))?;
+        let line = ValidationLine {
+            stage: stage.to_string(),
+            step,
+            global_step: global,
+            validation: Scores::of(&self.split, &report.checkpoints[0].network),
+        };
+        self.keep_if_best(out, name, &line)?;
+        Ok(line)
+    }
+
+    /// Copies checkpoint `name` to `checkpoints/best` when `line` beats the best so far.
+    fn keep_if_best(&self, out: &Path, name: &str, line: &ValidationLine) -> Result<()> {
+        let Some(value) = self.best.of(&line.validation).filter(|v| v.is_finite()) else {
+            return Ok(());
+        };
+        if let Some(b) = read_best(out)?
+            && b.metric == self.best.name()
+            && !self.best.beats(value, b.value)
+        {
+            return Ok(());
+        }
+        let dir = out.join("checkpoints");
+        let tmp = dir.join(format!(".tmp-best-{}", std::process::id()));
+        if tmp.exists() {
+            std::fs::remove_dir_all(&tmp)?;
+        }
+        std::fs::create_dir_all(&tmp)?;
+        let src = dir.join(name);
+        for f in ["model.bpk", "optimizer.bpk", "state.json"] {
+            std::fs::copy(src.join(f), tmp.join(f))
+                .with_context(|| format!("cannot copy {}", src.join(f).display()))?;
+        }
+        let best = Best {
+            metric: self.best.name().to_string(),
+            value,
+            line: line.clone(),
+            checkpoint: name.to_string(),
+        };
+        std::fs::write(tmp.join("best.json"), serde_json::to_string_pretty(&best)?)?;
+        for f in ["model.bpk", "optimizer.bpk", "state.json", "best.json"] {
+            std::fs::File::open(tmp.join(f))?.sync_all()?;
+        }
+        // The previous best moves aside first (a rename cannot replace a folder), and the new
+        // one takes its place: a kill leaves one of them, and the temporaries are removed by the
+        // next run.
+        let fin = dir.join("best");
+        if fin.exists() {
+            let old = dir.join(format!(".old-best-{}", std::process::id()));
+            std::fs::rename(&fin, &old)?;
+            std::fs::rename(&tmp, &fin)?;
+            std::fs::remove_dir_all(&old)?;
+        } else {
+            std::fs::rename(&tmp, &fin)?;
+        }
+        Ok(())
+    }
+}
+
+/// The best checkpoint's record, where there is one.
+pub fn read_best(out: &Path) -> Result<Option<Best>> {
+    let p = out.join("checkpoints").join("best").join("best.json");
+    if !p.exists() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()))?;
+    Ok(Some(serde_json::from_str(&text).with_context(|| {
+        format!("{}: not a best-checkpoint record", p.display())
+    })?))
+}
+
+/// One line of `metrics.jsonl`: a step's losses, or a validation's scores.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Record {
+    /// A validation (it has a `validation` field).
+    Validation(ValidationLine),
+    /// A step.
+    Step(super::plot::MetricsLine),
+}
+
+impl Record {
+    /// Steps completed in the run at this line.
+    pub fn global_step(&self) -> usize {
+        match self {
+            Record::Validation(v) => v.global_step,
+            Record::Step(s) => s.global_step,
+        }
+    }
+}
+
+/// Reads `metrics.jsonl`: every line, a step's or a validation's.
+pub fn read_records(path: &Path) -> Result<Vec<Record>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    text.lines()
+        .enumerate()
+        .map(|(i, l)| {
+            serde_json::from_str(l).with_context(|| format!("{}:{}: not a metrics line", path.display(), i + 1))
+        })
+        .collect()
+}
+
+/// Keeps the lines of `metrics.jsonl` up to a checkpoint `global` steps into the run (the
+/// validation of that step included, where it was written).
+pub fn truncate_records(path: &Path, global: usize) -> Result<()> {
+    if !path.exists() {
+        return Ok(());
+    }
+    let text = std::fs::read_to_string(path)?;
+    let mut kept = String::new();
+    for (i, l) in text.lines().enumerate() {
+        let r: Record =
+            serde_json::from_str(l).with_context(|| format!("{}:{}: not a metrics line", path.display(), i + 1))?;
+        if r.global_step() > global {
+            break;
+        }
+        kept.push_str(l);
+        kept.push('\n');
+    }
+    matedit_contract::io::write_atomically(path, |p| Ok(std::fs::write(p, kept)?))
+}
+
+/// Whether `metrics.jsonl` holds the validation of the run's `global`-th step.
+pub fn recorded(path: &Path, global: usize) -> Result<bool> {
+    if !path.exists() {
+        return Ok(false);
+    }
+    Ok(read_records(path)?
+        .iter()
+        .any(|r| matches!(r, Record::Validation(v) if v.global_step == global)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_best_is_strictly_better_in_the_metrics_direction() {
+        assert!(BestMetric::OL2.beats(1.0, 2.0) && !BestMetric::OL2.beats(2.0, 2.0));
+        assert!(BestMetric::OSsim.beats(0.9, 0.8) && !BestMetric::OSsim.beats(0.8, 0.8));
+        assert!(BestMetric::NormalCosine.higher_is_better() && !BestMetric::MaterialL2.higher_is_better());
+        let s = Scores {
+            o_l2: Some(3.0),
+            normal_cosine: Some(0.5),
+            ..Default::default()
+        };
+        assert_eq!(s.named(), vec![("o_l2", 3.0), ("normal_cosine", 0.5)]);
+    }
+
+    #[test]
+    fn validation_is_due_every_n_steps_and_at_each_stages_end() {
+        let v = Validation {
+            every: 5,
+            data: PathBuf::new(),
+            split: "val".into(),
+            samples: 0,
+            categories: Vec::new(),
+            best: BestMetric::OL2,
+        };
+        assert_eq!((1..=12).filter(|&g| v.due(g, false)).collect::<Vec<_>>(), vec![5, 10]);
+        assert!(v.due(7, true));
+        assert!(!Validation { every: 0, ..v }.due(10, true), "every = 0: never");
+    }
+
+    #[test]
+    fn records_read_both_kinds_and_truncate_at_a_checkpoint() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("metrics.jsonl");
+        let step = |g: usize| {
+            format!(
+                r#"{{"stage":"a","step":{g},"global_step":{g},"lr":0.001,"losses":{{"total":1.0,"normal":0.0,"material":0.0,"perceptual":0.0,"illumination":0.0,"ssim":0.0}}}}"#
+            )
+        };
+        let val = |g: usize| {
+            format!(
+                r#"{{"stage":"a","step":{g},"global_step":{g},"validation":{{"split":"val","samples":4,"o_l2":2.5}}}}"#
+            )
+        };
+        let text = [step(1), step(2), val(2), step(3), step(4), val(4)].join("\n") + "\n";
+        std::fs::write(&p, &text).unwrap();
+        let r = read_records(&p).unwrap();
+        assert!(matches!(&r[2], Record::Validation(v) if v.validation.o_l2 == Some(2.5)));
+        assert!(matches!(&r[3], Record::Step(s) if s.global_step == 3));
+        assert!(recorded(&p, 2).unwrap() && !recorded(&p, 3).unwrap());
+        truncate_records(&p, 3).unwrap();
+        let kept = read_records(&p).unwrap();
+        assert_eq!(kept.len(), 4, "steps 1–3 and step 2's validation");
+        assert!(!recorded(&p, 4).unwrap());
+        std::fs::write(&p, "{\"x\": 1}\n").unwrap();
+        let e = read_records(&p).unwrap_err().to_string();
+        assert!(e.contains("metrics.jsonl:1: not a metrics line"), "{e}");
+    }
+}
