@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The Python package (python/) against the Rust build: a fresh virtual environment, `pip install
-# ./python[test]` (numpy, OpenEXR, blake3, pytest, safetensors, webdataset from PyPI) and PyTorch,
+# ./python[test]` (numpy, OpenEXR, blake3, safetensors, pytest, webdataset, tensorboardX and
+# TensorBoard's reader from PyPI) and PyTorch,
 # then python/tests with the datagen and trainer of this build. Where PyTorch installs, its tests
 # must run (MATEDIT_REQUIRE_TORCH); where it cannot (PyPI's Linux wheel with its CUDA libraries is
 # about 3 GB unpacked), they skip, saying so. The environment is removed at the end.
@@ -19,6 +20,7 @@ trap 'rm -rf "$venv"' EXIT
 "$py" -m venv "$venv"
 export PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1
 "$venv/bin/python" -m pip install --quiet "./python[test]"
+export MATEDIT_REQUIRE_TENSORBOARD=1
 if "$venv/bin/python" -m pip install --quiet torch >"$venv/torch.log" 2>&1; then
   export MATEDIT_REQUIRE_TORCH=1
 else

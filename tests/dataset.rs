@@ -575,14 +575,14 @@ fn the_command_line_refuses_a_second_run_and_names_bad_manifest_lines() {
     let o = Command::new(datagen())
         .args(["plan"])
         .arg(&exp)
-        .args(["--set", "splits[test].materials=1"])
+        .args(["--set", "splits[test].materials=3"])
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let plan = String::from_utf8_lossy(&o.stdout);
     assert!(plan.contains("32×32 images"), "extends: {plan}");
     let test_line = plan.lines().find(|l| l.starts_with("split test")).unwrap();
-    assert!(test_line.contains("materials: 1;"), "--set: {test_line}");
+    assert!(test_line.contains("materials: 3;"), "--set: {test_line}");
     let o = Command::new(datagen())
         .args(["plan"])
         .arg(&exp)
@@ -610,7 +610,7 @@ fn a_validation_split_is_dealt_apart_from_training_and_test() {
     let out = d.join("out");
     run_to(&m, &out);
     let ds: Value = serde_json::from_str(&std::fs::read_to_string(out.join("dataset.json")).unwrap()).unwrap();
-    let splits = ds["plan"]["splits"].as_array().unwrap();
+    let splits = ds["splits"].as_array().unwrap();
     let role = |n: &str| splits.iter().find(|s| s["name"] == n).unwrap()["role"].clone();
     assert_eq!(
         (role("train"), role("test"), role("val")),

@@ -11,7 +11,7 @@ mod fuzz;
 
 use burn::optim::AdamConfig;
 use burn::tensor::Device;
-use fuzz::{Counting, Reader, Verdict, copy_tree, dataset, fuzz, seed_file};
+use fuzz::{Counting, Reader, Verdict, copy_tree, dataset, fuzz};
 use matedit_trainer::data::Dataset;
 use matedit_trainer::model::Widths;
 use matedit_trainer::model::network::NetConfig;
@@ -43,7 +43,13 @@ fn training_manifests() {
         .unwrap()
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.extension().is_some_and(|e| e == "toml"))
-        .filter_map(|p| seed_file(&p))
+        // Each as resolved (its `extends` followed): a file that extends another is fuzzed
+        // alone, where its base is not.
+        .filter_map(|p| {
+            matedit_contract::manifest::Resolved::read(&p, &[])
+                .ok()
+                .map(|r| (p.display().to_string(), r.text.into_bytes()))
+        })
         .collect();
     seeds.sort();
     assert!(!seeds.is_empty(), "the shipped training manifests");

@@ -43,15 +43,21 @@ def export(dataset, tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
-def network(dataset, tmp_path_factory) -> Path:
-    """A network the trainer under test trained (two steps) and exported."""
-    tmp = tmp_path_factory.mktemp("net")
+def trained_run(dataset, tmp_path_factory) -> Path:
+    """A run of the trainer under test: two steps, each validated."""
+    out = tmp_path_factory.mktemp("train") / "run"
     run(
-        binary("trainer"), "run", Path(__file__).with_name("tiny-train.toml"), "--out", tmp / "run",
-        "--quiet", "--set", f"data.dataset={json_string(dataset)}", "--set", "eval.max_samples=2",
+        binary("trainer"), "run", Path(__file__).with_name("tiny-train.toml"), "--out", out,
+        "--quiet", "--set", f"data.dataset={json_string(dataset)}",
     )
-    out = tmp / "net.safetensors"
-    run(binary("trainer"), "export", tmp / "run" / "checkpoints" / "pretrain", "--safetensors", out)
+    return out
+
+
+@pytest.fixture(scope="session")
+def network(trained_run, tmp_path_factory) -> Path:
+    """The trained run's network, exported."""
+    out = tmp_path_factory.mktemp("net") / "net.safetensors"
+    run(binary("trainer"), "export", trained_run / "checkpoints" / "pretrain", "--safetensors", out)
     return out
 
 

@@ -1,7 +1,7 @@
 //! `trainer run` and `trainer eval` end to end on a tiny dataset rendered by datagen's library
 //! (16² images, 4×8 environments, two-region cars and an OBJ monitor, DSBRDF material files):
-//! a killed or signalled run resumes to the same loss sequence and metrics as an uninterrupted one, and
-//! refusals name their cause.
+//! a killed or signalled run resumes to the same loss sequence and metrics as an uninterrupted one,
+//! validation while training keeps the best checkpoint across a kill, and refusals name their cause.
 
 use matedit_fixtures::{OCTAHEDRON, Sources, five_materials, render_dataset};
 use matedit_trainer::alloc::PeakAlloc;
@@ -26,9 +26,11 @@ const AS_TRAINER: &str = "MATEDIT_TEST_AS_TRAINER";
 mod eval;
 mod refusals;
 mod resume;
+mod validation;
 use eval::*;
 use refusals::*;
 use resume::*;
+use validation::*;
 
 fn main() -> ExitCode {
     if std::env::var_os(AS_TRAINER).is_some() {
@@ -37,7 +39,11 @@ fn main() -> ExitCode {
         return matedit_trainer::cli::main(Some(&ALLOC));
     }
     let args = libtest_mimic::Arguments::from_args();
-    let tests: [(&str, fn()); 10] = [
+    let tests: [(&str, fn()); 11] = [
+        (
+            "a_validated_run_keeps_its_best_checkpoint_across_a_kill",
+            a_validated_run_keeps_its_best_checkpoint_across_a_kill,
+        ),
         (
             "the_perceptual_loss_is_said_and_a_resume_keeps_it",
             the_perceptual_loss_is_said_and_a_resume_keeps_it,

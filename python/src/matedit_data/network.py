@@ -65,22 +65,22 @@ def load_network(path) -> Network:
         with safe_open(str(path), framework="numpy") as f:
             meta = dict(f.metadata() or {})
     except Exception as e:  # the safetensors package raises its own error types
-        raise DatasetError(f"{path}: not a safetensors file: {e}") from e
+        raise DatasetError(path, f"not a safetensors file: {e}") from e
     fmt = meta.get("matedit.format")
     if fmt is None:
-        raise DatasetError(f"{path}: not a matedit network (no matedit.format metadata)")
+        raise DatasetError(path, "not a matedit network (no matedit.format metadata)")
     if fmt != NETWORK_FORMAT:
-        raise DatasetError(f"{path}: format {fmt!r} (this reader reads {NETWORK_FORMAT!r})")
+        raise DatasetError(path, f"format {fmt!r} (this reader reads {NETWORK_FORMAT!r})")
     try:
         config = json.loads(meta["matedit.net"])
     except (KeyError, json.JSONDecodeError) as e:
-        raise DatasetError(f"{path}: matedit.net is not a network configuration: {e}") from e
+        raise DatasetError(path, f"matedit.net is not a network configuration: {e}") from e
     tensors = load_file(str(path))
     for name, t in tensors.items():
         if t.dtype != np.float32:
-            raise DatasetError(f"{path}: {name} is {t.dtype}, not float32")
+            raise DatasetError(path, f"{name} is {t.dtype}, not float32")
         if not np.isfinite(t).all():
-            raise DatasetError(f"{path}: {name} holds a value that is not finite")
+            raise DatasetError(path, f"{name} holds a value that is not finite")
     return Network(
         config=config,
         tensors=tensors,

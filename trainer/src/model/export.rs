@@ -243,4 +243,30 @@ mod tests {
             .to_string();
         assert!(e.contains("not a safetensors file"), "{e}");
     }
+
+    #[test]
+    fn the_documented_table_is_the_quickstarts_network() {
+        let doc = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/FORMAT.md")).unwrap();
+        let table = doc
+            .split("| name | shape |\n|---|---|\n")
+            .nth(1)
+            .expect("the table in docs/FORMAT.md");
+        let rows: Vec<(String, String)> = table
+            .lines()
+            .take_while(|l| l.starts_with('|'))
+            .map(|l| {
+                let cells: Vec<&str> = l.split('|').map(str::trim).collect();
+                (cells[1].trim_matches('`').to_string(), cells[2].to_string())
+            })
+            .collect();
+        let net = NetConfig::new(64, Widths::preset("cpu-small").unwrap())
+            .with_env_height(64)
+            .init(&Device::flex());
+        let live: Vec<(String, String)> = tensors(&net)
+            .into_iter()
+            .map(|t| (t.name, format!("{:?}", t.shape)))
+            .collect();
+        assert_eq!(rows, live);
+        assert!(tensors(&net).iter().all(|t| t.dtype == "F32"));
+    }
 }
