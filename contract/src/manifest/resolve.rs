@@ -76,7 +76,11 @@ impl Resolved {
 
     /// [`Resolved::read`] of text already read from `path`.
     pub fn resolve(path: &Path, text: String, sets: &[String]) -> Result<Resolved, ManifestError> {
-        // Text that is not TOML is left to the manifest's own parser, which says where.
+        // Text nested too deep or not TOML is left to the manifest's own parser, which says
+        // where (and parses nothing first: the nesting guard protects the stack).
+        if nested_too_deep(&text).is_some() {
+            return Ok(Self::plain(path, text));
+        }
         let extends = match DeTable::parse(&text) {
             Ok(t) => t.get_ref().contains_key("extends"),
             Err(_) => false,
@@ -400,193 +404,6 @@ fn named(items: &[Item]) -> bool {
     items.iter().all(|i| entry_table(i).and_then(Table::name).is_some())
 }
 
-/// One step of a `--set` path: `key`, `[N]` or `[NAME]`.
-#[derive(Debug, PartialEq)]
-enum Step {
-    Key(String),
-    Index(usize),
-    Name(String),
-}
-
-/// `stages[1].steps`, `stages[joint].steps`, `model.widths`.
-fn parse_path(p: &str) -> Result<Vec<Step>, String> {
-    let mut steps = Vec::new();
-    let mut rest = p;
-    loop {
-        let end = rest.find(['.', '[']).unwrap_or(rest.len());
-        let key = &rest[..end];
-        if key.is_empty() || !key.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
-            return Err(format!(
-                "{p:?} is not a field path (keys separated by dots, e.g. stages[1].steps)"
-            ));
-        }
-        steps.push(Step::Key(key.to_string()));
-        rest = &rest[end..];
-        while let Some(r) = rest.strip_prefix('[') {
-            let close = r.find(']').ok_or_else(|| format!("an unclosed [ in {p:?}"))?;
-            let inner = &r[..close];
-            if inner.is_empty() {
-                return Err(format!("an empty [] in {p:?}"));
-            }
-            steps.push(match inner.parse::<usize>() {
-                Ok(n) => Step::Index(n),
-                Err(_) => Step::Name(inner.to_string()),
-            });
-            rest = &r[close + 1..];
-        }
-        match rest.strip_prefix('.') {
-            Some(r) => rest = r,
-            None if rest.is_empty() => return Ok(steps),
-            None => return Err(format!("{p:?} is not a field path (expected . after ])")),
-        }
-    }
-}
-
-/// The value of a `--set`: TOML (`60`, `1e-4`, `"text"`, `[[0, 1e-4]]`, `{ a = 1 }`), or, where
-/// it is not TOML and has no quote, bracket or brace, the text as a string (`--set
-/// run.device=wgpu`).
-fn parse_value(v: &str) -> Result<toml::Value, String> {
-    match v.parse::<toml::Value>() {
-        Ok(value) => Ok(value),
-        Err(_) if !v.is_empty() && !v.contains(['"', '\'', '[', ']', '{', '}', '\n']) => {
-            Ok(toml::Value::String(v.to_string()))
-        }
-        Err(e) => Err(format!("{v:?} is not a TOML value: {}", e.message())),
-    }
-}
-
-/// Applies one `PATH=VALUE` option.
-fn apply_set(root: &mut Table, option: &str) -> Result<(), ManifestError> {
-    let fail = |field: &str, message: String| ManifestError::Set {
-        option: option.to_string(),
-        field: field.to_string(),
-        message,
-    };
-    let Some((path, value)) = option.split_once('=') else {
-        return Err(fail("", "expected PATH=VALUE (e.g. stages[1].steps=60)".into()));
-    };
-    let path = path.trim();
-    let steps = parse_path(path).map_err(|e| fail(path, e))?;
-    if steps.first() == Some(&Step::Key("extends".into())) {
-        return Err(fail(
-            path,
-            "extends is the manifest's own; name another manifest instead".into(),
-        ));
-    }
-    let value = parse_value(value.trim()).map_err(|e| fail(path, e))?;
-    let origin = Origin::Set(option.to_string());
-    let node = from_value(value, &origin);
-    set_in(root, &steps, node, &origin).map_err(|e| fail(path, e))
-}
-
-/// A value given on the command line as a merge node (its tables merge-able like a file's).
-fn from_value(v: toml::Value, origin: &Origin) -> Node {
-    match v {
-        toml::Value::Table(t) => Node::Table(Table {
-            entries: t
-                .into_iter()
-                .map(|(k, v)| {
-                    (
-                        k,
-                        Item {
-                            node: from_value(v, origin),
-                            origin: origin.clone(),
-                        },
-                    )
-                })
-                .collect(),
-        }),
-        toml::Value::Array(a) if !a.is_empty() && a.iter().all(toml::Value::is_table) => Node::Tables(
-            a.into_iter()
-                .map(|v| Item {
-                    node: from_value(v, origin),
-                    origin: origin.clone(),
-                })
-                .collect(),
-        ),
-        other => Node::Leaf(other),
-    }
-}
-
-fn set_in(t: &mut Table, steps: &[Step], node: Node, origin: &Origin) -> Result<(), String> {
-    let Some((Step::Key(key), rest)) = steps.split_first() else {
-        return Err("a field path starts with a key".into());
-    };
-    match rest.first() {
-        None => {
-            match t.get_mut(key) {
-                // A table given whole merges as a file's would.
-                Some(Item {
-                    node: Node::Table(existing),
-                    ..
-                }) if matches!(node, Node::Table(_)) => {
-                    if let Node::Table(given) = node {
-                        overlay(existing, given);
-                    }
-                }
-                Some(item) => {
-                    *item = Item {
-                        node,
-                        origin: origin.clone(),
-                    }
-                }
-                None => t.entries.push((
-                    key.clone(),
-                    Item {
-                        node,
-                        origin: origin.clone(),
-                    },
-                )),
-            }
-            Ok(())
-        }
-        Some(Step::Key(_)) => {
-            if t.get_mut(key).is_none() {
-                t.entries.push((
-                    key.clone(),
-                    Item {
-                        node: Node::Table(Table::default()),
-                        origin: origin.clone(),
-                    },
-                ));
-            }
-            match t.get_mut(key).map(|i| &mut i.node) {
-                Some(Node::Table(inner)) => set_in(inner, rest, node, origin),
-                _ => Err(format!("{key} is a value, not a table")),
-            }
-        }
-        Some(selector) => {
-            let Some(Node::Tables(items)) = t.get_mut(key).map(|i| &mut i.node) else {
-                return Err(format!("{key} is not an array of tables"));
-            };
-            let count = items.len();
-            let entry = match selector {
-                Step::Index(n) => items
-                    .get_mut(*n)
-                    .ok_or_else(|| format!("{key}[{n}]: there are {count} (numbered from 0)"))?,
-                Step::Name(name) => {
-                    let names: Vec<String> = items
-                        .iter()
-                        .filter_map(|i| entry_table(i).and_then(Table::name).map(str::to_owned))
-                        .collect();
-                    items
-                        .iter_mut()
-                        .find(|i| entry_table(i).and_then(Table::name) == Some(name.as_str()))
-                        .ok_or_else(|| format!("no entry of {key} is named {name:?} ({})", names.join(", ")))?
-                }
-                Step::Key(_) => unreachable!("matched above"),
-            };
-            let Node::Table(inner) = &mut entry.node else {
-                return Err(format!("{key} is not an array of tables"));
-            };
-            if rest.len() < 2 {
-                return Err(format!("name a field of the entry of {key}, e.g. {key}[0].name"));
-            }
-            set_in(inner, &rest[1..], node, origin)
-        }
-    }
-}
-
 /// The rendered text and each line's origin.
 #[derive(Default)]
 struct Render {
@@ -711,6 +528,9 @@ fn inline(n: &Node) -> String {
         }
     }
 }
+
+mod set;
+use set::apply_set;
 
 #[cfg(test)]
 mod tests;

@@ -10,6 +10,7 @@ mod loss_tests;
 pub mod manifest;
 pub mod perceptual;
 pub mod plot;
+pub mod records;
 pub mod run;
 pub mod schedule;
 pub mod step;

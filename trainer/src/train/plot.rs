@@ -2,11 +2,10 @@
 //! per term (each step faint, a running mean bold), stage boundaries marked; below, the learning
 //! rate of every step and the validation scores while training.
 
-use super::step::{LossWeights, Losses};
-use super::validation::{Record, Scores, ValidationLine};
+use super::records::{MetricsLine, Record, Scores, ValidationLine};
+use super::step::LossWeights;
 use anyhow::{Result, anyhow};
 use plotters::prelude::*;
-use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// DejaVu Sans (Bitstream Vera licence: `assets/fonts/LICENSE-DejaVu.txt`), the font of every
@@ -330,26 +329,11 @@ fn draw_validation(area: &Area, vals: &[&ValidationLine], steps: usize) -> Resul
     Ok(())
 }
 
-/// One line of `metrics.jsonl`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct MetricsLine {
-    /// Stage name.
-    pub stage: String,
-    /// Step within the stage (1-based: steps completed).
-    pub step: usize,
-    /// Steps completed in the run.
-    pub global_step: usize,
-    /// Learning rate of the step.
-    pub lr: f64,
-    /// Loss terms.
-    pub losses: Losses,
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::train::records::{Record, Scores, ValidationLine};
     use crate::train::step::Losses;
-    use crate::train::validation::{Record, Scores, ValidationLine};
 
     #[test]
     fn curves_are_drawn_for_every_term_and_stage() {

@@ -15,7 +15,7 @@
 use super::checkpoint::{self, State};
 use super::data_parallel;
 use super::manifest::{TrainPlan, check_device_name};
-use super::plot::MetricsLine;
+use super::records::MetricsLine;
 use super::step::{StepContext, StepKind, train_step};
 use super::stream::OpenStream;
 use crate::data::Part;
@@ -268,8 +268,7 @@ pub fn run_as(
     if let (Some(v), Some((s, dir))) = (&plan.validation, &start) {
         let scored = match &mut files {
             Some(f)
-                if v.due(s.global_step, s.stage_done)
-                    && !super::validation::recorded(&metrics_path, s.global_step)? =>
+                if v.due(s.global_step, s.stage_done) && !super::records::recorded(&metrics_path, s.global_step)? =>
             {
                 let name = dir
                     .file_name()
@@ -448,7 +447,7 @@ pub fn run_as(
     let plotted = match files {
         Some(f) => {
             drop(f);
-            super::validation::read_records(&metrics_path)
+            super::records::read_records(&metrics_path)
                 .and_then(|records| super::plot::loss_curves(&records, &out.join("loss.png"), &plan.weights))
         }
         None => Ok(()),
@@ -511,7 +510,7 @@ fn set_up(plan: &TrainPlan, out: &Path, resume: bool, ranks: &Ranks) -> Result<S
                 );
             }
             if root {
-                super::validation::truncate_records(&metrics_path, state.global_step)?;
+                super::records::truncate_records(&metrics_path, state.global_step)?;
             }
             (net, Some((state, dir.clone())))
         }
@@ -593,7 +592,7 @@ impl RunFiles {
     }
 
     /// A validation's line in `metrics.jsonl`, on disk before the run goes on.
-    fn validation(&mut self, line: &super::validation::ValidationLine) -> Result<()> {
+    fn validation(&mut self, line: &super::records::ValidationLine) -> Result<()> {
         writeln!(self.metrics, "{}", serde_json::to_string(line)?)?;
         self.metrics.sync_data()?;
         Ok(())
@@ -630,15 +629,4 @@ fn remove_older_intermediates(out: &Path, stage: &str, keep: &str) -> Result<()>
         }
     }
     Ok(())
-}
-
-/// Reads the steps' lines of `metrics.jsonl` (not the validations').
-pub fn read_metrics(path: &Path) -> Result<Vec<MetricsLine>> {
-    Ok(super::validation::read_records(path)?
-        .into_iter()
-        .filter_map(|r| match r {
-            super::validation::Record::Step(s) => Some(s),
-            super::validation::Record::Validation(_) => None,
-        })
-        .collect())
 }

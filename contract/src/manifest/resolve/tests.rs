@@ -265,6 +265,23 @@ fn sets_reach_every_kind_of_field_and_name_the_option() {
     }
 }
 
+#[test]
+fn text_and_options_nested_beyond_the_guard_are_refused_before_parsing() {
+    // The shape that overflowed a thread's stack in the toml parser: refused by the nesting
+    // guard, never parsed (this test would abort the process otherwise).
+    let run_on = "[[splits]]\nshapes = { car = 1\n".repeat(2000);
+    let r = Resolved::resolve(Path::new("deep.toml"), run_on.clone(), &[]).unwrap();
+    assert!(r.is_plain(), "left to the manifest's parser, which names the line");
+    let e = super::super::parse_toml::<toml::Value>(Path::new("deep.toml"), &r.text).unwrap_err();
+    assert!(e.to_string().contains("nested more than 32 deep"), "{e}");
+    let d = folder(&[("base.toml", BASE)]);
+    let deep = format!("run.x={}1{}", "[".repeat(100_000), "]".repeat(100_000));
+    let e = Resolved::read(&d.path().join("base.toml"), &[deep])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("nested more than 32 deep") && e.len() < 400, "{e}");
+}
+
 #[derive(Debug, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 #[allow(dead_code)]
