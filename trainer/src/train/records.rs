@@ -148,17 +148,6 @@ pub fn recorded(path: &Path, global: usize) -> Result<bool> {
         .any(|r| matches!(r, Record::Validation(v) if v.global_step == global)))
 }
 
-/// Reads the steps' lines of `metrics.jsonl` (not the validations').
-pub fn read_metrics(path: &Path) -> Result<Vec<MetricsLine>> {
-    Ok(read_records(path)?
-        .into_iter()
-        .filter_map(|r| match r {
-            Record::Step(s) => Some(s),
-            Record::Validation(_) => None,
-        })
-        .collect())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
