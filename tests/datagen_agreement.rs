@@ -11,7 +11,7 @@ mod common;
 use matedit_fixtures::{Sources, render_dataset};
 use matedit_physics::brdf::Dsbrdf;
 use matedit_trainer::data::{Dataset, Loader, LoaderConfig};
-use matedit_trainer::render::{Batch, RenderingLayer};
+use matedit_trainer::render::{LayerInput, RenderingLayer};
 use std::sync::Arc;
 
 const DATASET: &str = r#"
@@ -122,7 +122,7 @@ fn ground_truth_n_m_l_reproduce_datagens_exact_images() {
             assert_eq!(b.dropped, 0, "every covered pixel has a shadeable normal");
             for (materials, want) in [(&b.materials, &b.input), (&b.target_materials, &b.target)] {
                 let got = layer
-                    .forward(&Batch {
+                    .forward(&LayerInput {
                         batch: b.batch,
                         size: (b.size, b.size),
                         regions: b.regions,

@@ -5,7 +5,7 @@
 use super::Prepared;
 use anyhow::{Context, Result, bail};
 use matedit_trainer::model::prediction::Prediction;
-use matedit_trainer::render::{Batch, MAX_RADIANCE, RenderingLayer};
+use matedit_trainer::render::{LayerInput, MAX_RADIANCE, RenderingLayer};
 
 /// What sets the level of the light the edit is rendered under.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -126,7 +126,7 @@ pub fn light_in_photo_units(env: &[f32], exposure: f64) -> Result<Vec<f32>> {
 /// a light brighter than the layer renders.
 pub fn light_at_photo_level(layer: &RenderingLayer, prep: &Prepared, x: &Prediction, l: &[f32]) -> Result<Vec<f32>> {
     let s = prep.size;
-    let rendered = layer.forward(&Batch {
+    let rendered = layer.forward(&LayerInput {
         batch: 1,
         size: (s, s),
         regions: prep.regions,

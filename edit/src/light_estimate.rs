@@ -14,7 +14,7 @@ use super::photo::{Encoding, Framing, Photo, luminance, prepare_framed};
 use super::predict::network_prediction;
 use anyhow::{Context, Result};
 use matedit_trainer::model::network::Net;
-use matedit_trainer::render::{Batch, RenderingLayer};
+use matedit_trainer::render::{LayerInput, RenderingLayer};
 
 /// Which of L' an edit keeps.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -260,7 +260,7 @@ impl LightSkill {
             size,
         };
         let look = |l: &[f32]| -> Result<Vec<f32>> {
-            let img = layer.forward(&Batch {
+            let img = layer.forward(&LayerInput {
                 batch: 1,
                 size: (size, size),
                 regions: 1,

@@ -264,7 +264,7 @@ fn the_objects_known_material_replaces_m_prime_and_sets_the_lights_level() {
 #[test]
 fn the_fitted_level_is_the_least_squares_scale_and_refuses_what_the_layer_cannot_render() {
     use crate::photo::Framing;
-    use matedit_trainer::render::{Batch, RenderingLayer};
+    use matedit_trainer::render::{LayerInput, RenderingLayer};
     let (n, he) = (4, 4);
     let layer = RenderingLayer::new(he);
     let m = Dsbrdf::near_lambertian([0.5; 3])
@@ -294,7 +294,7 @@ fn the_fitted_level_is_the_least_squares_scale_and_refuses_what_the_layer_cannot
     };
     let l = vec![1.0_f32; 3 * he * 2 * he];
     let rendered = layer
-        .forward(&Batch {
+        .forward(&LayerInput {
             batch: 1,
             size: (n, n),
             regions: 1,

@@ -22,7 +22,7 @@ use matedit_contract::io::{
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::tonemap::{srgb_encode, tonemap_u8};
 use matedit_trainer::post_optimisation;
-use matedit_trainer::render::{Batch, RenderingLayer};
+use matedit_trainer::render::{LayerInput, RenderingLayer};
 use std::path::{Path, PathBuf};
 
 /// Everything [`crate::edit`] measured and decided, for `report.json`.
@@ -284,7 +284,7 @@ pub(crate) fn spheres(
     materials
         .iter()
         .map(|m| {
-            let img = layer.forward(&Batch {
+            let img = layer.forward(&LayerInput {
                 batch: 1,
                 size: (n, n),
                 regions: 1,

@@ -6,7 +6,7 @@ use anyhow::Result;
 use burn::tensor::Device;
 use matedit_trainer::model::network::Net;
 use matedit_trainer::model::prediction::Prediction;
-use matedit_trainer::render::{Batch, RenderingLayer};
+use matedit_trainer::render::{LayerInput, RenderingLayer};
 
 /// The network's predictions and the renders made from them, at the network's resolution.
 #[derive(Clone, Debug)]
@@ -45,7 +45,7 @@ pub fn render_all(
 ) -> Result<Predicted> {
     let (s, r) = (prep.size, prep.regions);
     let render = |m: &[f32], l: &[f32]| -> Result<Vec<f32>> {
-        Ok(layer.forward(&Batch {
+        Ok(layer.forward(&LayerInput {
             batch: 1,
             size: (s, s),
             regions: r,

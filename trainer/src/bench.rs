@@ -17,7 +17,7 @@ use crate::data;
 use crate::model::Widths;
 use crate::model::network::{Net, NetConfig};
 use crate::render::op::host;
-use crate::render::{Batch, RenderingLayer, reference};
+use crate::render::{LayerInput, RenderingLayer, reference};
 use crate::train::manifest::TrainPlan;
 use crate::train::perceptual::Perceptual;
 use crate::train::step::StageKind;
@@ -78,7 +78,7 @@ pub fn rendering_layer(
 ) -> Result<(Measure, Option<Measure>)> {
     let layer = RenderingLayer::new(env_height);
     let hb = sphere_batch(batch, size, env_height, 1, &layer);
-    let b = Batch {
+    let b = LayerInput {
         batch,
         size: (size, size),
         regions: 1,

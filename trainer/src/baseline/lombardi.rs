@@ -32,7 +32,7 @@
 
 use crate::model::prediction::Prediction;
 use crate::post_optimisation::{Eq6Config, LightPrior, MaterialPrior, Optimised, Priors, Problem, Property, alternate};
-use crate::render::{Batch, RenderingLayer};
+use crate::render::{LayerInput, RenderingLayer};
 use anyhow::{Result, bail};
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use serde::{Deserialize, Serialize};
@@ -166,7 +166,7 @@ pub fn uninformed_start(layer: &RenderingLayer, o: &Observed, prior: &Reflectanc
         .flat_map(|_| prior.mean.iter().map(|&v| v as f32))
         .collect();
     let unit = vec![1.0f32; texels];
-    let r1 = layer.forward(&Batch {
+    let r1 = layer.forward(&LayerInput {
         batch: 1,
         size: (o.size, o.size),
         regions: o.regions,
@@ -265,7 +265,7 @@ mod tests {
 
     fn render(layer: &RenderingLayer, size: usize, n: &[f32], map: &[u8], m: &[f32], env: &[f32]) -> Vec<f32> {
         layer
-            .forward(&Batch {
+            .forward(&LayerInput {
                 batch: 1,
                 size: (size, size),
                 regions: 1,

@@ -18,7 +18,7 @@ pub mod rate;
 mod sample;
 mod stream;
 
-pub use batch::{Batch, Skipped};
+pub use batch::{Batch, Skipped, TensorBatch};
 pub use matedit_contract::records::SampleRecord;
 pub use matedit_contract::records::{DatasetRecord, MaterialRecord};
 pub use sample::{LoadError, Sample};

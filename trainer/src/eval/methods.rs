@@ -7,7 +7,7 @@ use super::{I_PRIME, O_PRIME};
 use crate::baseline::lombardi::{self, LombardiConfig, ReflectancePrior};
 use crate::data;
 use crate::render::op::host;
-use crate::render::{Batch, RenderingLayer};
+use crate::render::{LayerInput, RenderingLayer};
 use anyhow::{Result, bail};
 use matedit_physics::brdf::dsbrdf::PARAMS;
 
@@ -66,7 +66,7 @@ pub(super) fn encoder_decoder_batch(
     ed: &crate::model::encoder_decoder::EncoderDecoder,
     layer: &RenderingLayer,
     hb: &data::Batch,
-    tb: crate::train::batch::TensorBatch,
+    tb: crate::data::TensorBatch,
     row: &mut CheckpointEval,
 ) -> Result<Vec<f32>> {
     if hb.regions != 1 {
@@ -79,7 +79,7 @@ pub(super) fn encoder_decoder_batch(
     let m_t = tb.target_materials.reshape([hb.batch, PARAMS]);
     let (m_p, o_p) = ed.edit(tb.input, tb.mask, m_t);
     let (m_p, o_p) = (host(&m_p), host(&o_p));
-    let i_given_n_l = layer.forward(&Batch {
+    let i_given_n_l = layer.forward(&LayerInput {
         batch: hb.batch,
         size: (hb.size, hb.size),
         regions: 1,
@@ -124,7 +124,7 @@ pub(super) fn lombardi_batch(
         let res = lombardi::recover(layer, &o, prior, cfg)?;
         let target = &hb.target_materials[k * r * PARAMS..(k + 1) * r * PARAMS];
         let one = |m: &[f32], env: &[f32]| {
-            layer.forward(&Batch {
+            layer.forward(&LayerInput {
                 batch: 1,
                 size: (hb.size, hb.size),
                 regions: r,

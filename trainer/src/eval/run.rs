@@ -23,7 +23,7 @@ use crate::baseline::lombardi::{LombardiConfig, ReflectancePrior};
 use crate::data;
 use crate::data::{Dataset, Loader, LoaderConfig};
 use crate::render::op::host;
-use crate::render::{Batch, RenderingLayer};
+use crate::render::{LayerInput, RenderingLayer};
 use crate::train::checkpoint;
 use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
@@ -244,7 +244,7 @@ pub fn evaluate(checkpoints: &[PathBuf], opts: &EvalOptions) -> Result<EvalRepor
             let l_p = p.env.as_ref().map(host).unwrap_or_default();
             let mean_mats: Vec<f32> = (0..hb.batch * hb.regions).flat_map(|_| mean).collect();
             let render = |n: &[f32], m: &[f32], env: &[f32]| {
-                layer.forward(&Batch {
+                layer.forward(&LayerInput {
                     batch: hb.batch,
                     size: (hb.size, hb.size),
                     regions: hb.regions,

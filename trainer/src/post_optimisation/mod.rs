@@ -28,7 +28,7 @@ use parametrised::{Lent, Recorder};
 pub use priors::{LightPrior, MaterialPrior, Priors};
 
 use crate::model::prediction::Prediction;
-use crate::render::{Batch, RenderingLayer, Wanted};
+use crate::render::{LayerInput, RenderingLayer, Wanted};
 use anyhow::{Result, anyhow};
 use argmin::core::Executor;
 use argmin::core::observers::ObserverMode;
@@ -221,8 +221,8 @@ impl Problem<'_> {
         self.region_map[k] > 0 && (0..3).all(|c| self.image[c * p + k].is_finite())
     }
 
-    fn batch<'b>(&'b self, x: &'b Prediction) -> Batch<'b> {
-        Batch {
+    fn batch<'b>(&'b self, x: &'b Prediction) -> LayerInput<'b> {
+        LayerInput {
             batch: 1,
             size: (self.size, self.size),
             regions: self.regions,

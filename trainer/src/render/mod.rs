@@ -174,7 +174,7 @@ impl RenderError {
 
 /// One batch of rendering-layer inputs (layouts in the module docs).
 #[derive(Clone, Copy, Debug)]
-pub struct Batch<'a> {
+pub struct LayerInput<'a> {
     /// Images.
     pub batch: usize,
     /// Image height and width in pixels.
@@ -236,7 +236,7 @@ impl RenderingLayer {
     }
 
     /// Validates the batch's shapes and region indices.
-    pub fn check(&self, b: &Batch) -> Result<(), RenderError> {
+    pub fn check(&self, b: &LayerInput) -> Result<(), RenderError> {
         let (h, w) = b.size;
         let p = h * w;
         let t = self.tex.count();
@@ -287,7 +287,7 @@ impl RenderingLayer {
         Ok(())
     }
 
-    fn parts(b: &Batch) -> Vec<Part> {
+    fn parts(b: &LayerInput) -> Vec<Part> {
         let p = b.size.0 * b.size.1;
         let mut parts = Vec::new();
         for image in 0..b.batch {
@@ -303,13 +303,13 @@ impl RenderingLayer {
         parts
     }
 
-    fn normal(b: &Batch, image: usize, pixel: usize) -> [f32; 3] {
+    fn normal(b: &LayerInput, image: usize, pixel: usize) -> [f32; 3] {
         let p = b.size.0 * b.size.1;
         std::array::from_fn(|a| b.normals[(image * 3 + a) * p + pixel])
     }
 
     /// L·dω per texel of image `i`, non-finite and negative radiance as 0.
-    fn light(&self, b: &Batch, i: usize) -> [Vec<f32>; 3] {
+    fn light(&self, b: &LayerInput, i: usize) -> [Vec<f32>; 3] {
         let t = self.tex.count();
         std::array::from_fn(|c| {
             let mut v = vec![0.0; self.tex.padded()];
@@ -325,7 +325,7 @@ impl RenderingLayer {
         })
     }
 
-    fn prepare(&self, b: &Batch, parts: &[Part]) -> (Vec<MaterialTexels>, Vec<[Vec<f32>; 3]>) {
+    fn prepare(&self, b: &LayerInput, parts: &[Part]) -> (Vec<MaterialTexels>, Vec<[Vec<f32>; 3]>) {
         let mats = parts
             .par_iter()
             .map(|part| {
@@ -338,7 +338,7 @@ impl RenderingLayer {
     }
 
     /// Renders the batch: `[B, 3, H, W]`, zero on the background.
-    pub fn forward(&self, b: &Batch) -> Result<Vec<f32>, RenderError> {
+    pub fn forward(&self, b: &LayerInput) -> Result<Vec<f32>, RenderError> {
         self.check(b)?;
         let parts = Self::parts(b);
         let (mats, lights) = self.prepare(b, &parts);
@@ -372,13 +372,13 @@ impl RenderingLayer {
 
     /// Gradients of a loss with respect to every input, given ∂loss/∂output (`upstream`,
     /// `[B, 3, H, W]`).
-    pub fn backward(&self, b: &Batch, upstream: &[f32]) -> Result<Gradients, RenderError> {
+    pub fn backward(&self, b: &LayerInput, upstream: &[f32]) -> Result<Gradients, RenderError> {
         self.backward_wanted(b, upstream, Wanted::ALL)
     }
 
     /// [`RenderingLayer::backward`] for the gradients `want` asks for only; the others come back
     /// as zeros.
-    pub fn backward_wanted(&self, b: &Batch, upstream: &[f32], want: Wanted) -> Result<Gradients, RenderError> {
+    pub fn backward_wanted(&self, b: &LayerInput, upstream: &[f32], want: Wanted) -> Result<Gradients, RenderError> {
         self.check(b)?;
         let (h, w) = b.size;
         let p = h * w;

@@ -15,7 +15,7 @@
 //!
 //! The surrogate's *value* is meaningless; the loss that is logged is computed separately.
 
-use super::{Batch, Gradients, RenderError, RenderingLayer};
+use super::{Gradients, LayerInput, RenderError, RenderingLayer};
 use burn::tensor::{Device, Tensor, TensorData};
 
 /// Copies a tensor's values to the host.
@@ -61,8 +61,8 @@ impl Rendered {
         Ok(r)
     }
 
-    fn batch_view(&self) -> Batch<'_> {
-        Batch {
+    fn batch_view(&self) -> LayerInput<'_> {
+        LayerInput {
             batch: self.batch,
             size: self.size,
             regions: self.regions,

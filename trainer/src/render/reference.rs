@@ -8,7 +8,7 @@
 //! works on pixel chunks and takes each chunk's vector–Jacobian product before the next.
 
 use super::material::{MEMBERS, knot_index, log_affine};
-use super::{Batch, Gradients, RenderError, RenderingLayer};
+use super::{Gradients, LayerInput, RenderError, RenderingLayer};
 use burn::tensor::{Device, Tensor, TensorData};
 use matedit_physics::brdf::dsbrdf::{GAMMA_RANGE, KAPPA_RANGE, KNOTS, PARAMS};
 
@@ -113,7 +113,7 @@ fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
 /// chunk on `device` (which must have autodiff enabled for the gradients).
 pub fn forward_backward(
     layer: &RenderingLayer,
-    b: &Batch,
+    b: &LayerInput,
     upstream: &[f32],
     device: &Device,
 ) -> Result<(Vec<f32>, Gradients), RenderError> {

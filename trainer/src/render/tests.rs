@@ -21,8 +21,8 @@ pub(super) struct Scene {
 }
 
 impl Scene {
-    fn batch(&self) -> Batch<'_> {
-        Batch {
+    fn batch(&self) -> LayerInput<'_> {
+        LayerInput {
             batch: 1,
             size: (self.size, self.size),
             regions: self.regions,
@@ -404,7 +404,7 @@ fn a_white_furnace_gives_the_albedo_of_a_near_lambertian_material() {
         .map(|&v| v as f32)
         .collect();
     let env = vec![1.0f32; 3 * 2 * 32 * 32];
-    let b = Batch {
+    let b = LayerInput {
         batch: 1,
         size: (size, size),
         regions: 1,
@@ -466,7 +466,7 @@ fn bad_shapes_and_regions_are_errors() {
     ));
     let mut map = s.region_map.clone();
     map[30] = 3;
-    let b = Batch {
+    let b = LayerInput {
         region_map: &map,
         ..s.batch()
     };

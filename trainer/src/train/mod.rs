@@ -1,7 +1,6 @@
 //! Training: the network, its losses, one step of each stage, and manifest-driven runs with
 //! checkpoints and resume.
 
-pub mod batch;
 pub mod checkpoint;
 pub mod data_parallel;
 pub mod loss;

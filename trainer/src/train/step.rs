@@ -2,10 +2,10 @@
 //! predict n', m', L'; re-render I' = R(n', m', L') and O' = R(n', m_t, L'); minimise
 //! l = w_n·l_normal + w_m·l_material + w_p·l_perceptual (Eq. 5).
 
-use super::batch::TensorBatch;
 use super::loss::{illumination_loss, light_direction_loss, light_energy_loss, material_loss, normal_loss, ssim_loss};
 use super::perceptual::Perceptual;
 use crate::data;
+use crate::data::TensorBatch;
 use crate::model::network::Net;
 use crate::render::RenderingLayer;
 use crate::render::op::{Rendered, host};

@@ -2,7 +2,7 @@
 //! rendered by the rendering layer itself (so I and O are consistent with n, m, L).
 
 use crate::data;
-use crate::render::{Batch, RenderingLayer};
+use crate::render::{LayerInput, RenderingLayer};
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use matedit_physics::camera::unit_sphere_normals;
 use rand_core::Rng;
@@ -52,7 +52,7 @@ pub fn sphere_batch(batch: usize, size: usize, env_height: usize, seed: u64, lay
     }
     let render = |materials: &[f32]| {
         layer
-            .forward(&Batch {
+            .forward(&LayerInput {
                 batch,
                 size: (size, size),
                 regions: 1,

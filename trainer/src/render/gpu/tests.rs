@@ -6,7 +6,7 @@
 //! unless `MATEDIT_REQUIRE_GPU=1` (set by `.ci/run`), where a missing device fails.
 
 use super::super::tests::{Lcg, Scene, sphere, upstream};
-use super::super::{Batch, RenderingLayer, material};
+use super::super::{LayerInput, RenderingLayer, material};
 use super::*;
 use burn::tensor::Tensor;
 
@@ -51,8 +51,8 @@ impl Stack {
         }
     }
 
-    fn cpu(&self) -> Batch<'_> {
-        Batch {
+    fn cpu(&self) -> LayerInput<'_> {
+        LayerInput {
             batch: self.batch,
             size: (self.size, self.size),
             regions: self.regions,
