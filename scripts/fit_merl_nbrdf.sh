@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Fits the paper's DSBRDF to each of MERL's 100 materials given as neural BRDFs (issue 41):
+# Fits the paper's DSBRDF to each of MERL's 100 materials given as neural BRDFs:
 #   bash scripts/fit_merl_nbrdf.sh [DIR] [OUT]
 # DIR: the *.nbrdf.json folder (default ../shared/eval-assets/brdfs/merl-nbrdf); OUT: where the
 # fitted materials and their .fit.json reports go (default out/merl-fits). Prints a Markdown table

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The one-call GPU check (issue 43): everything the first lent GPU should measure, prepared here
+# The one-call GPU check: everything the first lent GPU should measure, prepared here
 # and run there in one call.
 #
 #   bash scripts/gpu_check.sh prepare        # here (CPU, ~15 min the first time): builds and

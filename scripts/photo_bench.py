@@ -740,7 +740,7 @@ def write_sheet(out, cases, scenes, targets, methods, rows_max=12):
 
 
 # ---------------------------------------------------------------------------------------------
-# What a perspective view is worth (issue 39, item 5)
+# What a perspective view is worth
 
 
 def ggx_f1(n, wo, light, dirs, dw, alpha):

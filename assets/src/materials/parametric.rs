@@ -1,7 +1,7 @@
 //! Parametric material families: one analytic material per seed, its colour, albedo and
 //! roughness drawn from continuous distributions. The library names a few dozen materials; a
 //! module trained on those learns to name one of them, while a photo's object is none of them.
-//! Drawn materials show it albedo, hue and gloss as quantities (issue 39: the network's
+//! Drawn materials show it albedo, hue and gloss as quantities (the network's
 //! albedo, and with it the edit's light level, was one value for every photo).
 //!
 //! A material is a function of its family and seed alone (as `builtin:sunsky:3` is of its
