@@ -136,6 +136,12 @@ I, I', O' at the network's, n', L', m' as material.dsbrdf.json, sheet.png and re
         /// Objects of more pixels run Eq. 6's alternation on every k-th pixel (0: never).
         #[arg(long, default_value_t = Eq6Config::default().coarse_pixels)]
         eq6_coarse_pixels: usize,
+        /// The picture the edit should make, where it is known (the same object, view and light
+        /// with the target material, e.g. a render): the edit and the unchanged photo are then
+        /// scored against it (the paper's L2 and SSIM over the object), said and written to
+        /// report.json's `truth`.
+        #[arg(long)]
+        truth: Option<PathBuf>,
         /// Output folder.
         #[arg(long)]
         out: PathBuf,
@@ -354,8 +360,10 @@ fn run(cli: Cli) -> Result<()> {
             eq6_rounds,
             eq6_iterations,
             eq6_coarse_pixels,
+            truth,
             out,
         } => {
+            let scored_mask = mask.clone();
             let req = EditRequest {
                 photo: image,
                 mask,
@@ -381,6 +389,11 @@ fn run(cli: Cli) -> Result<()> {
                 }),
             };
             let report = edit(&model, &req, &out)?;
+            if let Some(t) = &truth {
+                let s = crate::truth::score(&req.photo, scored_mask.as_deref(), t, &out)?;
+                crate::truth::add_to_report(&out, &s)?;
+                say!("{}", s.line());
+            }
             if let Some(o) = &report.orientation {
                 say!("{}", o.line());
             }

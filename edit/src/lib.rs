@@ -54,6 +54,7 @@ pub mod target;
 #[cfg(test)]
 mod tests;
 pub mod transfer;
+pub mod truth;
 
 pub use composite::Composite;
 pub use light::{LevelFrom, LightOptions, known_material, light_at_own_level, light_at_photo_level};

@@ -96,6 +96,9 @@ fn an_edit_whose_reader_went_away_still_finishes_and_writes_everything() {
         .arg(root.join("photo.png"))
         .arg("--mask")
         .arg(root.join("mask.png"))
+        // The photo as its own truth: scored, and the unchanged photo's scores are perfect.
+        .arg("--truth")
+        .arg(root.join("photo.png"))
         .arg("--out")
         .arg(&out)
         .stdout(Stdio::piped())
@@ -111,6 +114,15 @@ fn an_edit_whose_reader_went_away_still_finishes_and_writes_everything() {
     for f in ["edited.png", "edited.exr", "report.json"] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let t = &report["truth"];
+    assert_eq!(
+        (t["photo_l2"].as_f64(), t["photo_ssim"].as_f64()),
+        (Some(0.0), Some(1.0)),
+        "{t}"
+    );
+    assert!(t["l2"].as_f64().is_some_and(|v| v.is_finite() && v > 0.0), "{t}");
     let _ = std::fs::remove_dir_all(&root);
 }
 
