@@ -187,26 +187,7 @@ pub(super) fn baseline_1_resumes_bit_identically_and_table_3_has_every_method() 
 
     // Killed mid-run and resumed: the same losses and scores, bit for bit.
     let out = root().join("b1-killed");
-    let mut child = trainer()
-        .arg("run")
-        .arg(&m)
-        .arg("--out")
-        .arg(&out)
-        .arg("--quiet")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let t0 = Instant::now();
-    while metric_lines(&out).len() < 7 && t0.elapsed() < Duration::from_secs(120) {
-        if child.try_wait().unwrap().is_some() {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    let running = child.try_wait().unwrap().is_none();
-    let _ = child.kill();
-    let _ = child.wait();
+    let running = run_killed_after(&m, &out, 7);
     assert!(
         running && metric_lines(&out).len() < want.len(),
         "the kill came too late"

@@ -204,6 +204,33 @@ fn train(manifest: &Path, out: &Path, resume: bool) -> std::process::Output {
     c.output().unwrap()
 }
 
+/// Starts `trainer run manifest --out out`, SIGKILLs it once `metrics.jsonl` holds `lines`
+/// lines, and says whether it was still running then (a kill that came after the run ended
+/// proves nothing).
+fn run_killed_after(manifest: &Path, out: &Path, lines: usize) -> bool {
+    let mut child = trainer()
+        .arg("run")
+        .arg(manifest)
+        .arg("--out")
+        .arg(out)
+        .arg("--quiet")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while metric_lines(out).len() < lines && t0.elapsed() < Duration::from_secs(120) {
+        if child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let running = child.try_wait().unwrap().is_none();
+    let _ = child.kill(); // SIGKILL
+    let _ = child.wait();
+    running
+}
+
 fn metric_lines(out: &Path) -> Vec<String> {
     std::fs::read_to_string(out.join("metrics.jsonl"))
         .unwrap_or_default()

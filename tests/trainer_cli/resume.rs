@@ -25,26 +25,7 @@ pub(super) fn a_killed_run_resumes_to_the_same_losses_and_metrics() {
     // Kill at several points: mid pretraining, mid joint training, just past the stage end.
     for (k, kill_after) in [5usize, 19, 15].into_iter().enumerate() {
         let out = root().join(format!("killed-{k}"));
-        let mut child = trainer()
-            .arg("run")
-            .arg(&m)
-            .arg("--out")
-            .arg(&out)
-            .arg("--quiet")
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
-        let t0 = Instant::now();
-        while metric_lines(&out).len() < kill_after && t0.elapsed() < Duration::from_secs(120) {
-            if child.try_wait().unwrap().is_some() {
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(2));
-        }
-        let running = child.try_wait().unwrap().is_none();
-        let _ = child.kill(); // SIGKILL
-        let _ = child.wait();
+        let running = run_killed_after(&m, &out, kill_after);
         let done = metric_lines(&out).len();
         assert!(
             running && done < want.len(),

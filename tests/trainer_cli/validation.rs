@@ -145,26 +145,7 @@ pub(super) fn a_validated_run_keeps_its_best_checkpoint_across_a_kill() {
     let want = metric_lines(&whole);
     for (k, kill_after) in [7usize, 20].into_iter().enumerate() {
         let out = root().join(format!("validated-killed-{k}"));
-        let mut child = trainer()
-            .arg("run")
-            .arg(&m)
-            .arg("--out")
-            .arg(&out)
-            .arg("--quiet")
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
-        let t0 = Instant::now();
-        while metric_lines(&out).len() < kill_after && t0.elapsed() < Duration::from_secs(120) {
-            if child.try_wait().unwrap().is_some() {
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(2));
-        }
-        let running = child.try_wait().unwrap().is_none();
-        let _ = child.kill();
-        let _ = child.wait();
+        let running = run_killed_after(&m, &out, kill_after);
         assert!(
             running && metric_lines(&out).len() < want.len(),
             "kill {k} came too late"

@@ -90,15 +90,7 @@ pub(crate) fn checksum(path: &Path) -> Result<String> {
 
 /// Writes checkpoint `name` under `root/checkpoints/` and points `root/latest.json` at it.
 pub fn save(root: &Path, name: &str, net: &Net, optim: &ModuleOptimizer, mut state: State) -> Result<PathBuf> {
-    let dir = root.join("checkpoints");
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let fin = dir.join(name);
-    let tmp = dir.join(format!(".tmp-{name}-{}", std::process::id()));
-    if tmp.exists() {
-        std::fs::remove_dir_all(&tmp)?;
-    }
-    std::fs::create_dir_all(&tmp)?;
-    removed_on_error(&tmp, || {
+    let fin = replace_folder(&root.join("checkpoints"), name, |tmp| {
         let model = tmp.join("model.bpk");
         net.clone()
             .into_record()
@@ -111,19 +103,8 @@ pub fn save(root: &Path, name: &str, net: &Net, optim: &ModuleOptimizer, mut sta
         state.model_checksum = checksum(&model)?;
         state.optimizer_checksum = checksum(&opt)?;
         std::fs::write(tmp.join("state.json"), serde_json::to_string_pretty(&state)?)?;
-        for f in ["model.bpk", "optimizer.bpk", "state.json"] {
-            std::fs::File::open(tmp.join(f))?.sync_all()?;
-        }
         Ok(())
     })?;
-    if fin.exists() {
-        // Same name again (a resumed run re-writing a checkpoint): move the old one aside first,
-        // so that the rename below cannot fail on a non-empty folder.
-        let old = dir.join(format!(".old-{name}-{}", std::process::id()));
-        std::fs::rename(&fin, &old)?;
-        std::fs::remove_dir_all(&old)?;
-    }
-    std::fs::rename(&tmp, &fin).with_context(|| format!("cannot move {} to {}", tmp.display(), fin.display()))?;
     write_atomically(&root.join("latest.json"), |p| {
         std::fs::write(
             p,
@@ -131,6 +112,37 @@ pub fn save(root: &Path, name: &str, net: &Net, optim: &ModuleOptimizer, mut sta
         )?;
         Ok(())
     })?;
+    Ok(fin)
+}
+
+/// Writes folder `dir/name` whole or not at all: `write` fills `dir/.tmp-NAME-PID`, every file in
+/// it is synced, and it takes the place of the previous `dir/name` (moved aside to
+/// `.old-NAME-PID` first, as a rename cannot replace a folder, and removed once the new one is
+/// in place). A kill leaves the previous folder or the new one; the temporaries are removed by
+/// [`remove_stale_temporaries`]. Checkpoints and the best checkpoint are written with it.
+pub fn replace_folder(dir: &Path, name: &str, write: impl FnOnce(&Path) -> Result<()>) -> Result<PathBuf> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let fin = dir.join(name);
+    let tmp = dir.join(format!(".tmp-{name}-{}", std::process::id()));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp)?;
+    }
+    std::fs::create_dir_all(&tmp)?;
+    removed_on_error(&tmp, || {
+        write(&tmp)?;
+        for e in std::fs::read_dir(&tmp)? {
+            std::fs::File::open(e?.path())?.sync_all()?;
+        }
+        Ok(())
+    })?;
+    if fin.exists() {
+        let old = dir.join(format!(".old-{name}-{}", std::process::id()));
+        std::fs::rename(&fin, &old)?;
+        std::fs::rename(&tmp, &fin).with_context(|| format!("cannot move {} to {}", tmp.display(), fin.display()))?;
+        std::fs::remove_dir_all(&old)?;
+    } else {
+        std::fs::rename(&tmp, &fin).with_context(|| format!("cannot move {} to {}", tmp.display(), fin.display()))?;
+    }
     Ok(fin)
 }
 

@@ -165,38 +165,21 @@ impl Validation {
             return Ok(());
         }
         let dir = out.join("checkpoints");
-        let tmp = dir.join(format!(".tmp-best-{}", std::process::id()));
-        if tmp.exists() {
-            std::fs::remove_dir_all(&tmp)?;
-        }
-        std::fs::create_dir_all(&tmp)?;
         let src = dir.join(name);
-        for f in ["model.bpk", "optimizer.bpk", "state.json"] {
-            std::fs::copy(src.join(f), tmp.join(f))
-                .with_context(|| format!("cannot copy {}", src.join(f).display()))?;
-        }
         let best = Best {
             metric: self.best.name().to_string(),
             value,
             line: line.clone(),
             checkpoint: name.to_string(),
         };
-        std::fs::write(tmp.join("best.json"), serde_json::to_string_pretty(&best)?)?;
-        for f in ["model.bpk", "optimizer.bpk", "state.json", "best.json"] {
-            std::fs::File::open(tmp.join(f))?.sync_all()?;
-        }
-        // The previous best moves aside first (a rename cannot replace a folder), and the new
-        // one takes its place: a kill leaves one of them, and the temporaries are removed by the
-        // next run.
-        let fin = dir.join("best");
-        if fin.exists() {
-            let old = dir.join(format!(".old-best-{}", std::process::id()));
-            std::fs::rename(&fin, &old)?;
-            std::fs::rename(&tmp, &fin)?;
-            std::fs::remove_dir_all(&old)?;
-        } else {
-            std::fs::rename(&tmp, &fin)?;
-        }
+        super::checkpoint::replace_folder(&dir, "best", |tmp| {
+            for f in ["model.bpk", "optimizer.bpk", "state.json"] {
+                std::fs::copy(src.join(f), tmp.join(f))
+                    .with_context(|| format!("cannot copy {}", src.join(f).display()))?;
+            }
+            std::fs::write(tmp.join("best.json"), serde_json::to_string_pretty(&best)?)?;
+            Ok(())
+        })?;
         Ok(())
     }
 }
