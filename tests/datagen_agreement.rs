@@ -11,7 +11,7 @@ mod common;
 use matedit_fixtures::{Sources, render_dataset};
 use matedit_physics::brdf::Dsbrdf;
 use matedit_trainer::data::{Dataset, Loader, LoaderConfig};
-use matedit_trainer::render::{LayerInput, RenderingLayer};
+use matedit_trainer::rendering_layer::{LayerInput, RenderingLayer};
 use std::sync::Arc;
 
 const DATASET: &str = r#"

@@ -2,7 +2,7 @@
 
 mod common;
 use common::*;
-use matedit_datagen::render::{EnvRes, RenderOptions, Shadows, render};
+use matedit_datagen::preview::{EnvRes, RenderOptions, Shadows, render};
 use matedit_physics::shading::Quality;
 
 fn render_with_threads(threads: usize, shape: &str, out: &std::path::Path) -> Vec<u32> {

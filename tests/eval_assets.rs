@@ -5,7 +5,7 @@
 mod common;
 use common::*;
 use matedit_assets::envfile::load_env;
-use matedit_datagen::render::{EnvRes, RenderOptions, Shadows, render};
+use matedit_datagen::preview::{EnvRes, RenderOptions, Shadows, render};
 use matedit_physics::shading::Quality;
 use std::path::{Path, PathBuf};
 

@@ -3,7 +3,7 @@
 
 mod common;
 use common::*;
-use matedit_datagen::render::EnvRes;
+use matedit_datagen::preview::EnvRes;
 use matedit_physics::shading::Quality;
 
 fn furnace(env_res: EnvRes, quality: Quality, res: usize) -> f64 {

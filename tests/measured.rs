@@ -3,7 +3,7 @@
 
 mod common;
 use common::*;
-use matedit_datagen::render::EnvRes;
+use matedit_datagen::preview::EnvRes;
 use matedit_physics::brdf::{Brdf, MerlBrdf};
 use matedit_physics::shading::Quality;
 

@@ -3,7 +3,7 @@
 
 mod common;
 use common::*;
-use matedit_datagen::render::{EnvRes, RenderOptions, Shadows, render};
+use matedit_datagen::preview::{EnvRes, RenderOptions, Shadows, render};
 use matedit_physics::shading::Quality;
 
 #[test]

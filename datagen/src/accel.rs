@@ -588,7 +588,7 @@ mod tests {
     #[cfg(feature = "embree")]
     #[test]
     fn embree_renders_agree_with_obvhs_and_do_not_depend_on_threads() {
-        use crate::render::{EnvRes, RenderOptions, Shadows, render};
+        use crate::preview::{EnvRes, RenderOptions, Shadows, render};
         let opts = |shape: &str, accel| RenderOptions {
             shape: shape.into(),
             up: Default::default(),

@@ -2,7 +2,7 @@
 //! binary's `main` only calls [`main`].
 
 use crate::accel::Accel;
-use crate::render::{EnvRes, RenderOptions, Shadows, render};
+use crate::preview::{EnvRes, RenderOptions, Shadows, render};
 use crate::shapes::UpAxis;
 use anyhow::Result;
 use clap::{Parser, Subcommand};

@@ -6,7 +6,7 @@
 //!   unit ball, with angle-weighted vertex normals where a file has none;
 //! * [`accel`]: the obvhs BVH for primary visibility and shadow rays;
 //! * [`gbuffer`]: per-pixel camera-space normals, mask and hit points of the orthographic view;
-//! * [`render`]: the one-scene preview renderer behind `datagen render`;
+//! * [`preview`]: the one-scene preview renderer behind `datagen render`;
 //! * [`dataset`]: the manifest-driven dataset factory behind `datagen plan/run/verify/inspect/join`;
 //! * [`cli`]: the `datagen` command line.
 //!
@@ -21,5 +21,5 @@ pub mod accel;
 pub mod cli;
 pub mod dataset;
 pub mod gbuffer;
-pub mod render;
+pub mod preview;
 pub mod shapes;

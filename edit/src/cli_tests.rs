@@ -61,13 +61,13 @@ fn eq6_settings_outside_their_ranges_are_refused_naming_the_option() {
     // No --composite leaves the choice to what is known: `ratio` with the material, `detail`
     // with a light at a known level, `structure` with neither.
     let composite = |args: &[&str]| match parse(args).map(|c| c.command) {
-        Ok(Command::Edit { composite, .. }) => composite,
+        Ok(Command::Edit(EditArgs { composite, .. })) => composite,
         _ => panic!("{args:?} refused"),
     };
     assert_eq!(composite(&["--input-material", "library:red-plastic"]), None);
     assert_eq!(composite(&["--composite", "render"]), Some(Composite::Render));
     let relight_level = |args: &[&str]| match parse(args).map(|c| c.command) {
-        Ok(Command::Edit { relight_level, .. }) => relight_level,
+        Ok(Command::Edit(EditArgs { relight_level, .. })) => relight_level,
         _ => panic!("{args:?} refused"),
     };
     assert_eq!(relight_level(&["--relight", "builtin:sky"]), RelightLevel::Light);
@@ -76,14 +76,14 @@ fn eq6_settings_outside_their_ranges_are_refused_naming_the_option() {
         RelightLevel::Given
     );
     let range = |args: &[&str]| match parse(args).map(|c| c.command) {
-        Ok(Command::Edit { range, .. }) => range,
+        Ok(Command::Edit(EditArgs { range, .. })) => range,
         _ => panic!("{args:?} not parsed"),
     };
     assert_eq!(range(&[]), None);
     assert_eq!(range(&["--range", "clip"]), Some(Range::Clip));
     assert!(parse(&["--range", "hdr"]).is_err());
     let estimate = |args: &[&str]| match parse(args).map(|c| c.command) {
-        Ok(Command::Edit { light_estimate, .. }) => light_estimate,
+        Ok(Command::Edit(EditArgs { light_estimate, .. })) => light_estimate,
         _ => panic!("{args:?} not parsed"),
     };
     assert_eq!(estimate(&[]), LightEstimate::Auto);
@@ -110,7 +110,9 @@ fn eq6_settings_outside_their_ranges_are_refused_naming_the_option() {
         ("swap", "--a", "--b", ["--a-material", "--b-material"]),
     ] {
         let finish = |args: &[&str]| match pair(cmd, x, y, args) {
-            Ok(Command::Transfer { finish, .. } | Command::Swap { finish, .. }) => finish.light_estimate,
+            Ok(Command::Transfer(TransferArgs { finish, .. }) | Command::Swap(SwapArgs { finish, .. })) => {
+                finish.light_estimate
+            }
             _ => panic!("{cmd} {args:?} not parsed"),
         };
         assert_eq!(finish(&[]), LightEstimate::Auto);
@@ -126,14 +128,14 @@ fn eq6_settings_outside_their_ranges_are_refused_naming_the_option() {
     }
     // Either object's normals reach its side (and are Eq. 6's start, as edit's --normals).
     let normals = |c| match c {
-        Command::Transfer {
+        Command::Transfer(TransferArgs {
             from_normals,
             to_normals,
             ..
-        } => [from_normals, to_normals],
-        Command::Swap {
+        }) => [from_normals, to_normals],
+        Command::Swap(SwapArgs {
             a_normals, b_normals, ..
-        } => [a_normals, b_normals],
+        }) => [a_normals, b_normals],
         _ => panic!("not a pair"),
     };
     for (cmd, x, y, own) in [

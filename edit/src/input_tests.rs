@@ -4,7 +4,7 @@
 
 use crate::tests::{dir, model, request, write_photo};
 use crate::transfer::Given;
-use crate::{edit, transfer};
+use crate::{Pair, edit, transfer};
 use std::path::Path;
 
 fn refused(e: anyhow::Error, input: &Path) {
@@ -49,10 +49,12 @@ fn no_input_named_anywhere_in_the_edit_may_be_replaced_by_an_output() {
     to.material = Some(&spec);
     let e = transfer(
         model(),
-        Given::photo(&p, Some(&m)),
-        to,
-        None,
-        crate::Composite::Render,
+        Pair {
+            first: Given::photo(&p, Some(&m)),
+            second: to,
+            eq6: None,
+            look: crate::Composite::Render.into(),
+        },
         &out,
     )
     .unwrap_err();

@@ -453,14 +453,44 @@ mod tests {
         let plain = Given::photo(&p, Some(&m));
         // Transfer: the receiving photo is rendered with its map; the map of the photo the
         // material comes from does not reach the output.
-        let t = crate::transfer(model(), plain, with_map, None, Composite::Detail, &d.join("t")).expect("transfer");
+        let t = crate::transfer(
+            model(),
+            crate::Pair {
+                first: plain,
+                second: with_map,
+                eq6: None,
+                look: Composite::Detail.into(),
+            },
+            &d.join("t"),
+        )
+        .expect("transfer");
         assert_eq!(t.normals.as_ref().map(|r| r.detail_pixels_kept), Some(0));
         assert!(all_tilted(&written(&d.join("t/normals.exr"))));
-        let f = crate::transfer(model(), with_map, plain, None, Composite::Detail, &d.join("f")).expect("transfer");
+        let f = crate::transfer(
+            model(),
+            crate::Pair {
+                first: with_map,
+                second: plain,
+                eq6: None,
+                look: Composite::Detail.into(),
+            },
+            &d.join("f"),
+        )
+        .expect("transfer");
         assert!(f.normals.is_none());
         assert!(!all_tilted(&written(&d.join("f/normals.exr"))));
         // Swap: each photo with its own.
-        let [a, b] = crate::swap(model(), with_map, plain, None, Composite::Detail, &d.join("s")).expect("swap");
+        let [a, b] = crate::swap(
+            model(),
+            crate::Pair {
+                first: with_map,
+                second: plain,
+                eq6: None,
+                look: Composite::Detail.into(),
+            },
+            &d.join("s"),
+        )
+        .expect("swap");
         assert!(a.normals.is_some() && b.normals.is_none());
         assert!(all_tilted(&written(&d.join("s/a/normals.exr"))));
         assert!(!all_tilted(&written(&d.join("s/b/normals.exr"))));
@@ -474,9 +504,29 @@ mod tests {
             ..plain
         };
         let o = d.join("refused");
-        let e = crate::transfer(model(), bad, plain, None, Composite::Detail, &o).expect_err("bad map");
+        let e = crate::transfer(
+            model(),
+            crate::Pair {
+                first: bad,
+                second: plain,
+                eq6: None,
+                look: Composite::Detail.into(),
+            },
+            &o,
+        )
+        .expect_err("bad map");
         assert!(format!("{e:#}").contains("small.png"), "{e:#}");
-        let e = crate::swap(model(), plain, bad, None, Composite::Detail, &o).expect_err("bad map");
+        let e = crate::swap(
+            model(),
+            crate::Pair {
+                first: plain,
+                second: bad,
+                eq6: None,
+                look: Composite::Detail.into(),
+            },
+            &o,
+        )
+        .expect_err("bad map");
         assert!(format!("{e:#}").contains("must match pixel for pixel"), "{e:#}");
         assert!(!o.exists(), "a refused transfer wrote {}", o.display());
         // A map inside the output folder, where the edit writes its own normals.exr, is refused
@@ -495,7 +545,17 @@ mod tests {
             normals: Some(&given_inside),
             ..plain
         };
-        let e = crate::transfer(model(), plain, g, None, Composite::Detail, &inside).expect_err("overwrote");
+        let e = crate::transfer(
+            model(),
+            crate::Pair {
+                first: plain,
+                second: g,
+                eq6: None,
+                look: Composite::Detail.into(),
+            },
+            &inside,
+        )
+        .expect_err("overwrote");
         assert!(format!("{e:#}").contains("would overwrite this input"), "{e:#}");
         assert_eq!(std::fs::read(&given_inside).ok(), std::fs::read(&map).ok());
         std::fs::remove_dir_all(&d).ok();

@@ -12,17 +12,17 @@
 //! | `sheet.png` | I, I', O', relit, n', L', and spheres of m' and m_t under L', labelled |
 //! | `report.json` | every setting, the framing and exposure, timings, the files |
 
+use super::eq6::Eq6Report;
 use super::photo::Framing;
 use super::photo::{Encoding, Photo};
-use super::{Composite, Predicted, Prepared, background, light_estimate, normals, range, target};
+use super::{Composite, Predicted, Prepared, light, normals, range, target};
 use anyhow::{Context, Result, bail};
 use matedit_contract::io::{
     SheetLabels, normal_to_u8, write_atomically, write_exr_channels, write_labelled_contact_sheet,
 };
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::tonemap::{srgb_encode, tonemap_u8};
-use matedit_trainer::post_optimisation;
-use matedit_trainer::render::{LayerInput, RenderingLayer};
+use matedit_trainer::rendering_layer::{LayerInput, RenderingLayer};
 use std::path::{Path, PathBuf};
 
 /// Everything [`crate::edit`] measured and decided, for `report.json`.
@@ -35,8 +35,8 @@ pub struct EditReport {
     /// How it was stored.
     pub encoding: Encoding,
     /// How it was turned to stand as viewers show it (the edit is written so), where its EXIF
-    /// said to ([`crate::orientation`]).
-    pub orientation: Option<crate::orientation::OrientationReport>,
+    /// said to ([`crate::photo::orientation`]).
+    pub orientation: Option<crate::photo::orientation::OrientationReport>,
     /// The mask (or "alpha of the photo").
     pub mask: String,
     /// Object pixels in the photo.
@@ -61,7 +61,7 @@ pub struct EditReport {
     /// The other illumination, if any.
     pub relight: Option<String>,
     /// How its level was set.
-    pub relight_level: Option<crate::relight::RelightLevelReport>,
+    pub relight_level: Option<crate::light::relight::RelightLevelReport>,
     /// The photo's illumination given instead of L', if any.
     pub light: Option<String>,
     /// The object's own material given instead of m', if any.
@@ -69,9 +69,9 @@ pub struct EditReport {
     /// The normal map given instead of n', if any, and where it had no normal.
     pub normals: Option<normals::NormalsReport>,
     /// What of L' was kept ([`light_estimate`]); none when a light was given.
-    pub light_estimate: Option<light_estimate::LightEstimateReport>,
+    pub light_estimate: Option<light::estimate::LightEstimateReport>,
     /// How the light's level was set.
-    pub light_level: background::LightLevel,
+    pub light_level: light::background::LightLevel,
     /// How O' went back into the photo.
     pub composite: Composite,
     /// How the relit render went back, when there is one.
@@ -86,38 +86,13 @@ pub struct EditReport {
     pub files: Vec<String>,
 }
 
-/// What Eq. 6 did, for `report.json` and `energy.png`.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct Eq6Report {
-    /// Weights and lengths as given.
-    pub config: post_optimisation::Eq6Config,
-    /// The light prior's weight the energies below were computed with: b × the ratio of the
-    /// detail square's pixels to the network's (the balance b was tuned for at the network's
-    /// resolution).
-    pub light_weight: f64,
-    /// E at the start: the network's prediction (with what of L' the checkpoint does not read
-    /// replaced, [`crate::light_estimate`]).
-    pub start: post_optimisation::Energy,
-    /// E at the end.
-    pub end: post_optimisation::Energy,
-    /// E after every L-BFGS iteration.
-    pub steps: Vec<post_optimisation::Step>,
-    /// Passes of the rendering layer.
-    pub evaluations: usize,
-    /// The alternation's pixel stride (1: every pixel of the object; k: every k-th of each row
-    /// and column, the whole image's E at the first and last step).
-    pub stride: usize,
-    /// Seconds.
-    pub seconds: f64,
-}
-
 /// Seconds per phase of an edit.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Timings {
     /// Reading the model, photo, mask, regions and materials.
     pub load: f64,
     /// The network (n', m', L'), and the light probe the first time a loaded model needs it
-    /// ([`crate::light_estimate`]).
+    /// ([`crate::light::estimate`]).
     pub network: f64,
     /// Eq. 6, when asked for.
     pub eq6: f64,
@@ -422,7 +397,7 @@ pub fn write_all(
     for (stem, rgb) in composites {
         write_photo(out, stem, p, rgb, prep.exposure, &mut files)?;
     }
-    let (n, hw) = (prep.size, prep.size * prep.size);
+    let n = prep.size;
     write_net_image(out, "input", &prep.input, &prep.mask, n, &mut files)?;
     write_net_image(out, "i_prime", &pred.i_prime, &prep.mask, n, &mut files)?;
     if let Some(o) = &pred.o_prime {
@@ -431,6 +406,19 @@ pub fn write_all(
     if let Some(r) = &pred.relit {
         write_net_image(out, "relit_prime", r, &prep.mask, n, &mut files)?;
     }
+    write_normals(out, prep, pred)?;
+    files.extend(["normals.exr".to_string(), "normals.png".to_string()]);
+    write_env(out, prep, pred)?;
+    files.extend(["env.exr".to_string(), "env.png".to_string()]);
+    write_materials(out, prep, pred, targets, &mut files)?;
+    write_sheet(out, prep, pred, targets)?;
+    files.push("sheet.png".into());
+    Ok(files)
+}
+
+/// n' as `normals.exr` (camera space) and `normals.png` ((n + 1) / 2).
+fn write_normals(out: &Path, prep: &Prepared, pred: &Predicted) -> Result<()> {
+    let (n, hw) = (prep.size, prep.size * prep.size);
     let nrm = &pred.normals;
     write_exr_channels(
         &out.join("normals.exr"),
@@ -449,7 +437,11 @@ pub fn write_all(
             [0; 3]
         }
     })?;
-    files.extend(["normals.exr".to_string(), "normals.png".to_string()]);
+    Ok(())
+}
+
+/// L' as `env.exr` (in the photo's linear units) and `env.png` (tone-mapped).
+fn write_env(out: &Path, prep: &Prepared, pred: &Predicted) -> Result<()> {
     let (he, we) = (pred.env_height, 2 * pred.env_height);
     let ehw = he * we;
     // L' renders in the network's units (the photo's linear values times the exposure); written
@@ -470,7 +462,17 @@ pub fn write_all(
     write_png_rgb(&out.join("env.png"), we, he, |k| {
         [0, 1, 2].map(|c| tonemap_u8(pred.env[c * ehw + k], env_exposure))
     })?;
-    files.extend(["env.exr".to_string(), "env.png".to_string()]);
+    Ok(())
+}
+
+/// m' per region and m_t per target as DSBRDF files.
+fn write_materials(
+    out: &Path,
+    prep: &Prepared,
+    pred: &Predicted,
+    targets: &[Dsbrdf],
+    files: &mut Vec<String>,
+) -> Result<()> {
     let regions = prep.regions;
     for r in 0..regions {
         let m: Vec<f64> = pred.materials[r * 108..(r + 1) * 108]
@@ -499,9 +501,7 @@ pub fn write_all(
         })?;
         files.push(name);
     }
-    write_sheet(out, prep, pred, targets)?;
-    files.push("sheet.png".into());
-    Ok(files)
+    Ok(())
 }
 
 /// Tile side of the sheet.

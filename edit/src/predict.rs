@@ -6,7 +6,7 @@ use anyhow::Result;
 use burn::tensor::Device;
 use matedit_trainer::model::network::Net;
 use matedit_trainer::model::prediction::Prediction;
-use matedit_trainer::render::{LayerInput, RenderingLayer};
+use matedit_trainer::rendering_layer::{LayerInput, RenderingLayer};
 
 /// The network's predictions and the renders made from them, at the network's resolution.
 #[derive(Clone, Debug)]
@@ -34,12 +34,11 @@ pub fn network_prediction(net: &Net, prep: &Prepared) -> Result<Prediction> {
 
 /// Renders I' from `x`, O' with `targets` (normalised, `[R, 108]`) and the relit image with
 /// `relight` (`[3, He, 2He]` camera-space radiance in the network's units, at the level
-/// [`crate::relight::at_level`] set).
+/// [`crate::light::relight::at_level`] set).
 pub fn render_all(
     layer: &RenderingLayer,
     prep: &Prepared,
     x: Prediction,
-    env_height: usize,
     targets: Option<&[f32]>,
     relight: Option<&[f32]>,
 ) -> Result<Predicted> {
@@ -62,7 +61,7 @@ pub fn render_all(
         normals: x.normals,
         materials: x.materials,
         env: x.env,
-        env_height,
+        env_height: layer.texels().height(),
         i_prime,
         o_prime,
         relit,

@@ -2,7 +2,7 @@
 //! DSBRDF where it is not one, since the rendering layer renders DSBRDFs), the regions of a
 //! multi-material object, and another illumination.
 
-use crate::orientation::Fit;
+use crate::photo::orientation::Fit;
 use anyhow::{Context, Result, bail};
 use image::metadata::Orientation;
 use matedit_assets::materials::cache;

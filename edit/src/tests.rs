@@ -3,10 +3,13 @@
 use super::photo::{Framing, TRAINING_FILL, load_photo, srgb_decode};
 use super::*;
 use burn::optim::AdamConfig;
+use burn::tensor::Device;
 use matedit_physics::tonemap::tonemap_u8;
 use matedit_trainer::model::Widths;
 use matedit_trainer::model::network::NetConfig;
+use matedit_trainer::post_optimisation;
 use matedit_trainer::train::checkpoint::{State, save};
+use std::path::PathBuf;
 use std::sync::OnceLock;
 
 pub(crate) fn dir(name: &str) -> PathBuf {
@@ -296,10 +299,12 @@ fn bad_inputs_name_the_file_and_write_nothing() {
     );
     let e = transfer(
         model(),
-        Given::photo(&p, Some(&m)),
-        Given::photo(&dark, Some(&m)),
-        None,
-        Composite::Detail,
+        Pair {
+            first: Given::photo(&p, Some(&m)),
+            second: Given::photo(&dark, Some(&m)),
+            eq6: None,
+            look: Composite::Detail.into(),
+        },
         &d.join("never"),
     )
     .unwrap_err();
@@ -491,10 +496,12 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     let out = d.join("t");
     let r = transfer(
         model(),
-        Given::photo(&p, Some(&m)),
-        Given::photo(&q, Some(&m)),
-        None,
-        Composite::Render,
+        Pair {
+            first: Given::photo(&p, Some(&m)),
+            second: Given::photo(&q, Some(&m)),
+            eq6: None,
+            look: Composite::Render.into(),
+        },
         &out,
     )
     .unwrap();
@@ -519,10 +526,12 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     let swapped = d.join("s");
     let [a, b] = swap(
         model(),
-        Given::photo(&p, Some(&m)),
-        Given::photo(&q, Some(&m)),
-        None,
-        Composite::Ratio,
+        Pair {
+            first: Given::photo(&p, Some(&m)),
+            second: Given::photo(&q, Some(&m)),
+            eq6: None,
+            look: Composite::Ratio.into(),
+        },
         &swapped,
     )
     .unwrap();
@@ -534,13 +543,15 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     let known = d.join("k");
     let [ka, kb] = swap(
         model(),
-        Given {
-            material: Some(grey),
-            ..Given::photo(&p, Some(&m))
+        Pair {
+            first: Given {
+                material: Some(grey),
+                ..Given::photo(&p, Some(&m))
+            },
+            second: Given::photo(&q, Some(&m)),
+            eq6: None,
+            look: Composite::Ratio.into(),
         },
-        Given::photo(&q, Some(&m)),
-        None,
-        Composite::Ratio,
         &known,
     )
     .unwrap();
@@ -566,16 +577,18 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     );
     let t = transfer(
         model(),
-        Given {
-            material: Some(grey),
-            ..Given::photo(&p, Some(&m))
+        Pair {
+            first: Given {
+                material: Some(grey),
+                ..Given::photo(&p, Some(&m))
+            },
+            second: Given {
+                material: Some(grey),
+                ..Given::photo(&q, Some(&m))
+            },
+            eq6: None,
+            look: Composite::Ratio.into(),
         },
-        Given {
-            material: Some(grey),
-            ..Given::photo(&q, Some(&m))
-        },
-        None,
-        Composite::Ratio,
         &d.join("kt"),
     )
     .unwrap();
@@ -586,13 +599,15 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     // With Eq. 6, which would change it, refused naming the option; nothing written.
     let e = transfer(
         model(),
-        Given::photo(&p, Some(&m)),
-        Given {
-            material: Some(grey),
-            ..Given::photo(&q, Some(&m))
+        Pair {
+            first: Given::photo(&p, Some(&m)),
+            second: Given {
+                material: Some(grey),
+                ..Given::photo(&q, Some(&m))
+            },
+            eq6: Some(&post_optimisation::Eq6Config::default()),
+            look: Composite::Ratio.into(),
         },
-        Some(&post_optimisation::Eq6Config::default()),
-        Composite::Ratio,
         &d.join("never"),
     )
     .unwrap_err();
@@ -601,10 +616,12 @@ fn transfer_and_swap_render_each_object_with_the_others_predicted_material() {
     let never = d.join("never");
     let e = swap(
         model(),
-        Given::photo(&p, Some(&m)),
-        Given::photo(&d.join("missing.png"), Some(&m)),
-        None,
-        Composite::Render,
+        Pair {
+            first: Given::photo(&p, Some(&m)),
+            second: Given::photo(&d.join("missing.png"), Some(&m)),
+            eq6: None,
+            look: Composite::Render.into(),
+        },
         &never,
     )
     .unwrap_err();

@@ -2,8 +2,8 @@
 //! another photo's object, under that photo's light, through the same steps as [`crate::edit`].
 
 use super::{
-    EditReport, LightOptions, Look, Model, ReadPhoto, Understood, finish, known_material, normals, output, read_photo,
-    target, understand,
+    Clock, Edit, EditReport, LightOptions, Look, Model, ReadPhoto, Understanding, Understood, finish, known_material,
+    normals, output, read_photo, target, understand,
 };
 use crate::progress::{Progress, enter};
 use anyhow::{Context, Result, bail};
@@ -29,7 +29,7 @@ pub struct Given<'a> {
     /// they replace that photo's n'.
     pub normals: Option<&'a Path>,
     /// What of that photo's L' is kept (as `edit --light-estimate`).
-    pub light_estimate: crate::light_estimate::LightEstimate,
+    pub light_estimate: crate::light::estimate::LightEstimate,
 }
 
 impl<'a> Given<'a> {
@@ -50,37 +50,40 @@ impl<'a> Given<'a> {
     }
 }
 
-/// Material transfer (Fig. 4): the material predicted from photo `from` (its first region)
-/// rendered on the object of photo `to`, under `to`'s predicted light; outputs as [`crate::edit`]'s.
-/// What is known of either object ([`Given`]) replaces that photo's estimate.
-pub fn transfer(
-    model: &Path,
-    from: Given,
-    to: Given,
-    optimize: Option<&post_optimisation::Eq6Config>,
-    how: impl Into<Look>,
-    out: &Path,
-) -> Result<EditReport> {
+/// Two photos and how the edit between them is made: [`transfer`]'s `from` (`first`) and `to`
+/// (`second`), [`swap`]'s `a` and `b`.
+#[derive(Clone, Copy, Debug)]
+pub struct Pair<'a> {
+    /// The first photo.
+    pub first: Given<'a>,
+    /// The second photo.
+    pub second: Given<'a>,
+    /// Eq. 6's weights and lengths, when it refines each photo's estimates.
+    pub eq6: Option<&'a post_optimisation::Eq6Config>,
+    /// The composite and range of the result.
+    pub look: Look,
+}
+
+/// Material transfer (Fig. 4): the material predicted from photo `first` (its first region)
+/// rendered on the object of photo `second`, under that photo's predicted light; outputs as
+/// [`crate::edit`]'s. What is known of either object ([`Given`]) replaces that photo's estimate.
+pub fn transfer(model: &Path, photos: Pair, out: &Path) -> Result<EditReport> {
     let t0 = Instant::now();
-    refuse_overwriting(out, [&from, &to])?;
+    refuse_overwriting(out, [&photos.first, &photos.second])?;
     let model = Model::load(model)?;
-    transfer_checked(&model, from, to, optimize, how.into(), out, None, t0)
+    transfer_checked(&model, photos, out, None, t0)
 }
 
 /// [`transfer`] with a loaded model, watched as [`crate::edit_with`].
-#[allow(clippy::too_many_arguments)]
 pub fn transfer_with(
     model: &Model,
-    from: Given,
-    to: Given,
-    optimize: Option<&post_optimisation::Eq6Config>,
-    how: impl Into<Look>,
+    photos: Pair,
     out: &Path,
     watcher: Option<&Arc<Progress>>,
     t0: Instant,
 ) -> Result<EditReport> {
-    refuse_overwriting(out, [&from, &to])?;
-    transfer_checked(model, from, to, optimize, how.into(), out, watcher, t0)
+    refuse_overwriting(out, [&photos.first, &photos.second])?;
+    transfer_checked(model, photos, out, watcher, t0)
 }
 
 /// Refuses an output folder that holds any input of the two photos.
@@ -98,37 +101,43 @@ fn refuse_overwriting(out: &Path, photos: [&Given; 2]) -> Result<()> {
 }
 
 /// [`transfer_with`] once the output folder was checked.
-#[allow(clippy::too_many_arguments)]
 fn transfer_checked(
     model: &Model,
-    from: Given,
-    to: Given,
-    optimize: Option<&post_optimisation::Eq6Config>,
-    how: Look,
+    photos: Pair,
     out: &Path,
     watcher: Option<&Arc<Progress>>,
     t0: Instant,
 ) -> Result<EditReport> {
+    let (from, to, optimize) = (photos.first, photos.second, photos.eq6);
     enter(watcher.map(|w| w.as_ref()), "reading")?;
     let read_from = read_photo(from.photo, from.mask, None)?;
     let read_to = read_photo(to.photo, to.mask, None)?;
     let [light_from, light_to] = light_options([(&from, &read_from), (&to, &read_to)], optimize, ["from", "to"])?;
     let t_load = t0.elapsed().as_secs_f64();
-    let source = understand(model, read_from, from.photo, optimize, &light_from, watcher)?;
+    let source = understand(model, read_from, understanding(&light_from, optimize), watcher)?;
     let target = source_material(&source)?;
-    let u = understand(model, read_to, to.photo, optimize, &light_to, watcher)?;
-    finish(
-        model,
-        u,
-        &[target],
-        None,
-        None,
-        how,
-        out,
+    let u = understand(model, read_to, understanding(&light_to, optimize), watcher)?;
+    let clock = Clock {
         t0,
         t_load,
-        watcher.map(|w| w.as_ref()),
-    )
+        watcher: watcher.map(|w| w.as_ref()),
+    };
+    finish(model, u, &onto(&[target], photos.look), out, clock)
+}
+
+/// How each photo is understood: its light options, and Eq. 6 when asked for.
+fn understanding<'a>(light: &'a LightOptions, eq6: Option<&'a post_optimisation::Eq6Config>) -> Understanding<'a> {
+    Understanding { light, eq6 }
+}
+
+/// One photo's material onto the other's object: its first region's, in every region.
+fn onto(target: &[(Dsbrdf, target::RegionTarget)], look: Look) -> Edit<'_> {
+    Edit {
+        targets: target,
+        relight: None,
+        light_spec: None,
+        look,
+    }
 }
 
 /// Each photo's light options with what is known of its object (its options named
@@ -182,17 +191,10 @@ fn source_material(u: &Understood) -> Result<(Dsbrdf, target::RegionTarget)> {
     Ok((material, record))
 }
 
-/// Material swap (Fig. 10): each photo's object with the other's predicted material (or its
-/// own, where [`Given`] holds it), into `out/a` and `out/b`.
-pub fn swap(
-    model: &Path,
-    a: Given,
-    b: Given,
-    optimize: Option<&post_optimisation::Eq6Config>,
-    how: impl Into<Look>,
-    out: &Path,
-) -> Result<[EditReport; 2]> {
-    let how = how.into();
+/// Material swap (Fig. 10): each photo's object (`first` is a, `second` b) with the other's
+/// predicted material (or its own, where [`Given`] holds it), into `out/a` and `out/b`.
+pub fn swap(model: &Path, photos: Pair, out: &Path) -> Result<[EditReport; 2]> {
+    let (a, b, optimize, how) = (photos.first, photos.second, photos.eq6, photos.look);
     let t0 = Instant::now();
     let (out_a, out_b) = (out.join("a"), out.join("b"));
     for o in [&out_a, &out_b] {
@@ -202,10 +204,15 @@ pub fn swap(
     let (read_a, read_b) = (read_photo(a.photo, a.mask, None)?, read_photo(b.photo, b.mask, None)?);
     let [light_a, light_b] = light_options([(&a, &read_a), (&b, &read_b)], optimize, ["a", "b"])?;
     let t_load = t0.elapsed().as_secs_f64();
-    let ua = understand(&model, read_a, a.photo, optimize, &light_a, None)?;
-    let ub = understand(&model, read_b, b.photo, optimize, &light_b, None)?;
+    let ua = understand(&model, read_a, understanding(&light_a, optimize), None)?;
+    let ub = understand(&model, read_b, understanding(&light_b, optimize), None)?;
     let (ta, tb) = (source_material(&ua)?, source_material(&ub)?);
-    let ra = finish(&model, ua, &[tb], None, None, how, &out_a, t0, t_load, None)?;
-    let rb = finish(&model, ub, &[ta], None, None, how, &out_b, t0, t_load, None)?;
+    let clock = Clock {
+        t0,
+        t_load,
+        watcher: None,
+    };
+    let ra = finish(&model, ua, &onto(&[tb], how), &out_a, clock)?;
+    let rb = finish(&model, ub, &onto(&[ta], how), &out_b, clock)?;
     Ok([ra, rb])
 }

@@ -1,7 +1,7 @@
 //! Helpers shared by the workspace tests.
 #![allow(dead_code)]
 
-use matedit_datagen::render::{EnvRes, RenderOptions, Rendered, Shadows, render};
+use matedit_datagen::preview::{EnvRes, RenderOptions, Rendered, Shadows, render};
 use matedit_physics::BrdfSpec;
 use matedit_physics::shading::Quality;
 use std::path::PathBuf;

@@ -9,7 +9,7 @@
 use anyhow::{Result, bail};
 use matedit_trainer::model::prediction::Prediction;
 use matedit_trainer::post_optimisation::{Eq6Config, Problem, post_optimise};
-use matedit_trainer::render::RenderingLayer;
+use matedit_trainer::rendering_layer::RenderingLayer;
 use matedit_trainer::train::synthetic::sphere_batch;
 use std::time::Instant;
 

@@ -16,12 +16,13 @@ use crate::alloc::PeakAlloc;
 use crate::data;
 use crate::model::Widths;
 use crate::model::network::{Net, NetConfig};
-use crate::render::op::host;
-use crate::render::{LayerInput, RenderingLayer, reference};
+use crate::rendering_layer::op::host;
+use crate::rendering_layer::{LayerInput, RenderingLayer, reference};
+use crate::train::loss::Perceptual;
+use crate::train::loss::{LossWeights, NORMAL};
 use crate::train::manifest::TrainPlan;
-use crate::train::perceptual::Perceptual;
-use crate::train::step::StageKind;
-use crate::train::step::{LossWeights, StepContext, StepKind, train_step};
+use crate::train::stage_kind::StageKind;
+use crate::train::step::{StepContext, StepKind, train_step};
 use crate::train::synthetic::sphere_batch;
 use anyhow::Result;
 use burn::optim::{AdamConfig, ModuleOptimizer};
@@ -118,7 +119,7 @@ pub fn rendering_layer_on_device(
     use burn::tensor::{Tensor, TensorData};
     let host_layer = RenderingLayer::new(env_height);
     let hb = sphere_batch(batch, size, env_height, 1, &host_layer);
-    let layer = crate::render::gpu::DeviceLayer::new(env_height, device);
+    let layer = crate::rendering_layer::gpu::DeviceLayer::new(env_height, device);
     let (p, t) = (size * size, 2 * env_height * env_height);
     let n = Tensor::<4>::from_data(TensorData::new(hb.normals.clone(), [batch, 3, size, size]), device);
     let m = Tensor::<3>::from_data(
@@ -209,10 +210,7 @@ fn warm_up(
     ctx: &StepContext,
     mut next: impl FnMut() -> Result<data::Batch>,
 ) -> Result<(Net, usize, (f64, f64))> {
-    let normals_only = LossWeights {
-        normal: LossWeights::default().normal,
-        ..LossWeights::NONE
-    };
+    let normals_only = LossWeights::NONE.with(&NORMAL, NORMAL.default_weight);
     let warm_ctx = StepContext {
         weights: &normals_only,
         ..*ctx
@@ -345,7 +343,7 @@ pub fn manifest_training(
     };
     let st = stages[si].get_ref();
     // The manifest's device, as `trainer run` would use, unless the command line names one.
-    let device = crate::train::run::device_for(device_name.unwrap_or(plan.device.name()))?;
+    let device = crate::device::device_for(device_name.unwrap_or(plan.device.name()))?;
     device.seed(plan.manifest.run.seed);
     let layer = RenderingLayer::new(plan.net.env_height);
     let perceptual = plan.perceptual(&device)?;
@@ -412,20 +410,7 @@ pub fn manifest_training(
 
 /// The loss terms a step computes (those of non-zero weight), comma-separated.
 fn loss_terms(w: &LossWeights) -> String {
-    [
-        ("normal", w.normal),
-        ("material", w.material),
-        ("perceptual", w.perceptual),
-        ("illumination", w.illumination),
-        ("ssim", w.ssim),
-        ("light_energy", w.light_energy),
-        ("light_direction", w.light_direction),
-    ]
-    .into_iter()
-    .filter(|(_, v)| *v != 0.0)
-    .map(|(n, _)| n)
-    .collect::<Vec<_>>()
-    .join(", ")
+    w.weighted().join(", ")
 }
 
 /// One line of the report for a timed training configuration.
@@ -484,7 +469,7 @@ pub struct Options {
 pub fn report(device_arg: Option<&str>, opts: &Options, alloc: Option<&PeakAlloc>) -> Result<String> {
     use std::fmt::Write;
     let device = device_arg.unwrap_or("cpu");
-    let dev = crate::train::run::device_for(device)?;
+    let dev = crate::device::device_for(device)?;
     let mut out = Printed::default();
     let _ = writeln!(
         out,
@@ -492,8 +477,8 @@ pub fn report(device_arg: Option<&str>, opts: &Options, alloc: Option<&PeakAlloc
         rayon::current_num_threads()
     );
     #[cfg(feature = "wgpu")]
-    if crate::render::on_cube(&dev)
-        && let Some(a) = crate::render::gpu::adapter::preferred()
+    if crate::device::on_cube(&dev)
+        && let Some(a) = crate::device::adapter::preferred()
     {
         let _ = writeln!(out, "adapter: {a}");
     }
@@ -591,7 +576,7 @@ impl std::fmt::Write for Printed {
 /// The GPU kernels' line of the report, on a GPU device.
 #[cfg(feature = "wgpu")]
 fn gpu_layer_line(dev: &Device, batch: usize, size: usize, runs: usize) -> Result<Option<String>> {
-    if crate::render::on_device(dev, 64).is_none() {
+    if crate::rendering_layer::on_device(dev, 64).is_none() {
         return Ok(None);
     }
     let m = rendering_layer_on_device(dev, batch, size, 64, runs)?;

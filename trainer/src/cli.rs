@@ -319,7 +319,7 @@ fn bench_ranks(widths: &str, size: usize, runs: usize) -> Result<()> {
 /// `require_hardware` an error unless that one is a hardware GPU.
 #[cfg(feature = "wgpu")]
 fn gpu_info(require_hardware: bool) -> Result<()> {
-    use crate::render::gpu::adapter;
+    use crate::device::adapter;
     let all = adapter::adapters();
     if all.is_empty() {
         println!("wgpu sees no adapter");
@@ -335,7 +335,7 @@ fn gpu_info(require_hardware: bool) -> Result<()> {
         None => anyhow::bail!("wgpu found no adapter: no Vulkan, DX12 or OpenGL driver is installed"),
     }
     // Burn's reductions at the sizes of the quickstart, bench and paper configurations.
-    let device = crate::render::gpu::wgpu_device().map_err(|e| anyhow::anyhow!(e))?;
+    let device = crate::device::wgpu_device().map_err(|e| anyhow::anyhow!(e))?;
     for (batch, size) in [(8, 64), (16, 128), (16, 256)] {
         let wrong = adapter::inexact_reductions(&device, batch, size);
         if wrong.is_empty() {

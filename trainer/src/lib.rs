@@ -5,7 +5,9 @@
 //! * [`data`]: reading the factory's datasets (through `matedit-contract`'s reader and checker);
 //! * [`model`]: the normal, material and illumination modules, the network, and Baseline 1's
 //!   encoder–decoder;
-//! * [`render`]: the differentiable rendering layer (Eq. 2; CPU, and GPU kernels with `wgpu`);
+//! * [`rendering_layer`]: the differentiable rendering layer (Sec. 3.1, Eq. 2; CPU, and GPU kernels
+//!   with `wgpu`);
+//! * [`device`]: the device a run trains on (by name, per rank) and what wgpu sees of the machine;
 //! * [`targets`]: the 108 DSBRDF parameters normalised to the tanh range [−0.95, 0.95]
 //!   (Sec. 3.2) and back;
 //! * [`train`]: losses (Eq. 5), steps, stages, checkpoints and training manifests;
@@ -27,11 +29,12 @@ pub mod baseline;
 pub mod bench;
 pub mod cli;
 pub mod data;
+pub mod device;
 pub mod eval;
 pub mod metrics;
 pub mod model;
 pub mod parallel;
 pub mod post_optimisation;
-pub mod render;
+pub mod rendering_layer;
 pub mod targets;
 pub mod train;

@@ -7,7 +7,7 @@
 //! `manifests/README.md`.
 
 use crate::accel::Accel;
-use crate::render::Shadows;
+use crate::preview::Shadows;
 use crate::shapes::UpAxis;
 use matedit_contract::manifest::{Choice, ManifestError, Named, Resolved, expand_vars, line_of};
 use matedit_physics::shading::Quality;

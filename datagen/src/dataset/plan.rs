@@ -162,7 +162,7 @@ fn settings(mf: &ManifestFile) -> Result<Settings, ManifestError> {
             format!("{resolution}: expected 8 to 4096"),
         ));
     }
-    let env_res: crate::render::EnvRes = r.env_resolution.get_ref().parse().map_err(|e: String| {
+    let env_res: crate::preview::EnvRes = r.env_resolution.get_ref().parse().map_err(|e: String| {
         mf.invalid(
             r.env_resolution.span(),
             "render.env_resolution",
@@ -170,7 +170,7 @@ fn settings(mf: &ManifestFile) -> Result<Settings, ManifestError> {
         )
     })?;
     let env_rows = match env_res {
-        crate::render::EnvRes::Rows(h) if (4..=1024).contains(&h) => h,
+        crate::preview::EnvRes::Rows(h) if (4..=1024).contains(&h) => h,
         _ => {
             return Err(mf.invalid(
                 r.env_resolution.span(),

@@ -20,7 +20,7 @@ use super::plan::Plan;
 use super::spec::SampleSpec;
 use crate::accel::Scene;
 use crate::gbuffer::{GBuffer, SharedVisibility};
-use crate::render::Shadows;
+use crate::preview::Shadows;
 use crate::shapes::{Mesh, Shape};
 use anyhow::{Context, Result};
 use glam::Mat3;

@@ -1,6 +1,6 @@
 //! The procedural shapes as files, with a contact sheet.
 
-use crate::render::{EnvRes, RenderOptions, Shadows, render};
+use crate::preview::{EnvRes, RenderOptions, Shadows, render};
 use crate::shapes::procedural::Category;
 use anyhow::Result;
 use matedit_physics::shading::Quality;

@@ -4,7 +4,7 @@
 
 use super::upload::name_uploads;
 use crate::progress::Progress;
-use crate::{Composite, EditReport, EditRequest, Given, Look, Model, edit_with, transfer_with};
+use crate::{Composite, EditReport, EditRequest, Given, Look, Model, Pair, edit_with, transfer_with};
 use matedit_trainer::post_optimisation::Eq6Config;
 use matedit_trainer::post_optimisation::watcher::{Cancelled, Watcher as _};
 use serde_json::{Value, json};
@@ -426,14 +426,16 @@ fn run(model: &Model, job: &Job) -> anyhow::Result<EditReport> {
             composite,
         } => transfer_with(
             model,
-            Given::photo(&from.0, from.1.as_deref()),
-            Given {
-                material: to_material.as_deref(),
-                normals: to_normals.as_deref(),
-                ..Given::photo(&to.0, to.1.as_deref())
+            Pair {
+                first: Given::photo(&from.0, from.1.as_deref()),
+                second: Given {
+                    material: to_material.as_deref(),
+                    normals: to_normals.as_deref(),
+                    ..Given::photo(&to.0, to.1.as_deref())
+                },
+                eq6: optimize.as_ref(),
+                look: Look::chosen(Some(*composite), None, to_material.is_some()),
             },
-            optimize.as_ref(),
-            Look::chosen(Some(*composite), None, to_material.is_some()),
             &out,
             watcher,
             t0,

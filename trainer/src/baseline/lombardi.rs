@@ -32,7 +32,7 @@
 
 use crate::model::prediction::Prediction;
 use crate::post_optimisation::{Eq6Config, LightPrior, MaterialPrior, Optimised, Priors, Problem, Property, alternate};
-use crate::render::{LayerInput, RenderingLayer};
+use crate::rendering_layer::{LayerInput, RenderingLayer};
 use anyhow::{Result, bail};
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use serde::{Deserialize, Serialize};

@@ -6,8 +6,8 @@ use super::score::score_batch;
 use super::{I_PRIME, O_PRIME};
 use crate::baseline::lombardi::{self, LombardiConfig, ReflectancePrior};
 use crate::data;
-use crate::render::op::host;
-use crate::render::{LayerInput, RenderingLayer};
+use crate::rendering_layer::op::host;
+use crate::rendering_layer::{LayerInput, RenderingLayer};
 use anyhow::{Result, bail};
 use matedit_physics::brdf::dsbrdf::PARAMS;
 

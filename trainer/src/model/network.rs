@@ -1,5 +1,5 @@
 //! The whole network of Fig. 2: the three prediction modules (the rendering layer has no
-//! parameters and lives in [`crate::render`]); and, in a Baseline 1 run, its encoder–decoder.
+//! parameters and lives in [`crate::rendering_layer`]); and, in a Baseline 1 run, its encoder–decoder.
 
 use crate::model::encoder_decoder::EncoderDecoder;
 use crate::model::illumination::IlluminationNet;
@@ -198,7 +198,7 @@ impl Net {
 mod tests {
     use super::*;
     use crate::model::Widths;
-    use crate::render::op::host;
+    use crate::rendering_layer::op::host;
 
     fn net(exposure: Exposure) -> Net {
         let device = Device::flex();

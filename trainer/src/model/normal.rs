@@ -31,7 +31,7 @@ fn same(cin: usize, cout: usize, init: Init, device: &Device) -> Conv2d {
 
 /// Bilinear resampling of `x` (`[B, C, h, w]`) to `side`², corners aligned (Burn's default).
 fn upsample(x: Tensor<4>, side: usize) -> Tensor<4> {
-    if crate::render::on_cube(&x.device()) {
+    if crate::device::on_cube(&x.device()) {
         // Burn 0.22.1's CubeCL backend has no backward for its bilinear kernel.
         return upsample_by_products(x, side);
     }

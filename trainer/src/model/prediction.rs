@@ -2,7 +2,7 @@
 //! L' for a photo, the refined n*, m*, L* of Eq. 6 (Sec. 3.5), or a baseline's estimate.
 
 use super::network::Net;
-use crate::render::op::host;
+use crate::rendering_layer::op::host;
 use anyhow::{Context, Result, bail};
 use burn::tensor::{Device, Tensor, TensorData};
 use matedit_physics::brdf::dsbrdf::PARAMS;

@@ -28,7 +28,7 @@ use parametrised::{Lent, Recorder};
 pub use priors::{LightPrior, MaterialPrior, Priors};
 
 use crate::model::prediction::Prediction;
-use crate::render::{LayerInput, RenderingLayer, Wanted};
+use crate::rendering_layer::{LayerInput, RenderingLayer, Wanted};
 use anyhow::{Result, anyhow};
 use argmin::core::Executor;
 use argmin::core::observers::ObserverMode;

@@ -5,7 +5,7 @@
 use super::watcher::{Cancelled, Watcher};
 use super::{Energy, Problem, Property};
 use crate::model::prediction::Prediction;
-use crate::render::Wanted;
+use crate::rendering_layer::Wanted;
 use anyhow::{Result, anyhow};
 use argmin::core::observers::Observe;
 use argmin::core::{CostFunction, Gradient, IterState, KV, State};

@@ -3,7 +3,8 @@
 //! rank's loss is not finite, whether any rank was asked to stop), one all-reduce of the
 //! gradients, and the same Adam update on every rank.
 
-use super::step::{LossWeights, Losses, StepContext, StepKind, losses_and_gradients};
+use super::loss::Losses;
+use super::step::{StepContext, StepKind, losses_and_gradients};
 use crate::data;
 use crate::model::network::Net;
 use crate::parallel::ranks::{Diverged, Ranks, Tag};
@@ -22,36 +23,6 @@ pub struct Outcome {
     pub stop: bool,
     /// Seconds of this rank's gradient exchange (flatten, all-reduce, put back).
     pub exchange_seconds: f64,
-}
-
-/// Loss terms in the step's block, in this order.
-fn terms(l: &Losses) -> [f64; 8] {
-    [
-        l.total,
-        l.normal,
-        l.material,
-        l.perceptual,
-        l.illumination,
-        l.ssim,
-        l.light_energy,
-        l.light_direction,
-    ]
-}
-
-/// The global batch's losses from the ranks' summed parts; the total as one process forms it.
-fn global_losses(t: &[f64], w: &LossWeights) -> Losses {
-    let mut l = Losses {
-        total: 0.0,
-        normal: t[1],
-        material: t[2],
-        perceptual: t[3],
-        illumination: t[4],
-        ssim: t[5],
-        light_energy: t[6],
-        light_direction: t[7],
-    };
-    l.total = l.weighted_total(w);
-    l
 }
 
 /// Where a rank stands at a step.
@@ -103,7 +74,8 @@ pub fn step(
     }
     // The step's block: the loss terms, then a flag per reason to stop.
     let r = ranks.rank();
-    let mut block = terms(&losses).to_vec();
+    let mut block = losses.to_values().to_vec();
+    let n = block.len();
     let stop_asked = at.stop_asked.load(std::sync::atomic::Ordering::SeqCst);
     block.push(f64::from(u8::from(stop_asked)));
     let not_finite = !losses.total.is_finite();
@@ -113,8 +85,8 @@ pub fn step(
     let summed = ranks
         .exchange(Tag::Step, &block)
         .map_err(|Diverged| ranks.resolve(None))?;
-    let losses = global_losses(&summed[..8], ctx.weights);
-    let (stop, bits, count) = (summed[8] > 0.0, summed[9] as u64, summed[10]);
+    let losses = Losses::from_values(&summed[..n], ctx.weights);
+    let (stop, bits, count) = (summed[n] > 0.0, summed[n + 1] as u64, summed[n + 2]);
     let start = batch.positions.first().copied().unwrap_or(0) - slice.offset as u64;
     if count > 0.0 {
         let named: Vec<String> = (0..52).filter(|k| bits >> k & 1 == 1).map(|k| k.to_string()).collect();

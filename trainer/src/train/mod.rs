@@ -4,14 +4,12 @@
 pub mod checkpoint;
 pub mod data_parallel;
 pub mod loss;
-#[cfg(test)]
-mod loss_tests;
 pub mod manifest;
-pub mod perceptual;
 pub mod plot;
 pub mod records;
 pub mod run;
 pub mod schedule;
+pub mod stage_kind;
 pub mod step;
 pub mod stream;
 pub mod synthetic;

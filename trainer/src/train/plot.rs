@@ -2,8 +2,8 @@
 //! per term (each step faint, a running mean bold), stage boundaries marked; below, the learning
 //! rate of every step and the validation scores while training.
 
+use super::loss::{LossWeights, TERMS};
 use super::records::{MetricsLine, Record, Scores, ValidationLine};
-use super::step::LossWeights;
 use anyhow::{Result, anyhow};
 use plotters::prelude::*;
 use std::path::Path;
@@ -74,44 +74,12 @@ fn stage_ends(lines: &[&MetricsLine]) -> Vec<f64> {
 
 fn draw_losses(area: &Area, lines: &[&MetricsLine], w: &LossWeights) -> Result<()> {
     type Series<'a> = (&'static str, RGBColor, Box<dyn Fn(&MetricsLine) -> f64 + 'a>);
-    let series: [Series; 8] = [
-        ("total (Eq. 5)", BLACK, Box::new(|l| l.losses.total)),
-        (
-            "w_n · normal",
-            RGBColor(31, 119, 180),
-            Box::new(|l| w.normal * l.losses.normal),
-        ),
-        (
-            "w_m · material",
-            RGBColor(255, 127, 14),
-            Box::new(|l| w.material * l.losses.material),
-        ),
-        (
-            "w_p · perceptual",
-            RGBColor(44, 160, 44),
-            Box::new(|l| w.perceptual * l.losses.perceptual),
-        ),
-        (
-            "w_L · illumination",
-            RGBColor(148, 103, 189),
-            Box::new(|l| w.illumination * l.losses.illumination),
-        ),
-        (
-            "w_s · (1 − SSIM)",
-            RGBColor(214, 39, 40),
-            Box::new(|l| w.ssim * l.losses.ssim),
-        ),
-        (
-            "w_E · light energy",
-            RGBColor(140, 86, 75),
-            Box::new(|l| w.light_energy * l.losses.light_energy),
-        ),
-        (
-            "w_D · light direction",
-            RGBColor(227, 119, 194),
-            Box::new(|l| w.light_direction * l.losses.light_direction),
-        ),
-    ];
+    let total: Series = ("total (Eq. 5)", BLACK, Box::new(|l| l.losses.total));
+    let terms = TERMS.iter().map(|t| -> Series {
+        let (r, g, b) = t.colour;
+        (t.label, RGBColor(r, g, b), Box::new(move |l| w[t] * l.losses[t]))
+    });
+    let series: Vec<Series> = std::iter::once(total).chain(terms).collect();
     let positive = |v: f64| v.is_finite() && v > 0.0;
     let values: Vec<f64> = lines
         .iter()
@@ -332,8 +300,17 @@ fn draw_validation(area: &Area, vals: &[&ValidationLine], steps: usize) -> Resul
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::train::loss::Losses;
     use crate::train::records::{Record, Scores, ValidationLine};
-    use crate::train::step::Losses;
+
+    fn weights() -> LossWeights {
+        use crate::train::loss::{ILLUMINATION, LIGHT_DIRECTION, LIGHT_ENERGY, SSIM};
+        LossWeights::default()
+            .with(&ILLUMINATION, 1.0)
+            .with(&SSIM, 1e4)
+            .with(&LIGHT_ENERGY, 1e3)
+            .with(&LIGHT_DIRECTION, 1e3)
+    }
 
     #[test]
     fn curves_are_drawn_for_every_term_and_stage() {
@@ -348,38 +325,30 @@ mod tests {
                 let ssim = if joint { 0.3 * wobble } else { 0.0 };
                 let light_energy = 0.4 / (i as f64).powf(0.5);
                 let light_direction = 0.2 / (i as f64).powf(0.4);
+                let mut losses = Losses::default();
+                for (t, v) in TERMS.iter().zip([
+                    normal,
+                    material,
+                    perceptual,
+                    illumination,
+                    ssim,
+                    light_energy,
+                    light_direction,
+                ]) {
+                    losses.set(t, v);
+                }
+                losses.total = losses.weighted_total(&weights());
                 MetricsLine {
                     stage: if joint { "joint" } else { "pretrain" }.into(),
                     step: if joint { i - 200 } else { i },
                     global_step: i,
                     lr: 1e-4,
-                    losses: Losses {
-                        total: 1e4 * normal
-                            + 1e3 * material
-                            + perceptual
-                            + illumination
-                            + 1e4 * ssim
-                            + 1e3 * light_energy
-                            + 1e3 * light_direction,
-                        normal,
-                        material,
-                        perceptual,
-                        illumination,
-                        ssim,
-                        light_energy,
-                        light_direction,
-                    },
+                    losses,
                 }
             })
             .collect();
         let path = std::env::temp_dir().join(format!("matedit-loss-{}.png", std::process::id()));
-        let weights = LossWeights {
-            illumination: 1.0,
-            ssim: 1e4,
-            light_energy: 1e3,
-            light_direction: 1e3,
-            ..LossWeights::default()
-        };
+        let weights = weights();
         let mut records: Vec<Record> = lines.into_iter().map(Record::Step).collect();
         for g in [100, 200, 250, 300] {
             records.push(Record::Validation(ValidationLine {
@@ -402,17 +371,10 @@ mod tests {
         let img = image::open(&path).unwrap().to_rgb8();
         assert_eq!(img.dimensions(), (960, 760));
         // Each term's colour is on the canvas (the legend alone would be a few pixels).
-        for colour in [
-            [31u8, 119, 180],
-            [255, 127, 14],
-            [44, 160, 44],
-            [148, 103, 189],
-            [214, 39, 40],
-            [140, 86, 75],
-            [227, 119, 194],
-        ] {
+        for t in TERMS {
+            let colour = [t.colour.0, t.colour.1, t.colour.2];
             let n = img.pixels().filter(|p| p.0 == colour).count();
-            assert!(n > 300, "colour {colour:?}: {n} pixels");
+            assert!(n > 300, "{}: colour {colour:?}: {n} pixels", t.name);
         }
         // The learning rate's panel (lower left) and the validation's (lower right) are drawn.
         let coloured = |x0: u32, x1: u32, c: [u8; 3]| {

@@ -1,7 +1,7 @@
 //! The lines of `metrics.jsonl`: one per step (its losses and learning rate) and one per
 //! validation (its scores), read, and cut back to a checkpoint on resume.
 
-use super::step::Losses;
+use super::loss::Losses;
 use crate::eval::{I_PRIME, Metrics, O_PRIME};
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};

@@ -14,14 +14,15 @@
 
 use super::checkpoint::{self, State};
 use super::data_parallel;
-use super::manifest::{TrainPlan, check_device_name};
+use super::manifest::TrainPlan;
 use super::records::MetricsLine;
 use super::step::{StepContext, StepKind, train_step};
 use super::stream::OpenStream;
 use crate::data::Part;
+use crate::device::device_for_rank;
 use crate::model::network::Net;
 use crate::parallel::{Ranks, gradients};
-use crate::render::RenderingLayer;
+use crate::rendering_layer::RenderingLayer;
 use anyhow::{Context, Result, bail};
 use burn::module::Module;
 use burn::optim::{AdamConfig, ModuleOptimizer};
@@ -50,67 +51,16 @@ fn step_seed(seed: u64, stage: usize, step: usize) -> u64 {
     u64::from_le_bytes(h.as_bytes()[..8].try_into().unwrap_or([0; 8]))
 }
 
-/// The Burn device of a run, with autodiff. A GPU device that this build has but the machine
-/// lacks is an error that says so.
-pub fn device_for(name: &str) -> Result<Device> {
-    check_device_name(name).map_err(|e| anyhow::anyhow!(e))?;
-    match name {
-        #[cfg(feature = "wgpu")]
-        "wgpu" => Ok(crate::render::gpu::wgpu_device()
-            .map_err(|e| anyhow::anyhow!(e))?
-            .autodiff()),
-        #[cfg(feature = "cuda")]
-        "cuda" => Ok(Device::cuda(0).autodiff()),
-        _ => Ok(Device::flex().autodiff()),
-    }
-}
-
-/// Which GPU of its machine a rank takes: `MATEDIT_GPU`, else Slurm's `SLURM_LOCALID`, else
-/// the rank among those on its machine.
-pub fn gpu_index(ranks: &Ranks) -> Result<usize> {
-    for var in ["MATEDIT_GPU", "SLURM_LOCALID"] {
-        if let Ok(v) = std::env::var(var) {
-            return v
-                .trim()
-                .parse()
-                .map_err(|_| anyhow::anyhow!("{var} = {v:?}: expected a GPU index (0, 1, …)"));
-        }
-    }
-    Ok(ranks.local_rank())
-}
-
-/// [`device_for`] for one rank of a data-parallel run: on a GPU, the rank's own (see
-/// [`gpu_index`]); with the choice, for the log.
-pub fn device_for_rank(name: &str, ranks: &Ranks) -> Result<(Device, String)> {
-    check_device_name(name).map_err(|e| anyhow::anyhow!(e))?;
-    match name {
-        #[cfg(feature = "wgpu")]
-        "wgpu" if ranks.size() > 1 || std::env::var_os("MATEDIT_GPU").is_some() => {
-            let (d, why) = crate::render::gpu::wgpu_device_at(gpu_index(ranks)?).map_err(|e| anyhow::anyhow!(e))?;
-            Ok((d.autodiff(), why))
-        }
-        #[cfg(feature = "cuda")]
-        "cuda" if ranks.size() > 1 => {
-            let k = gpu_index(ranks)?;
-            Ok((Device::cuda(k).autodiff(), format!("CUDA device {k}")))
-        }
-        _ => {
-            let _ = ranks;
-            Ok((device_for(name)?, String::new()))
-        }
-    }
-}
-
 /// On a GPU device, refuses a run whose sizes Burn's reduction kernels get wrong there (see
-/// `render::gpu::adapter::inexact_reductions`): such a run would train on wrong gradients
+/// `device::adapter::inexact_reductions`): such a run would train on wrong gradients
 /// without a sign. `MATEDIT_ALLOW_INEXACT_REDUCTIONS=1` trains anyway (a speed measurement).
 fn check_reductions(plan: &TrainPlan, device: &Device) -> Result<()> {
     #[cfg(feature = "wgpu")]
-    if crate::render::on_cube(device) {
+    if crate::device::on_cube(device) {
         let m = &plan.manifest;
         let size = *m.model.input_size.get_ref();
         let batch = m.stages.iter().map(|s| s.get_ref().batch_size).max().unwrap_or(1);
-        let wrong = crate::render::gpu::adapter::inexact_reductions(device, batch, size);
+        let wrong = crate::device::adapter::inexact_reductions(device, batch, size);
         if !wrong.is_empty() {
             let why = format!(
                 "Burn's reduction kernels on this GPU device are wrong at batch {batch} and {size}²: {}; \
@@ -225,7 +175,7 @@ pub fn run_as(
     let loss = perceptual.identity().unwrap_or_else(|| "fallback".into());
     ranks.same_as_root("the perceptual loss", blake3::hash(loss.as_bytes()).as_bytes())?;
     let layer = RenderingLayer::new(plan.net.env_height);
-    let layer_on = if crate::render::on_device(&device, plan.net.env_height).is_some() {
+    let layer_on = if crate::rendering_layer::on_device(&device, plan.net.env_height).is_some() {
         "the rendering layer's GPU kernels"
     } else {
         "the fused CPU rendering layer"
@@ -462,7 +412,7 @@ struct Setup {
     device: Device,
     /// Which GPU a rank took, and why (empty where there was no choice).
     chosen: String,
-    perceptual: super::perceptual::Perceptual,
+    perceptual: super::loss::Perceptual,
     net: Net,
     start: Option<(State, PathBuf)>,
 }

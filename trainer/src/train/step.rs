@@ -2,32 +2,18 @@
 //! predict n', m', L'; re-render I' = R(n', m', L') and O' = R(n', m_t, L'); minimise
 //! l = w_n·l_normal + w_m·l_material + w_p·l_perceptual (Eq. 5).
 
-use super::loss::{illumination_loss, light_direction_loss, light_energy_loss, material_loss, normal_loss, ssim_loss};
-use super::perceptual::Perceptual;
+use super::loss::{Compute, ImagePair, LossWeights, Losses, Perceptual, Predicted, TERMS};
+use super::stage_kind::StageKind;
 use crate::data;
 use crate::data::TensorBatch;
 use crate::model::network::Net;
-use crate::render::RenderingLayer;
-use crate::render::op::{Rendered, host};
+use crate::rendering_layer::RenderingLayer;
+use crate::rendering_layer::op::{Rendered, host};
 use anyhow::{Context, Result};
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor};
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use serde::{Deserialize, Serialize};
-
-/// What a stage trains.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum StageKind {
-    /// Normal and material modules alone, L2 losses only (Sec. 4: "pre-trained using L2 loss").
-    /// A model stopped after this stage is the paper's *standalone* baseline of Tables 1 and 2.
-    Pretrain,
-    /// The modules through the rendering layer with the joint loss of Eq. 5.
-    Joint,
-    /// Baseline 1 of Sec. 4.5 (after Kulkarni et al.): the encoder–decoder alone, with the L2
-    /// loss on f_m (w_m) and the perceptual loss on its O' (w_p, and w_s when set); no rendering.
-    EncoderDecoder,
-}
 
 /// Where the rendering layer takes one of its inputs from in a joint stage.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -82,119 +68,6 @@ pub struct RenderWith {
     /// L.
     #[serde(default)]
     pub illumination: Source,
-}
-
-/// The weights of Eq. 5.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct LossWeights {
-    /// w_n (the paper: 1e4).
-    #[serde(default = "default_wn")]
-    pub normal: f64,
-    /// w_m (the paper: 1e3).
-    #[serde(default = "default_wm")]
-    pub material: f64,
-    /// w_p (the paper: 1).
-    #[serde(default = "default_wp")]
-    pub perceptual: f64,
-    /// w_L, a direct loss on L' (not in the paper, which trains L' only through the rendering
-    /// layer; 0, the default, leaves it out). See [`super::loss::illumination_loss`].
-    #[serde(default)]
-    pub illumination: f64,
-    /// w_s, a structural loss 1 − SSIM on I' and O' added to the perceptual loss (not in the
-    /// paper; 0, the default, leaves it out). See [`super::loss::ssim_loss`].
-    #[serde(default)]
-    pub ssim: f64,
-    /// w_E, a loss on the energy of L' (not in the paper; 0, the default, leaves it out): what
-    /// the direct loss clips away. See [`super::loss::light_energy_loss`].
-    #[serde(default, skip_serializing_if = "is_zero")]
-    pub light_energy: f64,
-    /// w_D, a loss on where L' comes from (not in the paper; 0, the default, leaves it out): the
-    /// key light's side, which the direct loss lets a module average away. See
-    /// [`super::loss::light_direction_loss`].
-    #[serde(default, skip_serializing_if = "is_zero")]
-    pub light_direction: f64,
-}
-
-fn is_zero(v: &f64) -> bool {
-    *v == 0.0
-}
-
-fn default_wn() -> f64 {
-    1e4
-}
-fn default_wm() -> f64 {
-    1e3
-}
-fn default_wp() -> f64 {
-    1.0
-}
-
-impl LossWeights {
-    /// Every weight 0: a base for runs and tests that train one term alone.
-    pub const NONE: LossWeights = LossWeights {
-        normal: 0.0,
-        material: 0.0,
-        perceptual: 0.0,
-        illumination: 0.0,
-        ssim: 0.0,
-        light_energy: 0.0,
-        light_direction: 0.0,
-    };
-}
-
-impl Default for LossWeights {
-    fn default() -> Self {
-        Self {
-            normal: default_wn(),
-            material: default_wm(),
-            perceptual: default_wp(),
-            illumination: 0.0,
-            ssim: 0.0,
-            light_energy: 0.0,
-            light_direction: 0.0,
-        }
-    }
-}
-
-/// The loss terms of one step (unweighted) and the weighted total.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Losses {
-    /// Eq. 5.
-    pub total: f64,
-    /// Eq. 3 (masked mean).
-    pub normal: f64,
-    /// Eq. 4 (mean).
-    pub material: f64,
-    /// Perceptual loss on I' plus on O' (0 in pretraining).
-    pub perceptual: f64,
-    /// The direct loss on L' (0 unless its weight is set).
-    #[serde(default)]
-    pub illumination: f64,
-    /// 1 − SSIM on I' plus on O' (0 unless its weight is set, and in pretraining).
-    #[serde(default)]
-    pub ssim: f64,
-    /// The loss on L''s energy (0 unless its weight is set; not written then, so that runs
-    /// without it log what they always logged).
-    #[serde(default, skip_serializing_if = "is_zero")]
-    pub light_energy: f64,
-    /// The loss on where L' comes from (0 unless its weight is set; not written then).
-    #[serde(default, skip_serializing_if = "is_zero")]
-    pub light_direction: f64,
-}
-
-impl Losses {
-    /// Eq. 5's total of these terms under the weights `w` (every stage kind's terms not in use
-    /// are 0, and add nothing).
-    pub fn weighted_total(&self, w: &LossWeights) -> f64 {
-        w.normal * self.normal
-            + w.material * self.material
-            + w.perceptual * self.perceptual
-            + w.illumination * self.illumination
-            + w.ssim * self.ssim
-            + w.light_energy * self.light_energy
-            + w.light_direction * self.light_direction
-    }
 }
 
 /// What every step of a run shares.
@@ -285,32 +158,16 @@ pub fn losses_and_gradients(
     let (w, device) = (ctx.weights, ctx.device);
     let b = host_batch.to_device(device);
     let rw = step.render_with;
-    let direct_light = w.illumination > 0.0 || w.light_energy > 0.0 || w.light_direction > 0.0;
+    let direct_light = TERMS.iter().any(|t| t.reads_light && t.computed(step.kind, w));
     let light = (step.joint() && rw.illumination.reads_prediction()) || direct_light;
     let p = net.predict(&b.input, &b.mask, &b.region_masks, light);
-    let ln = normal_loss(p.normals.clone(), b.normals.clone(), b.mask.clone());
-    let lm = material_loss(p.materials.clone(), b.materials.clone());
-    let mut losses = Losses {
-        normal: scalar(&ln),
-        material: scalar(&lm),
-        ..Losses::default()
+    let predicted = Predicted {
+        normals: Some(&p.normals),
+        materials: Some(&p.materials),
+        env: p.env.as_ref(),
     };
-    let mut total = ln.mul_scalar(w.normal) + lm.mul_scalar(w.material);
-    if let (true, Some(env)) = (w.illumination > 0.0, &p.env) {
-        let ll = illumination_loss(env.clone(), b.env.clone());
-        losses.illumination = scalar(&ll);
-        total = total + ll.mul_scalar(w.illumination);
-    }
-    if let (true, Some(env)) = (w.light_energy > 0.0, &p.env) {
-        let le = light_energy_loss(env.clone(), b.env.clone());
-        losses.light_energy = scalar(&le);
-        total = total + le.mul_scalar(w.light_energy);
-    }
-    if let (true, Some(env)) = (w.light_direction > 0.0, &p.env) {
-        let ld = light_direction_loss(env.clone(), b.env.clone());
-        losses.light_direction = scalar(&ld);
-        total = total + ld.mul_scalar(w.light_direction);
-    }
+    let mut losses = Losses::default();
+    let mut total = prediction_terms(step.kind, &predicted, &b, w, &mut losses);
     if step.joint() {
         let inputs = LayerInputs {
             normals: rw.normals.input(Some(&p.normals), &b.normals),
@@ -318,20 +175,79 @@ pub fn losses_and_gradients(
             env: rw.illumination.input(p.env.as_ref(), &b.env),
             region_map: &host_batch.region_map,
         };
-        let on_device = crate::render::on_device(ctx.device, ctx.layer.texels().height());
-        let (terms, image) = match on_device {
-            Some(layer) => joint_on_device(&layer, inputs, rw, &b, ctx)?,
-            None => joint_on_host(inputs, rw, &b, ctx)?,
+        let on_device = crate::rendering_layer::on_device(ctx.device, ctx.layer.texels().height());
+        let terms = match on_device {
+            Some(layer) => joint_on_device(&layer, inputs, rw, &b, ctx, &mut losses)?,
+            None => joint_on_host(inputs, rw, &b, ctx, &mut losses)?,
         };
-        losses.perceptual = image.perceptual;
-        losses.ssim = image.ssim;
         for term in terms {
-            total = total + term;
+            total = add(total, term);
         }
     }
     losses.total = losses.weighted_total(w);
+    let total = total.unwrap_or_else(|| Tensor::zeros([1], device));
     let grads = GradientsParams::from_grads(total.backward(), net);
     Ok((losses, grads))
+}
+
+fn add(sum: Option<Tensor<1>>, t: Tensor<1>) -> Option<Tensor<1>> {
+    Some(match sum {
+        Some(s) => s + t,
+        None => t,
+    })
+}
+
+/// Σ w·l over the prediction terms a step of `kind` computes, each term's value written to
+/// `losses` (`None`: no term computed).
+fn prediction_terms(
+    kind: StageKind,
+    p: &Predicted,
+    b: &TensorBatch,
+    w: &LossWeights,
+    losses: &mut Losses,
+) -> Option<Tensor<1>> {
+    let mut total = None;
+    for t in TERMS.iter().filter(|t| t.computed(kind, w)) {
+        if let Compute::Prediction(f) = t.compute
+            && let Some(l) = f(p, b)
+        {
+            losses.set(t, scalar(&l));
+            total = add(total, l.mul_scalar(w[t]));
+        }
+    }
+    total
+}
+
+/// Σ w·l over the image terms a step of `kind` computes, each on every image against its
+/// truth (I' against I, and O' against O where rendered), the sum of the images' values
+/// written to `losses`.
+fn image_terms(
+    kind: StageKind,
+    pairs: &[(&Tensor<4>, &Tensor<4>)],
+    b: &TensorBatch,
+    ctx: &StepContext,
+    losses: &mut Losses,
+) -> Tensor<1> {
+    let w = ctx.weights;
+    let mut total = None;
+    for t in TERMS.iter().filter(|t| t.computed(kind, w)) {
+        let Compute::Image(f) = t.compute else { continue };
+        let mut sum = None;
+        for (rendered, truth) in pairs {
+            let pair = ImagePair {
+                rendered,
+                truth,
+                mask: &b.mask,
+                perceptual: ctx.perceptual,
+            };
+            sum = add(sum, f(&pair));
+        }
+        if let Some(l) = sum {
+            losses.set(t, scalar(&l));
+            total = add(total, l.mul_scalar(w[t]));
+        }
+    }
+    total.unwrap_or_else(|| Tensor::zeros([1], ctx.device))
 }
 
 /// The rendering layer's inputs in a joint step (each the prediction or the truth).
@@ -342,33 +258,15 @@ struct LayerInputs<'a> {
     region_map: &'a [u8],
 }
 
-/// The unweighted image losses of a joint step, for the log.
-struct ImageLosses {
-    perceptual: f64,
-    ssim: f64,
-}
-
-/// w_p·(perceptual loss) + w_s·(1 − SSIM) on I' against I and, when rendered, O' against O.
-fn image_loss(ip: &Tensor<4>, op: Option<&Tensor<4>>, b: &TensorBatch, ctx: &StepContext) -> (Tensor<1>, ImageLosses) {
-    let w = ctx.weights;
-    let mut lp = ctx.perceptual.loss(ip.clone(), b.input.clone(), b.mask.clone());
-    if let Some(op) = op {
-        lp = lp + ctx.perceptual.loss(op.clone(), b.target.clone(), b.mask.clone());
-    }
-    let mut losses = ImageLosses {
-        perceptual: scalar(&lp),
-        ssim: 0.0,
-    };
-    let mut image_loss = lp.mul_scalar(w.perceptual);
-    if w.ssim > 0.0 {
-        let mut ls = ssim_loss(ip.clone(), b.input.clone(), b.mask.clone());
-        if let Some(op) = op {
-            ls = ls + ssim_loss(op.clone(), b.target.clone(), b.mask.clone());
-        }
-        losses.ssim = scalar(&ls);
-        image_loss = image_loss + ls.mul_scalar(w.ssim);
-    }
-    (image_loss, losses)
+/// I' against I and, when rendered, O' against O.
+fn image_pairs<'a>(
+    ip: &'a Tensor<4>,
+    op: Option<&'a Tensor<4>>,
+    b: &'a TensorBatch,
+) -> Vec<(&'a Tensor<4>, &'a Tensor<4>)> {
+    let mut pairs = vec![(ip, &b.input)];
+    pairs.extend(op.map(|o| (o, &b.target)));
+    pairs
 }
 
 /// Whether O' = R(n, m_t, L) trains anything: only through n or L, when they learn through the
@@ -379,13 +277,14 @@ fn renders_target(rw: RenderWith) -> bool {
 
 /// The joint step's image terms through the fused CPU layer: I' and O' are rendered on the host,
 /// the image losses back-propagate to ∂l/∂I' and ∂l/∂O', and the layer's VJP joins the graph as
-/// the surrogate scalars of [`crate::render::op`] (the terms to add to the step's loss).
+/// the surrogate scalars of [`crate::rendering_layer::op`] (the terms to add to the step's loss).
 fn joint_on_host(
     x: LayerInputs,
     rw: RenderWith,
     b: &TensorBatch,
     ctx: &StepContext,
-) -> Result<(Vec<Tensor<1>>, ImageLosses)> {
+    losses: &mut Losses,
+) -> Result<Vec<Tensor<1>>> {
     let pick = Source::learns_through_layer;
     let (normals, materials, env) = (&x.normals, &x.materials, &x.env);
     let i_r = Rendered::new(ctx.layer, normals, materials, env, x.region_map).context("rendering I'")?;
@@ -397,7 +296,7 @@ fn joint_on_host(
     // The image losses on leaves: their backward gives ∂l/∂I' and ∂l/∂O'.
     let ip = i_r.image(ctx.device);
     let op = o_r.as_ref().map(|o| o.image(ctx.device));
-    let (loss, losses) = image_loss(&ip, op.as_ref(), b, ctx);
+    let loss = image_terms(StageKind::Joint, &image_pairs(&ip, op.as_ref(), b), b, ctx, losses);
     let grads = loss.backward();
     let upstream = |t: &Tensor<4>, n: usize| t.grad(&grads).map(|g| host(&g)).unwrap_or_else(|| vec![0.0; n]);
     let tracked = |s: Source, t: &Tensor<4>| pick(s).then(|| t.clone());
@@ -421,19 +320,20 @@ fn joint_on_host(
         )?;
         terms.extend(so);
     }
-    Ok((terms, losses))
+    Ok(terms)
 }
 
 /// The joint step's image terms through the rendering layer on the GPU: I' and O' stay on the
 /// device and the image losses join the step's graph directly; an input that does not learn
 /// through the layer is detached.
 fn joint_on_device(
-    layer: &crate::render::DeviceRendering,
+    layer: &crate::rendering_layer::DeviceRendering,
     x: LayerInputs,
     rw: RenderWith,
     b: &TensorBatch,
     ctx: &StepContext,
-) -> Result<(Vec<Tensor<1>>, ImageLosses)> {
+    losses: &mut Losses,
+) -> Result<Vec<Tensor<1>>> {
     fn through<const D: usize>(s: Source, t: Tensor<D>) -> Tensor<D> {
         if s.learns_through_layer() { t } else { t.detach() }
     }
@@ -449,8 +349,8 @@ fn joint_on_device(
     } else {
         None
     };
-    let (loss, losses) = image_loss(&ip, op.as_ref(), b, ctx);
-    Ok((vec![loss], losses))
+    let loss = image_terms(StageKind::Joint, &image_pairs(&ip, op.as_ref(), b), b, ctx, losses);
+    Ok(vec![loss])
 }
 
 /// The losses and gradients of one step of Baseline 1: f_m against m (Eq. 4),
@@ -476,20 +376,21 @@ fn encoder_decoder_gradients(
     let n = host_batch.batch;
     let m_t = b.target_materials.clone().reshape([n, PARAMS]);
     let (m_p, o_p) = ed.edit(b.input.clone(), b.mask.clone(), m_t);
-    let lm = material_loss(m_p.reshape([n, 1, PARAMS]), b.materials.clone());
-    let lp = ctx.perceptual.loss(o_p.clone(), b.target.clone(), b.mask.clone());
-    let mut losses = Losses {
-        material: scalar(&lm),
-        perceptual: scalar(&lp),
-        ..Losses::default()
+    let m_p = m_p.reshape([n, 1, PARAMS]);
+    let predicted = Predicted {
+        normals: None,
+        materials: Some(&m_p),
+        env: None,
     };
-    let mut total = lm.mul_scalar(w.material) + lp.mul_scalar(w.perceptual);
-    if w.ssim > 0.0 {
-        let ls = ssim_loss(o_p, b.target.clone(), b.mask.clone());
-        losses.ssim = scalar(&ls);
-        total = total + ls.mul_scalar(w.ssim);
-    }
-    losses.total = w.material * losses.material + w.perceptual * losses.perceptual + w.ssim * losses.ssim;
+    let mut losses = Losses::default();
+    let kind = StageKind::EncoderDecoder;
+    let direct = prediction_terms(kind, &predicted, &b, w, &mut losses);
+    let image = image_terms(kind, &[(&o_p, &b.target)], &b, ctx, &mut losses);
+    let total = match direct {
+        Some(d) => d + image,
+        None => image,
+    };
+    losses.total = losses.weighted_total(w);
     let grads = GradientsParams::from_grads(total.backward(), net);
     Ok((losses, grads))
 }

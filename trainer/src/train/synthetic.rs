@@ -2,7 +2,7 @@
 //! rendered by the rendering layer itself (so I and O are consistent with n, m, L).
 
 use crate::data;
-use crate::render::{LayerInput, RenderingLayer};
+use crate::rendering_layer::{LayerInput, RenderingLayer};
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use matedit_physics::camera::unit_sphere_normals;
 use rand_core::Rng;

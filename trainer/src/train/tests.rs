@@ -1,13 +1,17 @@
 //! Training steps on synthetic batches: finite, decreasing on a fixed batch, reproducible.
 
-use super::perceptual::Perceptual;
-use super::step::{LossWeights, RenderWith, Source, StageKind, StepContext, StepKind, train_step};
+use super::loss::Perceptual;
+use super::loss::{
+    ILLUMINATION, LIGHT_DIRECTION, LIGHT_ENERGY, LossWeights, Losses, MATERIAL, NORMAL, PERCEPTUAL, SSIM,
+};
+use super::stage_kind::StageKind;
+use super::step::{RenderWith, Source, StepContext, StepKind, train_step};
 use super::synthetic::sphere_batch;
 use crate::data;
 use crate::model::Widths;
 use crate::model::network::{Net, NetConfig};
-use crate::render::RenderingLayer;
-use crate::render::op::host;
+use crate::rendering_layer::RenderingLayer;
+use crate::rendering_layer::op::host;
 use burn::optim::AdamConfig;
 use burn::tensor::Device;
 
@@ -34,7 +38,7 @@ fn fixture(seed: u64, widths: Widths) -> (Device, RenderingLayer, Net, data::Bat
 
 /// `steps` steps on one fixed batch of spheres from a network seeded with `seed`: each step's
 /// losses, all checked finite.
-fn run_with(kind: StepKind, steps: usize, seed: u64, w: &LossWeights) -> Vec<super::step::Losses> {
+fn run_with(kind: StepKind, steps: usize, seed: u64, w: &LossWeights) -> Vec<Losses> {
     let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
     let (device, layer, mut net, batch) = fixture(seed, Widths::new(4, 16, 32, 8));
     let mut optim = AdamConfig::new().init();
@@ -48,10 +52,10 @@ fn run_with(kind: StepKind, steps: usize, seed: u64, w: &LossWeights) -> Vec<sup
     for _ in 0..steps {
         let (n, l) = train_step(net, &mut optim, 1e-3, &batch, kind, &ctx).unwrap();
         net = n;
-        assert!(l.normal.is_finite() && l.material.is_finite() && l.perceptual.is_finite());
-        assert!(l.illumination.is_finite());
+        assert!(l[&NORMAL].is_finite() && l[&MATERIAL].is_finite() && l[&PERCEPTUAL].is_finite());
+        assert!(l[&ILLUMINATION].is_finite());
         if kind == StepKind::JOINT {
-            assert!(l.perceptual > 0.0);
+            assert!(l[&PERCEPTUAL] > 0.0);
         }
         out.push(l);
     }
@@ -81,10 +85,7 @@ fn the_encoder_decoder_baseline_lowers_its_loss_on_a_fixed_batch_and_is_reproduc
             .init(&device);
         let batch = sphere_batch(2, 16, 8, 3, &layer);
         let mut optim = AdamConfig::new().init();
-        let w = LossWeights {
-            ssim: 1e3,
-            ..LossWeights::default()
-        };
+        let w = LossWeights::default().with(&SSIM, 1e3);
         let ctx = StepContext {
             layer: &layer,
             weights: &w,
@@ -100,7 +101,7 @@ fn the_encoder_decoder_baseline_lowers_its_loss_on_a_fixed_batch_and_is_reproduc
             let (n, l) = train_step(net, &mut optim, 2e-3, &batch, kind, &ctx).unwrap();
             net = n;
             assert!(
-                l.material > 0.0 && l.perceptual > 0.0 && l.ssim > 0.0 && l.normal == 0.0,
+                l[&MATERIAL] > 0.0 && l[&PERCEPTUAL] > 0.0 && l[&SSIM] > 0.0 && l[&NORMAL] == 0.0,
                 "{l:?}"
             );
             out.push(l.total);
@@ -214,13 +215,10 @@ fn module_outputs_have_the_papers_shapes_and_ranges() {
 #[test]
 fn pretraining_with_the_direct_illumination_loss_lowers_it() {
     for w_l in [0.0, 1.0] {
-        let w = LossWeights {
-            illumination: w_l,
-            ..LossWeights::default()
-        };
+        let w = LossWeights::default().with(&ILLUMINATION, w_l);
         let seen: Vec<f64> = run_with(StepKind::PRETRAIN, 8, 5, &w)
             .iter()
-            .map(|l| l.illumination)
+            .map(|l| l[&ILLUMINATION])
             .collect();
         if w_l == 0.0 {
             assert!(seen.iter().all(|v| *v == 0.0), "{seen:?}");
@@ -235,17 +233,17 @@ fn pretraining_with_the_direct_illumination_loss_lowers_it() {
 #[test]
 fn pretraining_with_the_light_energy_loss_lowers_it() {
     for w_e in [0.0, 100.0] {
-        let w = LossWeights {
-            light_energy: w_e,
-            ..LossWeights::NONE
-        };
+        let w = LossWeights::NONE.with(&LIGHT_ENERGY, w_e);
         let seen = run_with(StepKind::PRETRAIN, 8, 5, &w);
-        let energy: Vec<f64> = seen.iter().map(|l| l.light_energy).collect();
+        let energy: Vec<f64> = seen.iter().map(|l| l[&LIGHT_ENERGY]).collect();
         if w_e == 0.0 {
-            assert!(seen.iter().all(|l| l.light_energy == 0.0 && l.total == 0.0), "{seen:?}");
+            assert!(
+                seen.iter().all(|l| l[&LIGHT_ENERGY] == 0.0 && l.total == 0.0),
+                "{seen:?}"
+            );
         } else {
             assert!(energy[0] > 0.0 && energy.windows(2).all(|p| p[1] < p[0]), "{energy:?}");
-            assert!(seen.iter().all(|l| l.total == w_e * l.light_energy), "{seen:?}");
+            assert!(seen.iter().all(|l| l.total == w_e * l[&LIGHT_ENERGY]), "{seen:?}");
         }
     }
 }
@@ -258,31 +256,28 @@ fn pretraining_with_the_light_energy_loss_lowers_it() {
 #[test]
 fn pretraining_with_the_light_direction_loss_trains_the_illumination_module() {
     for w_d in [0.0, 100.0] {
-        let w = LossWeights {
-            light_direction: w_d,
-            ..LossWeights::NONE
-        };
+        let w = LossWeights::NONE.with(&LIGHT_DIRECTION, w_d);
         let (l, n_moved, l_moved) = one_joint_step(5, &w, StepKind::PRETRAIN);
         let seen = run_with(StepKind::PRETRAIN, 8, 5, &w);
-        let direction: Vec<f64> = seen.iter().map(|l| l.light_direction).collect();
+        let direction: Vec<f64> = seen.iter().map(|l| l[&LIGHT_DIRECTION]).collect();
         if w_d == 0.0 {
             assert!(
-                seen.iter().all(|l| l.light_direction == 0.0 && l.total == 0.0),
+                seen.iter().all(|l| l[&LIGHT_DIRECTION] == 0.0 && l.total == 0.0),
                 "{seen:?}"
             );
             assert!(n_moved == 0.0 && l_moved == 0.0, "nothing to learn from");
         } else {
-            assert!(l.light_direction > 0.0 && l.light_direction <= 4.0, "{l:?}");
+            assert!(l[&LIGHT_DIRECTION] > 0.0 && l[&LIGHT_DIRECTION] <= 4.0, "{l:?}");
             assert!(n_moved == 0.0 && l_moved > 1e-6, "n' moved {n_moved}, L' {l_moved}");
             assert!(direction[7] < direction[0], "{direction:?}");
-            assert!(seen.iter().all(|l| l.total == w_d * l.light_direction), "{seen:?}");
+            assert!(seen.iter().all(|l| l.total == w_d * l[&LIGHT_DIRECTION]), "{seen:?}");
         }
     }
 }
 
 /// One joint step of a fresh seeded network (no dropout) with weights `w`: the step's losses and
 /// how far (largest absolute change on the fixed batch) it moved n' and L'.
-fn one_joint_step(seed: u64, w: &LossWeights, kind: StepKind) -> (super::step::Losses, f32, f32) {
+fn one_joint_step(seed: u64, w: &LossWeights, kind: StepKind) -> (Losses, f32, f32) {
     let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
     let (device, layer, net, batch) = fixture(seed, Widths::new(4, 16, 32, 8).with_dropout(0.0));
     let b = batch.to_device(&device);
@@ -311,11 +306,7 @@ fn one_joint_step(seed: u64, w: &LossWeights, kind: StepKind) -> (super::step::L
 #[test]
 fn detached_normals_get_no_gradient_from_the_rendering_layer() {
     for (normals, normals_move) in [(Source::Predicted, true), (Source::Detached, false)] {
-        let w = LossWeights {
-            normal: 0.0,
-            material: 0.0,
-            ..LossWeights::default()
-        };
+        let w = LossWeights::default().with(&NORMAL, 0.0).with(&MATERIAL, 0.0);
         let kind = StepKind {
             kind: StageKind::Joint,
             render_with: RenderWith {
@@ -324,7 +315,7 @@ fn detached_normals_get_no_gradient_from_the_rendering_layer() {
             },
         };
         let (l, n_moved, l_moved) = one_joint_step(7, &w, kind);
-        assert!(l.perceptual > 0.0 && l.total.is_finite(), "{l:?}");
+        assert!(l[&PERCEPTUAL] > 0.0 && l.total.is_finite(), "{l:?}");
         assert_eq!(n_moved > 1e-6, normals_move, "{normals:?}: n' moved {n_moved}");
         assert!(l_moved > 1e-6, "{normals:?}: L' did not learn");
     }
@@ -336,16 +327,13 @@ fn detached_normals_get_no_gradient_from_the_rendering_layer() {
 #[test]
 fn the_ssim_loss_trains_through_the_rendering_layer() {
     for w_s in [0.0, 100.0] {
-        let w = LossWeights {
-            ssim: w_s,
-            ..LossWeights::NONE
-        };
+        let w = LossWeights::NONE.with(&SSIM, w_s);
         let (l, n_moved, l_moved) = one_joint_step(11, &w, StepKind::JOINT);
         if w_s > 0.0 {
-            assert!(l.ssim > 0.0 && l.ssim <= 4.0 && l.total == w_s * l.ssim, "{l:?}");
+            assert!(l[&SSIM] > 0.0 && l[&SSIM] <= 4.0 && l.total == w_s * l[&SSIM], "{l:?}");
             assert!(n_moved > 1e-6 && l_moved > 1e-6, "n' and L' learn");
         } else {
-            assert!(l.ssim == 0.0 && l.total == 0.0, "{l:?}");
+            assert!(l[&SSIM] == 0.0 && l.total == 0.0, "{l:?}");
             assert!(n_moved == 0.0 && l_moved == 0.0, "nothing to learn from");
         }
     }
@@ -354,7 +342,7 @@ fn the_ssim_loss_trains_through_the_rendering_layer() {
 /// A device a manifest names is checked before anything runs, and a refusal says why.
 #[test]
 fn device_names_are_checked_with_their_reason() {
-    use super::manifest::check_device_name;
+    use crate::device::check_device_name;
     assert!(check_device_name("cpu").is_ok());
     let e = check_device_name("tpu").unwrap_err();
     assert!(
@@ -381,15 +369,11 @@ fn device_names_are_checked_with_their_reason() {
 #[test]
 fn training_steps_on_the_gpu_device_give_the_cpu_devices_losses() {
     use burn::module::Module;
-    let Some(gpu) = crate::render::gpu::tests::device() else {
+    let Some(gpu) = crate::rendering_layer::gpu::tests::device() else {
         return;
     };
     let gpu = gpu.autodiff();
-    let w = LossWeights {
-        illumination: 10.0,
-        ssim: 100.0,
-        ..LossWeights::default()
-    };
+    let w = LossWeights::default().with(&ILLUMINATION, 10.0).with(&SSIM, 100.0);
     let encoder_decoder = StepKind {
         kind: StageKind::EncoderDecoder,
         render_with: RenderWith::default(),
@@ -431,11 +415,11 @@ fn training_steps_on_the_gpu_device_give_the_cpu_devices_losses() {
             let tolerance = if i == 0 { 1e-4 } else { 1e-2 };
             let terms = [
                 ("total", c.total, g.total),
-                ("normal", c.normal, g.normal),
-                ("material", c.material, g.material),
-                ("perceptual", c.perceptual, g.perceptual),
-                ("illumination", c.illumination, g.illumination),
-                ("ssim", c.ssim, g.ssim),
+                ("normal", c[&NORMAL], g[&NORMAL]),
+                ("material", c[&MATERIAL], g[&MATERIAL]),
+                ("perceptual", c[&PERCEPTUAL], g[&PERCEPTUAL]),
+                ("illumination", c[&ILLUMINATION], g[&ILLUMINATION]),
+                ("ssim", c[&SSIM], g[&SSIM]),
             ];
             for (term, a, b) in terms {
                 assert!(b.is_finite(), "{name} step {i}: {term} on the GPU is {b}");

@@ -228,9 +228,9 @@ fn features_have_the_block_shapes_and_identical_images_give_zero_loss() {
         dims,
         vec![[2, 64, 32, 32], [2, 128, 16, 16], [2, 256, 8, 8], [2, 512, 4, 4]]
     );
-    let loss = crate::train::perceptual::Perceptual::Vgg16 {
+    let loss = crate::train::loss::perceptual::Perceptual::Vgg16 {
         net: Box::new(net),
-        layers: crate::train::perceptual::DEFAULT_LAYERS.to_vec(),
+        layers: crate::train::loss::perceptual::DEFAULT_LAYERS.to_vec(),
         source: "random weights".into(),
         checksum: String::new(),
     };
@@ -243,8 +243,8 @@ fn features_have_the_block_shapes_and_identical_images_give_zero_loss() {
         &device,
     );
     let mask = Tensor::<4>::ones([2, 1, 32, 32], &device);
-    let same = crate::render::op::host(&loss.loss(a.clone(), a.clone(), mask.clone()))[0];
-    let diff = crate::render::op::host(&loss.loss(b, a, mask))[0];
+    let same = crate::rendering_layer::op::host(&loss.loss(a.clone(), a.clone(), mask.clone()))[0];
+    let diff = crate::rendering_layer::op::host(&loss.loss(b, a, mask))[0];
     assert_eq!(same, 0.0);
     assert!(diff.is_finite() && diff > 0.0, "{diff}");
 }

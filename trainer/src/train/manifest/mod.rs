@@ -2,11 +2,14 @@
 //! Field reference: `manifests/README.md` (section "Training manifests"). Errors name the file,
 //! the line and the field, before any work starts.
 
-use super::perceptual::{DEFAULT_LAYERS, Perceptual};
+use super::loss::perceptual::{DEFAULT_LAYERS, Perceptual};
+use super::loss::{LossWeights, MAX_WEIGHT, TERMS};
 use super::schedule::Decay;
-use super::step::{LossWeights, RenderWith, StageKind};
+use super::stage_kind::StageKind;
+use super::step::RenderWith;
 use super::validation::{BestMetric, Validation};
 use crate::data::OnCorrupt;
+use crate::device::DeviceName;
 use crate::model::network::{Exposure, NetConfig};
 use crate::model::vgg16::Layer;
 use crate::model::{Init, Widths};
@@ -92,52 +95,65 @@ fn default_exposure() -> Spanned<Choice<Exposure>> {
     Choice::default_to(Exposure::Absolute)
 }
 
-/// `[loss]`: the weights of Eq. 5 and the perceptual loss's network.
-#[derive(Clone, Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// `[loss]`: the weight of each loss term (by the term's name: `loss::TERMS`) and the
+/// perceptual loss's network.
+#[derive(Clone, Debug)]
 pub struct LossSection {
-    /// w_n (the paper: 1e4).
-    #[serde(default = "default_wn")]
-    pub normal: Spanned<f64>,
-    /// w_m (the paper: 1e3).
-    #[serde(default = "default_wm")]
-    pub material: Spanned<f64>,
-    /// w_p (the paper: 1).
-    #[serde(default = "default_wp")]
-    pub perceptual: Spanned<f64>,
-    /// w_L of a direct loss on L' (not in the paper; default 0: none).
-    #[serde(default = "default_wl")]
-    pub illumination: Spanned<f64>,
-    /// w_s of a structural loss, 1 − SSIM, on I' and O' (not in the paper; default 0: none).
-    #[serde(default = "default_wl")]
-    pub ssim: Spanned<f64>,
-    /// w_E of a loss on the energy of L' (not in the paper; default 0: none).
-    #[serde(default = "default_wl")]
-    pub light_energy: Spanned<f64>,
-    /// w_D of a loss on the direction L' comes from (not in the paper; default 0: none).
-    #[serde(default = "default_wl")]
-    pub light_direction: Spanned<f64>,
+    /// Each term's weight, in the order of `loss::TERMS`; the term's default, with an empty
+    /// span, where the manifest gives none.
+    pub weights: [Spanned<f64>; TERMS.len()],
     /// Pretrained VGG16 weights (torchvision `.pth`/`.pt`, or safetensors) for the perceptual
     /// loss; without, the documented fallback is used and the log says so.
-    #[serde(default)]
     pub vgg16: Option<Spanned<String>>,
     /// VGG16 layers compared (default: relu1_2, relu2_2, relu3_3, relu4_3).
-    #[serde(default = "default_layers")]
     pub vgg16_layers: Spanned<Vec<Layer>>,
 }
 
-fn default_wn() -> Spanned<f64> {
-    Spanned::new(0..0, LossWeights::default().normal)
+/// `[loss]`'s fields: the terms' names, then the perceptual loss's.
+const LOSS_FIELDS: [&str; TERMS.len() + 2] = {
+    let mut names = [""; TERMS.len() + 2];
+    let mut i = 0;
+    while i < TERMS.len() {
+        names[i] = TERMS[i].name;
+        i += 1;
+    }
+    names[TERMS.len()] = "vgg16";
+    names[TERMS.len() + 1] = "vgg16_layers";
+    names
+};
+
+impl<'de> Deserialize<'de> for LossSection {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Fields;
+        impl<'de> serde::de::Visitor<'de> for Fields {
+            type Value = LossSection;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("the [loss] table")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<LossSection, A::Error> {
+                use serde::de::Error;
+                let mut section = LossSection::default();
+                let mut seen = [false; LOSS_FIELDS.len()];
+                while let Some(key) = map.next_key::<String>()? {
+                    let Some(k) = LOSS_FIELDS.iter().position(|f| *f == key) else {
+                        return Err(A::Error::unknown_field(&key, &LOSS_FIELDS));
+                    };
+                    if std::mem::replace(&mut seen[k], true) {
+                        return Err(A::Error::duplicate_field(LOSS_FIELDS[k]));
+                    }
+                    match LOSS_FIELDS[k] {
+                        "vgg16" => section.vgg16 = Some(map.next_value()?),
+                        "vgg16_layers" => section.vgg16_layers = map.next_value()?,
+                        _ => section.weights[k] = map.next_value()?,
+                    }
+                }
+                Ok(section)
+            }
+        }
+        d.deserialize_map(Fields)
+    }
 }
-fn default_wm() -> Spanned<f64> {
-    Spanned::new(0..0, LossWeights::default().material)
-}
-fn default_wp() -> Spanned<f64> {
-    Spanned::new(0..0, LossWeights::default().perceptual)
-}
-fn default_wl() -> Spanned<f64> {
-    Spanned::new(0..0, 0.0)
-}
+
 fn default_layers() -> Spanned<Vec<Layer>> {
     Spanned::new(0..0, DEFAULT_LAYERS.to_vec())
 }
@@ -145,13 +161,7 @@ fn default_layers() -> Spanned<Vec<Layer>> {
 impl Default for LossSection {
     fn default() -> Self {
         Self {
-            normal: default_wn(),
-            material: default_wm(),
-            perceptual: default_wp(),
-            illumination: default_wl(),
-            ssim: default_wl(),
-            light_energy: default_wl(),
-            light_direction: default_wl(),
+            weights: TERMS.map(|t| Spanned::new(0..0, t.default_weight)),
             vgg16: None,
             vgg16_layers: default_layers(),
         }
@@ -480,20 +490,12 @@ pub fn validate(source: Resolved) -> Result<TrainPlan, ManifestError> {
         ));
     }
     let l = &m.loss;
-    for (name, v) in [
-        ("loss.normal", &l.normal),
-        ("loss.material", &l.material),
-        ("loss.perceptual", &l.perceptual),
-        ("loss.illumination", &l.illumination),
-        ("loss.ssim", &l.ssim),
-        ("loss.light_energy", &l.light_energy),
-        ("loss.light_direction", &l.light_direction),
-    ] {
-        if !(0.0..=1e6).contains(v.get_ref()) {
+    for (t, v) in TERMS.iter().zip(&l.weights) {
+        if !(0.0..=MAX_WEIGHT).contains(v.get_ref()) {
             return Err(bad(
                 v.span(),
-                name,
-                format!("a weight must lie in [0, 1e6], got {:e}", v.get_ref()),
+                &format!("loss.{}", t.name),
+                format!("a weight must lie in [0, {MAX_WEIGHT:e}], got {:e}", v.get_ref()),
             ));
         }
     }
@@ -553,15 +555,10 @@ pub fn validate(source: Resolved) -> Result<TrainPlan, ManifestError> {
         categories: e.categories.clone(),
         best,
     });
-    let weights = LossWeights {
-        normal: *l.normal.get_ref(),
-        material: *l.material.get_ref(),
-        perceptual: *l.perceptual.get_ref(),
-        illumination: *l.illumination.get_ref(),
-        ssim: *l.ssim.get_ref(),
-        light_energy: *l.light_energy.get_ref(),
-        light_direction: *l.light_direction.get_ref(),
-    };
+    let weights = TERMS
+        .iter()
+        .zip(&l.weights)
+        .fold(LossWeights::NONE, |w, (t, v)| w.with(t, *v.get_ref()));
     Ok(TrainPlan {
         validation,
         source,
@@ -615,54 +612,6 @@ impl TrainPlan {
     pub fn path(&self) -> &Path {
         &self.source.path
     }
-}
-
-/// A device a run trains on, by its name in manifests and on the command line.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum DeviceName {
-    /// Burn's flex CPU backend.
-    Cpu,
-    /// Burn's wgpu backend (a build with `--features wgpu`).
-    Wgpu,
-    /// Burn's CUDA backend (a build with `--features cuda`).
-    Cuda,
-}
-
-impl Named for DeviceName {
-    const NAMES: &'static [(&'static str, Self)] = &[
-        ("cpu", DeviceName::Cpu),
-        ("wgpu", DeviceName::Wgpu),
-        ("cuda", DeviceName::Cuda),
-    ];
-    fn refusal(name: &str) -> String {
-        let names: Vec<&str> = Self::NAMES.iter().map(|(n, _)| *n).collect();
-        format!("unknown device {name:?} ({})", names.join(", "))
-    }
-}
-
-impl DeviceName {
-    /// Whether this build can train on it, and if not, why.
-    pub fn check_built(self) -> std::result::Result<(), String> {
-        let missing = |feature: &str, what: &str| {
-            Err(format!(
-                "this build has no {what} backend: build the trainer with `--features {feature}`"
-            ))
-        };
-        match self {
-            DeviceName::Cpu => Ok(()),
-            DeviceName::Wgpu if cfg!(feature = "wgpu") => Ok(()),
-            DeviceName::Wgpu => missing("wgpu", "wgpu (Vulkan, Metal, DX12)"),
-            DeviceName::Cuda if cfg!(feature = "cuda") => Ok(()),
-            DeviceName::Cuda => missing("cuda", "CUDA"),
-        }
-    }
-}
-
-/// Whether this build can train on the device `name`, and if not, why.
-pub fn check_device_name(name: &str) -> std::result::Result<(), String> {
-    DeviceName::from_name(name)
-        .ok_or_else(|| DeviceName::refusal(name))?
-        .check_built()
 }
 
 mod stage;

@@ -2,7 +2,8 @@
 //! steps, and its learning-rate schedule.
 
 use super::super::schedule::{Decay, ScheduleSpec};
-use super::super::step::{RenderWith, StageKind};
+use super::super::stage_kind::StageKind;
+use super::super::step::RenderWith;
 use matedit_contract::manifest::{Choice, Named};
 use serde::{Deserialize, Serialize};
 

@@ -1,11 +1,17 @@
 //! The photo's illumination for an edit: the network's L' or a given map, and what sets its
 //! level (the network's fit through m', the object's known material, or the photo's background,
-//! [`crate::background`]).
+//! [`crate::light::background`]).
 
-use super::Prepared;
+pub mod background;
+pub mod estimate;
+pub mod relight;
+#[cfg(test)]
+mod tests;
+
+use crate::Prepared;
 use anyhow::{Context, Result, bail};
 use matedit_trainer::model::prediction::Prediction;
-use matedit_trainer::render::{LayerInput, MAX_RADIANCE, RenderingLayer};
+use matedit_trainer::rendering_layer::{LayerInput, MAX_RADIANCE, RenderingLayer};
 
 /// What sets the level of the light the edit is rendered under.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -16,7 +22,7 @@ pub enum LevelFrom {
     #[default]
     Auto,
     /// The photo's background, where it shows enough unclipped surroundings
-    /// ([`crate::background`]);
+    /// ([`crate::light::background`]);
     /// the network's level otherwise.
     Background,
     /// The network's: the level at which I' = R(n', m', L') matches the photo (the paper's).
@@ -26,6 +32,42 @@ pub enum LevelFrom {
     Given,
 }
 
+/// What set the level of the light an edit was rendered under (report.json's
+/// `light_level.source`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum LevelSource {
+    /// The photo's surroundings ([`background`]).
+    #[serde(rename = "background")]
+    Background,
+    /// The level at which I' = R(n', m', L') matches the photo, as predicted.
+    #[serde(rename = "network")]
+    Network,
+    /// A given map's own values (`--light-level given`).
+    #[serde(rename = "given")]
+    Given,
+    /// The level at which the object's known material explains the photo (`--input-material`).
+    #[serde(rename = "input material")]
+    InputMaterial,
+}
+
+impl LevelSource {
+    /// Its name in report.json.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            LevelSource::Background => "background",
+            LevelSource::Network => "network",
+            LevelSource::Given => "given",
+            LevelSource::InputMaterial => "input material",
+        }
+    }
+
+    /// Whether the level is known rather than fitted: the photo's background or a given map's
+    /// own.
+    pub fn known(self) -> bool {
+        matches!(self, LevelSource::Background | LevelSource::Given)
+    }
+}
+
 /// How the photo's illumination is found: the network's L' (or a given map) and its level.
 #[derive(Clone, Debug, Default)]
 pub struct LightOptions {
@@ -33,10 +75,10 @@ pub struct LightOptions {
     pub given: Option<Vec<f32>>,
     /// What sets its level.
     pub level: LevelFrom,
-    /// What of the network's L' is kept ([`crate::light_estimate`]).
-    pub estimate: crate::light_estimate::LightEstimate,
+    /// What of the network's L' is kept ([`crate::light::estimate`]).
+    pub estimate: crate::light::estimate::LightEstimate,
     /// The photo's horizontal field of view in degrees (default
-    /// [`crate::background::DEFAULT_FOV_DEG`]).
+    /// [`crate::light::background::DEFAULT_FOV_DEG`]).
     pub fov_deg: Option<f64>,
     /// The object's own material when it is known (`--input-material`): its spec and its
     /// normalised DSBRDF (`[108]`). It replaces m' in every region, and the light's level becomes
@@ -64,8 +106,78 @@ impl LightOptions {
     /// the background was too small or clipped. It picks the composite
     /// ([`crate::Composite::best_for`]) and, with the object's own material, the range
     /// ([`crate::Range::best_for`]).
-    pub(crate) fn light_known(&self, level: &crate::background::LightLevel) -> bool {
-        self.given.is_some() && matches!(level.source.as_str(), "background" | "given")
+    pub(crate) fn light_known(&self, level: &crate::light::background::LightLevel) -> bool {
+        self.given.is_some() && level.source.known()
+    }
+}
+
+/// What is known instead of the network's estimates, in place: the object's own material (and,
+/// without a given light, L' at the level at which it explains the photo), and a given light at
+/// its own level or at the one that explains the photo.
+pub(crate) fn known_light(
+    model: &crate::Model,
+    light: &LightOptions,
+    prep: &Prepared,
+    x: &mut Prediction,
+) -> Result<()> {
+    if let Some((spec, m)) = &light.input_material {
+        x.materials = m.repeat(prep.regions);
+        if light.given.is_none() {
+            let l = std::mem::take(&mut x.env);
+            x.env =
+                light_at_photo_level(&model.layer, prep, x, &l).with_context(|| format!("--input-material {spec}"))?;
+        }
+    }
+    if let Some(l) = &light.given {
+        x.env = if light.level_from() == LevelFrom::Given {
+            light_at_own_level(l, prep.exposure)?
+        } else {
+            light_at_photo_level(&model.layer, prep, x, l)?
+        };
+    }
+    Ok(())
+}
+
+/// The light's level, last of the understanding stages: the photo's background scales `env`
+/// (L*) where it is asked to set it, and the report says what set it. The field of view is the
+/// given one, else the photo's EXIF's, else [`background::DEFAULT_FOV_DEG`].
+pub(crate) fn level(
+    model: &crate::Model,
+    read: &crate::photo::read::ReadPhoto,
+    prep: &Prepared,
+    env: &mut [f32],
+    light: &LightOptions,
+) -> background::LightLevel {
+    let (fov_deg, fov_from) = match (light.fov_deg, read.exif_fov_deg) {
+        (Some(f), _) => (f, "given"),
+        (None, Some(f)) => (f, "exif"),
+        (None, None) => (background::DEFAULT_FOV_DEG, "default"),
+    };
+    let from = light.level_from();
+    if from == LevelFrom::Background {
+        let level = background::light_level(
+            &read.photo,
+            &read.coverage,
+            env,
+            model.state.net.env_height,
+            prep.exposure,
+            (fov_deg, fov_from),
+        );
+        let k = level.scale as f32;
+        env.iter_mut().for_each(|v| *v *= k);
+        return level;
+    }
+    background::LightLevel {
+        source: match (from, &light.input_material) {
+            (LevelFrom::Given, _) => LevelSource::Given,
+            (_, Some(_)) => LevelSource::InputMaterial,
+            _ => LevelSource::Network,
+        },
+        scale: 1.0,
+        pixels: 0,
+        fov_deg,
+        fov_from: fov_from.into(),
+        note: None,
     }
 }
 

@@ -423,7 +423,7 @@ fn backward<V: F8, const N: bool, const M: bool, const L: bool>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::material::knot_index;
+    use crate::rendering_layer::material::knot_index;
 
     /// `count` unit normals on a spiral: azimuth `turn`·i, n_z from `z0` up by `dz`·i/`steps`.
     fn spiral_normals(count: usize, turn: f32, z0: f32, dz: f32, steps: f32) -> Vec<[f32; 3]> {

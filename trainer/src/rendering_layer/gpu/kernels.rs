@@ -1,5 +1,5 @@
 //! The rendering layer's CubeCL kernels: Eq. 2 and its vector–Jacobian product, with the fused
-//! CPU layer's arithmetic (`render::kernel`) and its guards.
+//! CPU layer's arithmetic (`rendering_layer::kernel`) and its guards.
 //!
 //! Work is laid out so that the threads of a cube walk the same loop in lock step: in the pixel
 //! kernels every thread is a pixel and all read the same texel at once (a broadcast from cache);

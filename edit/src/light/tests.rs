@@ -1,10 +1,10 @@
 //! The photo's light for an edit: a given map at the level asked for, and the object's known
 //! material setting L''s level (`--input-material`).
 
-use super::tests::{dir, model, request, write_photo};
-use super::*;
+use crate::tests::{dir, model, request, write_photo};
+use crate::*;
 use matedit_physics::brdf::Dsbrdf;
-use matedit_trainer::render::MAX_RADIANCE;
+use matedit_trainer::rendering_layer::MAX_RADIANCE;
 
 fn env_of(out: &Path) -> Vec<f32> {
     let (_, _, ch) = matedit_contract::io::read_exr_channels(&out.join("env.exr")).unwrap();
@@ -35,7 +35,7 @@ fn a_given_light_replaces_l_prime_at_the_level_asked_for() {
     ] {
         let out = d.join(name);
         let r = edit(model(), &with(level, Some("builtin:studio")), &out).unwrap();
-        assert_eq!(r.light_level.source, source, "{name}: {:?}", r.light_level);
+        assert_eq!(r.light_level.source.as_str(), source, "{name}: {:?}", r.light_level);
         // A light at a known level makes `detail` the default; at the network's, `structure`.
         let best = if source == "network" {
             Composite::Structure
@@ -69,7 +69,7 @@ fn a_given_light_replaces_l_prime_at_the_level_asked_for() {
     let r = edit(model(), &with(LevelFrom::Given, None), &d.join("given-none")).unwrap();
     assert_eq!((r.light_level.source.as_str(), r.light_level.scale), ("network", 1.0));
     let r = edit(model(), &with(LevelFrom::Background, None), &d.join("bg")).unwrap();
-    assert_eq!(r.light_level.source, "background", "{:?}", r.light_level);
+    assert_eq!(r.light_level.source.as_str(), "background", "{:?}", r.light_level);
     assert!(r.light_level.pixels >= 500 && r.light_level.scale.is_finite() && r.light_level.scale > 0.0);
     // A light that cannot explain the photo, a light that is not a map: refused, nothing written.
     let black = d.join("black.hdr");
@@ -105,7 +105,7 @@ fn a_given_light_whose_background_level_falls_back_is_composited_as_a_guess() {
         ..request(&p, &m, "library:gold-polished")
     };
     let r = edit(model(), &req, &d.join("out")).unwrap();
-    assert_eq!(r.light_level.source, "network", "{:?}", r.light_level);
+    assert_eq!(r.light_level.source.as_str(), "network", "{:?}", r.light_level);
     assert_eq!(r.composite, Composite::Structure);
 }
 
@@ -194,7 +194,12 @@ fn the_objects_known_material_replaces_m_prime_and_sets_the_lights_level() {
     };
     // The material written is the one given (its DSBRDF fit), not the network's.
     let (rep, out, _) = env("lambert:0.2,0.2,0.2", None, LevelFrom::Auto, "dark");
-    assert_eq!(rep.light_level.source, "input material", "{:?}", rep.light_level);
+    assert_eq!(
+        rep.light_level.source.as_str(),
+        "input material",
+        "{:?}",
+        rep.light_level
+    );
     assert_eq!(report(&out)["input_material"], "lambert:0.2,0.2,0.2");
     let given = target::dsbrdf_of("lambert:0.2,0.2,0.2").unwrap().0;
     let written = Dsbrdf::load(&out.join("material.dsbrdf.json")).unwrap();
@@ -224,7 +229,7 @@ fn the_objects_known_material_replaces_m_prime_and_sets_the_lights_level() {
     ] {
         let name = format!("{source}-{}", light.is_some());
         let (rep, _, dark) = env("lambert:0.2,0.2,0.2", light, level, &format!("dark-{name}"));
-        assert_eq!(rep.light_level.source, source);
+        assert_eq!(rep.light_level.source.as_str(), source);
         let (_, _, bright) = env("lambert:0.8,0.8,0.8", light, level, &format!("bright-{name}"));
         for (a, b) in dark.iter().zip(&bright) {
             assert!(
@@ -264,7 +269,7 @@ fn the_objects_known_material_replaces_m_prime_and_sets_the_lights_level() {
 #[test]
 fn the_fitted_level_is_the_least_squares_scale_and_refuses_what_the_layer_cannot_render() {
     use crate::photo::Framing;
-    use matedit_trainer::render::{LayerInput, RenderingLayer};
+    use matedit_trainer::rendering_layer::{LayerInput, RenderingLayer};
     let (n, he) = (4, 4);
     let layer = RenderingLayer::new(he);
     let m = Dsbrdf::near_lambertian([0.5; 3])
@@ -326,7 +331,7 @@ fn the_fitted_level_is_the_least_squares_scale_and_refuses_what_the_layer_cannot
 
 #[test]
 fn the_default_keeps_of_l_prime_what_the_checkpoint_reads() {
-    use crate::light_estimate::LightEstimate;
+    use crate::light::estimate::LightEstimate;
     let d = dir("estimate");
     let (p, m, _) = write_photo(&d);
     let with = |estimate| EditRequest {
@@ -355,7 +360,17 @@ fn the_default_keeps_of_l_prime_what_the_checkpoint_reads() {
             ..Given::photo(&p, Some(&m))
         };
         let out = d.join(format!("transfer-{e:?}"));
-        let r = transfer(model(), Given::photo(&p, Some(&m)), to, None, Composite::Detail, &out).unwrap();
+        let r = transfer(
+            model(),
+            Pair {
+                first: Given::photo(&p, Some(&m)),
+                second: to,
+                eq6: None,
+                look: Composite::Detail.into(),
+            },
+            &out,
+        )
+        .unwrap();
         assert_eq!(r.light_estimate.and_then(|x| x.skill).is_some(), measured, "{e:?}");
     }
     // A given light is the photo's: nothing of L' is kept, nothing is estimated.

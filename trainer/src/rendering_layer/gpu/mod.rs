@@ -11,7 +11,6 @@
 //! on machines without a GPU). The fused CPU layer stays the path for the CPU device; the test
 //! suite holds the two to 1e-4 of each other.
 
-pub mod adapter;
 mod kernels;
 #[cfg(test)]
 pub(crate) mod tests;
@@ -339,53 +338,6 @@ impl<B: RenderingLayerBackend, C: CheckpointStrategy> RenderingLayerBackend for 
         );
         (Self::from_inner(gn), Self::from_inner(gm), Self::from_inner(gl))
     }
-}
-
-/// The wgpu device (the first adapter wgpu prefers: a discrete GPU where there is one, Mesa's
-/// lavapipe on a machine without), initialised once per process.
-pub fn wgpu_device() -> Result<Device, String> {
-    static DEVICE: std::sync::OnceLock<Result<Device, String>> = std::sync::OnceLock::new();
-    DEVICE
-        .get_or_init(|| {
-            Device::wgpu_options().init().map_err(|e| {
-                format!(
-                    "no wgpu device could be opened ({e}); on a machine without a GPU install Mesa's \
-                     software Vulkan driver (Debian: `apt-get install mesa-vulkan-drivers`)"
-                )
-            })
-        })
-        .clone()
-}
-
-/// The wgpu device of the rank that takes GPU `index` of its machine (data-parallel training):
-/// the `index`-th discrete GPU where wgpu sees several, and the default device where it sees
-/// one or none (a scheduler that gives each task its own GPU shows it only that one). Also
-/// what was chosen, for the run's log.
-pub fn wgpu_device_at(index: usize) -> Result<(Device, String), String> {
-    let discrete: Vec<adapter::Adapter> = adapter::adapters()
-        .into_iter()
-        .filter(|a| a.device_type == "DiscreteGpu" && a.backend == "Vulkan")
-        .collect();
-    if discrete.len() <= 1 {
-        let why = match discrete.first() {
-            Some(a) => format!("the only discrete GPU this task sees, {a}"),
-            None => "the default adapter (no discrete GPU seen)".to_string(),
-        };
-        return wgpu_device().map(|d| (d, why));
-    }
-    let Some(a) = discrete.get(index) else {
-        return Err(format!(
-            "GPU {index} was asked for (MATEDIT_GPU, SLURM_LOCALID or the rank on this machine), but wgpu sees {} \
-             discrete GPUs here",
-            discrete.len()
-        ));
-    };
-    let why = format!("discrete GPU {index} of {}, {a}", discrete.len());
-    Device::wgpu_options()
-        .device_kind(burn::tensor::DeviceKind::DiscreteGpu(index))
-        .init()
-        .map(|d| (d, why))
-        .map_err(|e| format!("cannot open discrete GPU {index}: {e}"))
 }
 
 /// The rendering layer for one environment resolution on one CubeCL device.

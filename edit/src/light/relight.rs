@@ -4,7 +4,7 @@
 use crate::light::{renderable, scaled_by};
 use anyhow::{Result, bail};
 use matedit_physics::envmap::texel_solid_angle;
-use matedit_trainer::render::MAX_RADIANCE;
+use matedit_trainer::rendering_layer::MAX_RADIANCE;
 
 /// What sets a relighting map's level.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]

@@ -10,11 +10,11 @@
 //! replaces by its expectation over what the picture did not say: L' averaged around the
 //! vertical axis (lights are captured at any heading), and its colour neutral.
 
-use super::photo::{Encoding, Framing, Photo, luminance, prepare_framed};
-use super::predict::network_prediction;
+use crate::photo::{Encoding, Framing, Photo, luminance, prepare_framed};
+use crate::predict::network_prediction;
 use anyhow::{Context, Result};
 use matedit_trainer::model::network::Net;
-use matedit_trainer::render::{LayerInput, RenderingLayer};
+use matedit_trainer::rendering_layer::{LayerInput, RenderingLayer};
 
 /// Which of L' an edit keeps.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]

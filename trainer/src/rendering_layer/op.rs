@@ -1,6 +1,6 @@
 //! The fused rendering layer inside a Burn autodiff graph.
 //!
-//! The fused layer runs on the host, outside Burn's backends (the GPU layer, `render::gpu`, is a
+//! The fused layer runs on the host, outside Burn's backends (the GPU layer, `rendering_layer::gpu`, is a
 //! backend extension with its own backward), so it joins the graph through its vector–Jacobian
 //! product:
 //!

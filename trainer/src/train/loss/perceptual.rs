@@ -3,16 +3,38 @@
 //! * With VGG16 weights (a torchvision checkpoint or its safetensors export, named in the
 //!   training manifest): Johnson et al.'s feature reconstruction loss, the mean squared difference
 //!   of VGG16 activations, summed over the chosen layers. Both images are masked to the object and
-//!   mapped to display values first (the tone map of [`super::loss::display`] at the ground
+//!   mapped to display values first (the tone map of [`super::display`] at the ground
 //!   truth's exposure, divided by 255), so the network sees what a viewer would.
-//! * Without: the documented fallback of [`super::loss::perceptual_fallback`] (tone-mapped
+//! * Without: the documented fallback of [`perceptual_fallback`] (tone-mapped
 //!   multi-scale L2). The run's log says which one is in use; the fallback is never silent.
 
-use super::loss::{display, exposure, perceptual_fallback};
+use super::{Compute, ImagePair, Term, display, exposure, mean, sum_all};
 use crate::model::vgg16::{Layer, Vgg16};
+use crate::parallel::share;
+use crate::train::stage_kind::StageKind;
 use anyhow::Result;
+use burn::tensor::module::avg_pool2d;
+use burn::tensor::ops::AvgPoolOptions;
 use burn::tensor::{Device, Tensor};
 use std::path::{Path, PathBuf};
+
+/// The term.
+pub const TERM: Term = Term {
+    name: "perceptual",
+    symbol: "w_p",
+    label: "w_p · perceptual",
+    colour: (44, 160, 44),
+    default_weight: 1.0,
+    logged_at_zero: true,
+    written_when_zero: true,
+    reads_light: false,
+    stages: &[StageKind::Joint, StageKind::EncoderDecoder],
+    compute: Compute::Image(on_image),
+};
+
+fn on_image(x: &ImagePair) -> Tensor<1> {
+    x.perceptual.loss(x.rendered.clone(), x.truth.clone(), x.mask.clone())
+}
 
 /// The layers compared by default: the four block ends, as in most perceptual losses built on
 /// Johnson et al.
@@ -52,7 +74,7 @@ impl Perceptual {
             net: Box::new(Vgg16::load(weights, device)?),
             layers,
             source: weights.to_path_buf(),
-            checksum: super::checkpoint::checksum(weights)?,
+            checksum: crate::train::checkpoint::checksum(weights)?,
         })
     }
 
@@ -71,7 +93,7 @@ impl Perceptual {
             Self::Fallback { why } => {
                 format!(
                     "perceptual loss: fallback (multi-scale L2 in [0, 255] after the metric's tone map, made \
-                     smooth; see trainer/src/train/loss.rs): {why}"
+                     smooth; see trainer/src/train/loss/perceptual.rs): {why}"
                 )
             }
             Self::Vgg16 {
@@ -98,10 +120,37 @@ impl Perceptual {
                 let ft = net.features(show(truth).detach(), layers);
                 fp.into_iter()
                     .zip(ft)
-                    .map(|(a, b)| crate::train::loss::mean((a - b).powi_scalar(2)))
+                    .map(|(a, b)| mean((a - b).powi_scalar(2)))
                     .reduce(|a, b| a + b)
                     .unwrap_or_else(|| Tensor::zeros([1], &mask.device()))
             }
         }
     }
+}
+
+/// The fallback perceptual loss between a rendered image and the ground truth (`[B, 3, H, W]`,
+/// linear), on object pixels (`mask` `[B, 1, H, W]`).
+pub fn perceptual_fallback(pred: Tensor<4>, truth: Tensor<4>, mask: Tensor<4>) -> Tensor<1> {
+    let e = exposure(&truth, &mask);
+    let mut d = (display(pred, e.clone()) - display(truth, e)) * mask.clone();
+    let mut m = mask;
+    let mut total: Option<Tensor<1>> = None;
+    for level in 0..3 {
+        if level > 0 {
+            let [_, _, h, w] = d.dims();
+            if h < 2 || w < 2 {
+                break;
+            }
+            d = avg_pool2d(d, AvgPoolOptions::new([2, 2]).with_stride([2, 2]));
+            m = avg_pool2d(m, AvgPoolOptions::new([2, 2]).with_stride([2, 2]));
+        }
+        // Mean over covered pixels and channels.
+        let covered = share::batch_total(sum_all(m.clone()).mul_scalar(3.0));
+        let term = sum_all(d.clone().powi_scalar(2)) / covered.add_scalar(1e-6);
+        total = Some(match total {
+            Some(t) => t + term,
+            None => term,
+        });
+    }
+    total.unwrap_or_else(|| Tensor::zeros([1], &d.device()))
 }

@@ -1,4 +1,4 @@
-//! The losses on their own (`loss.rs`): the fallback's tone map and perceptual loss, the direct,
+//! The terms on their own: the fallback's tone map and perceptual loss, the direct,
 //! energy and direction losses on L', the structural loss, against the metrics, closed forms and
 //! central differences, on hard inputs.
 
@@ -22,7 +22,7 @@ fn gradient(x: &burn::tensor::Tensor<4>, loss: burn::tensor::Tensor<1>) -> Vec<f
 /// clipped, is smooth above white, and stays finite on hard inputs.
 #[test]
 fn the_fallback_tone_map_follows_the_metrics_and_stays_finite() {
-    use super::loss::display;
+    use super::display;
     use matedit_physics::tonemap::tonemap_u8;
     let device = Device::flex();
     let xs: Vec<f32> = vec![
@@ -65,7 +65,7 @@ fn the_fallback_tone_map_follows_the_metrics_and_stays_finite() {
 /// exposure belongs to the truth), and an over-bright prediction still gets a gradient.
 #[test]
 fn the_fallback_loss_ignores_the_light_probes_scale_and_pulls_down_overshoot() {
-    use super::loss::perceptual_fallback;
+    use super::perceptual::perceptual_fallback;
     let device = Device::flex().autodiff();
     let (h, w) = (8, 8);
     let truth: Vec<f32> = (0..3 * h * w)
@@ -107,7 +107,7 @@ fn the_fallback_loss_ignores_the_light_probes_scale_and_pulls_down_overshoot() {
 /// finite with a finite gradient on hard maps (huge, zero and tiny texels).
 #[test]
 fn the_direct_illumination_loss_is_scale_free_and_finite() {
-    use super::loss::illumination_loss;
+    use super::illumination::illumination_loss;
     let device = Device::flex().autodiff();
     let (h, w) = (4, 8);
     let truth: Vec<f32> = (0..3 * h * w).map(|i| 0.01 + (i % 7) as f32).collect();
@@ -143,7 +143,8 @@ fn the_direct_illumination_loss_is_scale_free_and_finite() {
 /// differences.
 #[test]
 fn the_light_energy_loss_matches_its_closed_forms() {
-    use super::loss::{LIGHT_ENERGY_FLOOR, illumination_loss, light_energy_loss};
+    use super::illumination::illumination_loss;
+    use super::light_energy::{LIGHT_ENERGY_FLOOR, light_energy_loss};
     let device = Device::flex().autodiff();
     let (h, w) = (8, 16);
     let n = 3 * h * w;
@@ -267,7 +268,8 @@ fn values(t: burn::tensor::Tensor<4>) -> Vec<f64> {
 /// per image, then averaged over the batch. At 9 × 14 the 11-tap window is cut at every border.
 #[test]
 fn the_ssim_loss_is_one_minus_the_metrics_ssim_per_image() {
-    use super::loss::{display, exposure, ssim_loss};
+    use super::ssim::ssim_loss;
+    use super::{display, exposure};
     use crate::metrics::ssim_of_display;
     let device = Device::flex();
     let (b, h, w) = (2, 9, 14);
@@ -323,7 +325,7 @@ fn the_ssim_loss_is_one_minus_the_metrics_ssim_per_image() {
 /// zero, tiny, huge and negative pixels and a 1 × 1 image give a finite loss and gradient.
 #[test]
 fn the_ssim_loss_is_zero_at_the_truth_and_finite_on_hard_images() {
-    use super::loss::ssim_loss;
+    use super::ssim::ssim_loss;
     let device = Device::flex().autodiff();
     let (h, w) = (6, 6);
     let truth: Vec<f32> = noise(3 * h * w, 3);
@@ -354,7 +356,7 @@ fn the_ssim_loss_is_zero_at_the_truth_and_finite_on_hard_images() {
 /// steps raise the evaluation's SSIM by more than 0.1.
 #[test]
 fn descending_the_ssim_loss_raises_the_metrics_ssim() {
-    use super::loss::ssim_loss;
+    use super::ssim::ssim_loss;
     use crate::metrics::ssim;
     let device = Device::flex().autodiff();
     let (h, w) = (16, 16);
@@ -388,7 +390,7 @@ fn descending_the_ssim_loss_raises_the_metrics_ssim() {
 /// differences.
 #[test]
 fn the_light_direction_loss_matches_its_closed_forms() {
-    use super::loss::{light_direction, light_direction_loss};
+    use super::light_direction::{light_direction, light_direction_loss};
     use matedit_physics::envmap::texel_direction;
     let device = Device::flex().autodiff();
     let (h, w) = (32, 64);

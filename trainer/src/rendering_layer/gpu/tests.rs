@@ -11,7 +11,7 @@ use super::*;
 use burn::tensor::Tensor;
 
 pub(crate) fn device() -> Option<Device> {
-    match wgpu_device() {
+    match crate::device::wgpu_device() {
         Ok(d) => Some(d),
         Err(e) if std::env::var("MATEDIT_REQUIRE_GPU").as_deref() == Ok("1") => {
             panic!("MATEDIT_REQUIRE_GPU=1 but {e}")

@@ -1,4 +1,4 @@
-//! The differentiable rendering layer (Sec. 3.4, Eq. 2): re-renders an object from per-pixel
+//! The differentiable rendering layer (Sec. 3.1, Eq. 2): re-renders an object from per-pixel
 //! normals **n**, a DSBRDF material **m** per region and a 64×128 HDR environment **L**,
 //!
 //! ```text
@@ -73,32 +73,13 @@ impl DeviceRendering {
     }
 }
 
-/// Whether `device` is a CubeCL (GPU) device. The few operations whose Burn 0.22.1 kernels are
-/// missing or wrong there (the normal module's upsampling, the SSIM window) take a formulation
-/// that runs correctly on it; the host keeps Burn's own, bit for bit.
-pub fn on_cube(device: &burn::tensor::Device) -> bool {
-    // CUDA is a CubeCL device too (its build is not possible on the development machine: README).
-    #[cfg(any(feature = "wgpu", feature = "cuda"))]
-    {
-        matches!(
-            device.clone().inner().as_dispatch(),
-            burn::backend::DispatchDevice::Cube(_)
-        )
-    }
-    #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
-    {
-        let _ = device;
-        false
-    }
-}
-
 /// The rendering layer on `device` when it is a GPU device this build has kernels for; `None`
 /// means the fused CPU layer renders (on the host, whatever the device of the network).
 pub fn on_device(device: &burn::tensor::Device, env_height: usize) -> Option<DeviceRendering> {
     #[cfg(feature = "wgpu")]
     {
         use std::sync::Mutex;
-        if !on_cube(device) {
+        if !crate::device::on_cube(device) {
             return None;
         }
         let inner = device.clone().inner();

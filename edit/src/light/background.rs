@@ -6,7 +6,7 @@
 //! looks along one direction of a perspective camera, so the background's radiance fixes L''s
 //! level without going through m'.
 
-use super::photo::{Encoding, Photo, luminance, srgb_decode};
+use crate::photo::{Encoding, Photo, luminance, srgb_decode};
 use matedit_trainer::model::LUMINANCE_WEIGHTS;
 
 /// The horizontal field of view assumed when a photo does not say (degrees): a normal lens
@@ -23,9 +23,8 @@ const MIN_SAMPLES: usize = 500;
 /// How L's level was set.
 #[derive(Clone, Debug, serde::Serialize, PartialEq)]
 pub struct LightLevel {
-    /// "background" (the photo's surroundings), "network" (the level that makes I' match the
-    /// photo, as predicted) or "given" (a given map's own values).
-    pub source: String,
+    /// What set it.
+    pub source: super::LevelSource,
     /// The factor L' was multiplied by (1 for "network").
     pub scale: f64,
     /// Background pixels compared.
@@ -33,7 +32,7 @@ pub struct LightLevel {
     /// The horizontal field of view the background's directions were computed with (degrees).
     pub fov_deg: f64,
     /// Where it came from: "given" (`--fov`), "exif" (the photo's 35 mm equivalent focal
-    /// length, [`crate::camera`]) or "default" ([`DEFAULT_FOV_DEG`]).
+    /// length, [`crate::photo::camera`]) or "default" ([`DEFAULT_FOV_DEG`]).
     pub fov_from: String,
     /// Why the background was not used, when it was not.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -88,7 +87,7 @@ pub fn light_level(
     (fov_deg, fov_from): (f64, &str),
 ) -> LightLevel {
     let network = |pixels: usize, why: &str| LightLevel {
-        source: "network".into(),
+        source: super::LevelSource::Network,
         scale: 1.0,
         pixels,
         fov_deg,
@@ -138,7 +137,7 @@ pub fn light_level(
         return network(pixels, "the predicted light is black where the background is seen");
     }
     LightLevel {
-        source: "background".into(),
+        source: super::LevelSource::Background,
         scale,
         pixels,
         fov_deg,
@@ -235,7 +234,7 @@ mod tests {
         for fov in [10.0, 40.0, 90.0, 150.0] {
             let (p, cov) = photo(Encoding::Linear, fov, |d| sky(d).map(|v| v * 0.25));
             let level = light_level(&p, &cov, &env, 64, 3.0, (fov, "given"));
-            assert_eq!(level.source, "background", "{fov}: {level:?}");
+            assert_eq!(level.source.as_str(), "background", "{fov}: {level:?}");
             assert!((level.scale - 0.75).abs() < 0.75 * 0.01, "{fov}: {level:?}");
         }
     }
@@ -252,7 +251,7 @@ mod tests {
         let (p, cov) = photo(Encoding::Linear, 40.0, |_| [1.0; 3]);
         assert_eq!(
             light_level(&p, &cov, &env, 16, 1.0, (40.0, "default")).source,
-            "background"
+            super::super::LevelSource::Background
         );
         // Black background (a cut-out), NaN/negative background, the object filling the frame.
         let (p, cov) = photo(Encoding::Srgb8, 40.0, |_| [0.0; 3]);
@@ -267,7 +266,7 @@ mod tests {
         });
         assert_eq!(
             light_level(&p, &cov, &env, 16, 1.0, (40.0, "default")).source,
-            "network"
+            super::super::LevelSource::Network
         );
         let (p, _) = photo(Encoding::Linear, 40.0, |_| [0.5; 3]);
         let full = vec![1.0; p.width * p.height];

@@ -2,7 +2,7 @@
 //!
 //! * **Reading.** PNG (8/16-bit) and JPEG are sRGB and decoded to linear; EXR and Radiance HDR
 //!   are linear radiance already. A JPEG or PNG is turned as its EXIF orientation says
-//!   ([`crate::orientation`]), so the edit stands as viewers show the photo. The mask is a separate image (any non-zero pixel is object; its
+//!   ([`crate::photo::orientation`]), so the edit stands as viewers show the photo. The mask is a separate image (any non-zero pixel is object; its
 //!   value, or its alpha where it has one, is the soft coverage used when compositing) or, without
 //!   one, the photo's own alpha channel (what background removers such as rembg write).
 //! * **Framing** ([`Framing`]). The training images show the object with its larger side about
@@ -14,9 +14,13 @@
 //!   luminance was about [`TRAINING_MEAN_LUMINANCE`] (median over the same split). The input is
 //!   scaled to that, and every rendered image scaled back before it is composited.
 
-use crate::orientation::{self, Fit};
+pub mod camera;
+pub mod orientation;
+pub mod read;
+
 use anyhow::{Context, Result, bail};
 use image::metadata::Orientation;
+use orientation::Fit;
 use std::path::Path;
 
 /// Median ratio of the object's larger bounding-box side to the image side in the quickstart
@@ -87,9 +91,9 @@ pub fn load_photo(path: &Path) -> Result<Photo> {
 /// What a photo's file says beyond its pixels.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PhotoFile {
-    /// The EXIF orientation its pixels were turned by ([`crate::orientation`]).
+    /// The EXIF orientation its pixels were turned by ([`crate::photo::orientation`]).
     pub orientation: Orientation,
-    /// The horizontal field of view its EXIF gives, in degrees ([`crate::camera`]).
+    /// The horizontal field of view its EXIF gives, in degrees ([`crate::photo::camera`]).
     pub fov_deg: Option<f64>,
 }
 
@@ -203,7 +207,7 @@ pub fn load_photo_shown(path: &Path) -> Result<(Photo, PhotoFile)> {
             };
             let file = PhotoFile {
                 orientation: turned,
-                fov_deg: exif.and_then(|e| crate::camera::field_of_view(&e, w, h)),
+                fov_deg: exif.and_then(|e| crate::photo::camera::field_of_view(&e, w, h)),
             };
             Ok((p, file))
         }
@@ -292,7 +296,7 @@ fn decode_as(path: &Path, turn: bool) -> Result<(image::DynamicImage, Orientatio
 }
 
 /// Decodes a mask or region image (`kind`) drawn on a photo shown at `width`×`height`, whose
-/// stored pixels were turned by `turn` ([`crate::orientation`]): as drawn on the photo as shown
+/// stored pixels were turned by `turn` ([`crate::photo::orientation`]): as drawn on the photo as shown
 /// (turned by its own EXIF orientation, if it has one); else as stored, where its own EXIF turn
 /// is what keeps it from fitting; else, where the photo's stored pixels' size fits it, turned
 /// with the photo.
@@ -648,5 +652,4 @@ pub fn prepare_framed(
 }
 
 #[cfg(test)]
-#[path = "framing_tests.rs"]
 mod framing_tests;

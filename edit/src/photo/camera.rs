@@ -2,7 +2,7 @@
 //! lens's 35 mm equivalent focal length.
 //!
 //! The edit uses it where a photo pixel's direction matters: the light's level from the photo's
-//! background ([`crate::background`]) looks the given map up along each background pixel's
+//! background ([`crate::light::background`]) looks the given map up along each background pixel's
 //! direction through a pinhole of this field of view. A phone's main camera sees about 65–70°
 //! across a landscape photo, 1.7 times the 40° default: with the default, the background's
 //! pixels are looked up in the wrong part of the map.
@@ -108,7 +108,7 @@ pub(crate) mod tests {
         assert_eq!(field_of_view(&exif_block(26, 1)[..10], 3024, 4032), None, "cut short");
         assert_eq!(field_of_view(&[], 3024, 4032), None);
         // A block with an orientation and no focal length.
-        let only_turn = crate::orientation::tests::exif_with_orientation(6);
+        let only_turn = crate::photo::orientation::tests::exif_with_orientation(6);
         assert_eq!(field_of_view(&only_turn, 3024, 4032), None);
     }
 
@@ -141,8 +141,8 @@ pub(crate) mod tests {
         assert_eq!(from_exif.fov_from, "exif");
         assert!((from_exif.fov_deg - want).abs() < 1e-9, "{from_exif:?}");
         // The field of view reaches the directions: the background's level moves with it.
-        assert_eq!(from_exif.source, "background", "{from_exif:?}");
-        let at_default = level(&jpeg, Some(crate::background::DEFAULT_FOV_DEG), "at-default");
+        assert_eq!(from_exif.source.as_str(), "background", "{from_exif:?}");
+        let at_default = level(&jpeg, Some(crate::light::background::DEFAULT_FOV_DEG), "at-default");
         assert!(
             (from_exif.scale / at_default.scale - 1.0).abs() > 1e-3,
             "{from_exif:?} {at_default:?}"
@@ -152,7 +152,7 @@ pub(crate) mod tests {
         let plain_level = level(&plain, None, "default");
         assert_eq!(
             (plain_level.fov_deg, plain_level.fov_from.as_str()),
-            (crate::background::DEFAULT_FOV_DEG, "default")
+            (crate::light::background::DEFAULT_FOV_DEG, "default")
         );
         std::fs::remove_dir_all(d).ok();
     }
