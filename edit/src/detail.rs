@@ -54,19 +54,18 @@ pub struct Detail {
     pub normals: Vec<f32>,
 }
 
-/// Frames `p` again at [`detail_size`] around the coarse input's square and upsamples the
-/// coarse `normals` (`[3, S, S]`) to it.
+/// Frames `p` again at [`detail_size`] (at most [`MAX_DETAIL_OBJECT_PIXELS`] object pixels)
+/// around the coarse input's square and upsamples the coarse `normals` (`[3, S, S]`) to it.
 pub fn detail(
     p: &Photo,
     coverage: &[f32],
     labels: Option<(&[u8], usize)>,
     coarse: &Prepared,
     normals: &[f32],
-    max_object_pixels: usize,
 ) -> Result<Detail> {
     let object = coverage.iter().filter(|&&c| c > 0.0).count();
     let framing = Framing {
-        size: detail_size(&coarse.framing, object, max_object_pixels),
+        size: detail_size(&coarse.framing, object, MAX_DETAIL_OBJECT_PIXELS),
         ..coarse.framing
     };
     let prep = super::prepare_framed(p, coverage, labels, framing, Some(coarse.exposure))?;

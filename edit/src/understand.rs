@@ -82,15 +82,8 @@ pub fn understand(
     let mut normals = given_normals(light, &prep, &mut x);
     light::known_light(model, light, &prep, &mut x)?;
     let network_seconds = t.elapsed().as_secs_f64();
-    let mut detail = detail::detail(
-        &read.photo,
-        &read.coverage,
-        labels,
-        &prep,
-        &x.normals,
-        detail::MAX_DETAIL_OBJECT_PIXELS,
-    )
-    .with_context(|| read.path.display().to_string())?;
+    let mut detail = detail::detail(&read.photo, &read.coverage, labels, &prep, &x.normals)
+        .with_context(|| read.path.display().to_string())?;
     if let (Some(g), Some(r)) = (&light.normals, normals.as_mut()) {
         let (n, kept) = g.framed(&detail.prep, &detail.normals);
         detail.normals = n;

@@ -21,9 +21,9 @@ pub enum LevelFrom {
     /// measured best on the photo benchmark (docs/PERFORMANCE.md, "Editing photos").
     #[default]
     Auto,
-    /// The photo's background, where it shows enough unclipped surroundings
-    /// ([`crate::light::background`]);
-    /// the network's level otherwise.
+    /// The photo's background, where it shows enough unclipped surroundings; the network's level
+    /// otherwise.
+    // How: `light::background`.
     Background,
     /// The network's: the level at which I' = R(n', m', L') matches the photo (the paper's).
     Network,
