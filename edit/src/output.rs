@@ -175,15 +175,16 @@ fn write_png_rgb(path: &Path, w: usize, h: usize, px: impl Fn(usize) -> [u8; 3])
     })
 }
 
-/// Writes a photo-sized linear image as PNG (in the photo's encoding) and EXR.
+/// Writes a photo-sized linear image (`image`: its stem and pixels) as PNG (in the photo's
+/// encoding, at the edit's `exposure` where the photo is linear) and EXR.
 fn write_photo(
     out: &Path,
-    stem: &str,
+    image: &(&str, Vec<[f32; 3]>),
     p: &Photo,
-    rgb: &[[f32; 3]],
     exposure: f64,
     files: &mut Vec<String>,
 ) -> Result<()> {
+    let (stem, rgb) = (image.0, &image.1);
     let (w, h) = (p.width, p.height);
     let png = out.join(format!("{stem}.png"));
     match p.encoding {
@@ -216,7 +217,8 @@ fn write_photo(
 }
 
 /// Writes a network-resolution `[3, S, S]` image as EXR and PNG (black off the object).
-fn write_net_image(out: &Path, stem: &str, img: &[f32], mask: &[f32], n: usize, files: &mut Vec<String>) -> Result<()> {
+fn write_net_image(out: &Path, stem: &str, img: &[f32], prep: &Prepared, files: &mut Vec<String>) -> Result<()> {
+    let (n, mask) = (prep.size, &prep.mask);
     let hw = n * n;
     write_exr_channels(
         &out.join(format!("{stem}.exr")),
@@ -394,17 +396,16 @@ pub fn write_all(
 ) -> Result<Vec<String>> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut files = Vec::new();
-    for (stem, rgb) in composites {
-        write_photo(out, stem, p, rgb, prep.exposure, &mut files)?;
+    for image in composites {
+        write_photo(out, image, p, prep.exposure, &mut files)?;
     }
-    let n = prep.size;
-    write_net_image(out, "input", &prep.input, &prep.mask, n, &mut files)?;
-    write_net_image(out, "i_prime", &pred.i_prime, &prep.mask, n, &mut files)?;
+    write_net_image(out, "input", &prep.input, prep, &mut files)?;
+    write_net_image(out, "i_prime", &pred.i_prime, prep, &mut files)?;
     if let Some(o) = &pred.o_prime {
-        write_net_image(out, "o_prime", o, &prep.mask, n, &mut files)?;
+        write_net_image(out, "o_prime", o, prep, &mut files)?;
     }
     if let Some(r) = &pred.relit {
-        write_net_image(out, "relit_prime", r, &prep.mask, n, &mut files)?;
+        write_net_image(out, "relit_prime", r, prep, &mut files)?;
     }
     write_normals(out, prep, pred)?;
     files.extend(["normals.exr".to_string(), "normals.png".to_string()]);
