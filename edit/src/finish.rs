@@ -2,7 +2,7 @@
 //! light, when asked), composited into the photo and held to its range ([`crate::look`]), and
 //! every output written ([`crate::output`]).
 
-use crate::light::relight::{self, RelightLevel, RelightLevelReport};
+use crate::light::relight::{self, Relight, RelightLevelReport};
 use crate::output::{self, EditReport, Timings};
 use crate::photo::TRAINING_MEAN_LUMINANCE;
 use crate::progress::{Progress, enter};
@@ -13,29 +13,6 @@ use matedit_physics::brdf::Dsbrdf;
 use matedit_trainer::model::prediction::Prediction;
 use std::path::Path;
 use std::time::Instant;
-
-/// Another illumination to render the object's own material under (Fig. 4), read and checked.
-pub struct Relight {
-    /// Its spec, as given.
-    pub spec: String,
-    /// The map (`[3, He, 2He]`, camera space).
-    pub env: Vec<f32>,
-    /// What sets its level.
-    pub level: RelightLevel,
-}
-
-impl Relight {
-    /// The map a spec names, checked at the network's environment height.
-    pub fn read(spec: &str, level: RelightLevel, env_height: usize) -> Result<Self> {
-        let env = target::relight_env(spec, env_height)?;
-        relight::check(&env, env_height).with_context(|| format!("--relight {spec}"))?;
-        Ok(Self {
-            spec: spec.to_string(),
-            env,
-            level,
-        })
-    }
-}
 
 /// What an understood photo is rendered with.
 pub struct Edit<'a> {
@@ -77,9 +54,8 @@ struct Made {
 }
 
 /// Renders an understood photo as `edit` asks, composites, and writes every output into `out`.
-pub fn finish(model: &Model, u: Understood, edit: &Edit, out: &Path, clock: Clock) -> Result<EditReport> {
+pub fn finish(model: &Model, mut u: Understood, edit: &Edit, out: &Path, clock: Clock) -> Result<EditReport> {
     enter(clock.watcher, "render")?;
-    let mut u = u;
     let made = render_and_composite(model, &mut u, edit)?;
     let mut report = report(model, &u, edit, &made, clock);
     enter(clock.watcher, "write")?;

@@ -63,7 +63,8 @@ pub mod understand;
 
 pub use composite::Composite;
 pub use eq6::Eq6Report;
-pub use finish::{Clock, Edit, Relight, finish};
+pub use finish::{Clock, Edit, finish};
+pub use light::relight::Relight;
 pub use light::{LevelFrom, LevelSource, LightOptions, known_material, light_at_own_level, light_at_photo_level};
 pub use look::Look;
 pub use model::{Model, load_model};

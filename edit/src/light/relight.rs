@@ -2,7 +2,7 @@
 //! under (`--relight`, `--relight-level`).
 
 use crate::light::{renderable, scaled_by};
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use matedit_physics::envmap::texel_solid_angle;
 use matedit_trainer::rendering_layer::MAX_RADIANCE;
 
@@ -95,6 +95,29 @@ pub fn at_level(
         );
     }
     Ok((scaled, RelightLevelReport { source: level, scale }))
+}
+
+/// Another illumination to render the object's own material under (Fig. 4), read and checked.
+pub struct Relight {
+    /// Its spec, as given.
+    pub spec: String,
+    /// The map (`[3, He, 2He]`, camera space).
+    pub env: Vec<f32>,
+    /// What sets its level.
+    pub level: RelightLevel,
+}
+
+impl Relight {
+    /// The map a spec names, checked at the network's environment height.
+    pub fn read(spec: &str, level: RelightLevel, env_height: usize) -> Result<Self> {
+        let env = crate::target::relight_env(spec, env_height)?;
+        check(&env, env_height).with_context(|| format!("--relight {spec}"))?;
+        Ok(Self {
+            spec: spec.to_string(),
+            env,
+            level,
+        })
+    }
 }
 
 #[cfg(test)]
