@@ -4,6 +4,7 @@
 //! outside it the photo, untouched.
 
 use super::Prepared;
+use super::blur::masked_blur;
 use super::photo::{Photo, luminance};
 
 /// How the re-rendered object goes back into the photo.
@@ -95,67 +96,6 @@ fn sample(img: &[f32], mask: &[f32], n: usize, u: f64, v: f64) -> Option<[f32; 3
 /// The blur that separates the photo's detail from its large-scale shading in
 /// [`Composite::Detail`], as a fraction of the framing square's side (photo pixels).
 pub const DETAIL_SIGMA_FRACTION: f64 = 0.04;
-
-/// A Gaussian blur (σ in pixels) of `values` over the `valid` pixels of a `w`×`h` image only:
-/// each output is the weighted mean of the valid pixels near it (the weights are blurred
-/// alongside and divided out). Three box passes per axis approximate the Gaussian (Wells 1986),
-/// so the cost is a few operations per pixel whatever σ (a 12-megapixel photo's σ is 100+
-/// pixels). Invalid pixels come back 0.
-pub fn masked_blur(values: &[f32], valid: &[bool], w: usize, h: usize, sigma: f64) -> Vec<f32> {
-    // Three boxes of width 2r + 1 have variance 3((2r+1)² − 1)/12 = r(r + 1).
-    let r = ((0.25 + sigma * sigma).sqrt() - 0.5).round().max(0.0) as usize;
-    let mut a: Vec<f64> = values
-        .iter()
-        .zip(valid)
-        .map(|(&v, &ok)| if ok { v as f64 } else { 0.0 })
-        .collect();
-    let mut b: Vec<f64> = valid.iter().map(|&ok| f64::from(u8::from(ok))).collect();
-    if r > 0 {
-        let mut line = Vec::new();
-        let mut sums = Vec::new();
-        for img in [&mut a, &mut b] {
-            for _ in 0..3 {
-                box_pass(img, w, h, r, 1, w, &mut line, &mut sums);
-                box_pass(img, h, w, r, w, 1, &mut line, &mut sums);
-            }
-        }
-    }
-    a.iter()
-        .zip(&b)
-        .zip(valid)
-        .map(|((&a, &b), &ok)| if ok && b > 1e-12 { (a / b) as f32 } else { 0.0 })
-        .collect()
-}
-
-/// One box filter of radius `r` along every line of `img`: `len` pixels per line `step` apart,
-/// `lines` lines `stride` apart; windows are cut at the ends (sums, not means: the weights
-/// blurred the same way divide them out).
-#[allow(clippy::too_many_arguments)]
-fn box_pass(
-    img: &mut [f64],
-    len: usize,
-    lines: usize,
-    r: usize,
-    step: usize,
-    stride: usize,
-    line: &mut Vec<f64>,
-    sums: &mut Vec<f64>,
-) {
-    for l in 0..lines {
-        line.clear();
-        line.extend((0..len).map(|i| img[l * stride + i * step]));
-        sums.clear();
-        sums.push(0.0);
-        for &v in line.iter() {
-            let last = *sums.last().unwrap_or(&0.0);
-            sums.push(last + v);
-        }
-        for i in 0..len {
-            let (lo, hi) = (i.saturating_sub(r), (i + r + 1).min(len));
-            img[l * stride + i * step] = sums[hi] - sums[lo];
-        }
-    }
-}
 
 /// The photo with the edited object's `values` ([`object_values`], turned into the result in
 /// place: a photo-sized buffer at a time, as a 25-megapixel edit's memory budget counts) blended
@@ -476,43 +416,6 @@ mod tests {
         // Soft coverage blends with the photo.
         let k = 3 * N + 2;
         assert!((out[k][1] - (0.5 * 0.4 + 0.5 * p.rgb[k][1])).abs() < 1e-5);
-    }
-
-    #[test]
-    fn the_masked_blur_averages_over_the_valid_pixels_only() {
-        // A constant over the valid pixels stays that constant whatever lies outside them, at
-        // every σ; a step blurs to values between its sides, monotonic across it.
-        let (w, h) = (40, 30);
-        let valid: Vec<bool> = (0..w * h).map(|k| (k % w) % 7 != 3 && k / w != 11).collect();
-        let values: Vec<f32> = (0..w * h).map(|k| if valid[k] { 2.5 } else { 1e9 }).collect();
-        for sigma in [0.3, 1.0, 4.0, 50.0] {
-            let b = masked_blur(&values, &valid, w, h, sigma);
-            for k in 0..w * h {
-                let want = if valid[k] { 2.5 } else { 0.0 };
-                assert!((b[k] - want).abs() < 1e-4, "σ {sigma} pixel {k}: {}", b[k]);
-            }
-        }
-        let all = vec![true; w * h];
-        let step: Vec<f32> = (0..w * h).map(|k| if k % w < w / 2 { 1.0 } else { 3.0 }).collect();
-        let b = masked_blur(&step, &all, w, h, 3.0);
-        let row: Vec<f32> = b[5 * w..6 * w].to_vec();
-        assert!(row.windows(2).all(|p| p[1] >= p[0] - 1e-6), "{row:?}");
-        assert!(row[0] < 1.001 && row[w - 1] > 2.999 && row[w / 2] > 1.5 && row[w / 2] < 2.5);
-        // An impulse spreads with the variance asked for (to the boxes' integer radius).
-        let (w, h) = (301, 1);
-        for sigma in [2.5, 8.0, 20.0] {
-            let impulse: Vec<f32> = (0..w).map(|x| f32::from(u8::from(x == 150))).collect();
-            let valid = vec![true; w];
-            let b = masked_blur(&impulse, &valid, w, h, sigma);
-            let total: f64 = b.iter().map(|&v| v as f64).sum();
-            let var: f64 = b
-                .iter()
-                .enumerate()
-                .map(|(x, &v)| v as f64 * (x as f64 - 150.0).powi(2))
-                .sum::<f64>()
-                / total;
-            assert!((var.sqrt() / sigma - 1.0).abs() < 0.15, "σ {sigma}: {}", var.sqrt());
-        }
     }
 
     #[test]

@@ -36,6 +36,7 @@ macro_rules! say {
     }};
 }
 
+pub mod blur;
 pub mod cli;
 pub mod composite;
 pub mod detail;
