@@ -73,19 +73,42 @@ pub fn env_lookup(env: &[f32], env_height: usize, d: [f64; 3]) -> [f64; 3] {
     out
 }
 
-/// The factor that puts `env` (at the network's exposure `exposure`) at the level of the
+/// L' (or L*) as the network's resolution and exposure have it, for [`light_level`].
+#[derive(Clone, Copy)]
+pub struct NetworkLight<'a> {
+    /// Planar `[3, height, 2·height]`.
+    pub env: &'a [f32],
+    /// Its height.
+    pub height: usize,
+    /// The exposure the network saw the photo at.
+    pub exposure: f64,
+}
+
+/// The horizontal field of view a photo's background is looked at with, and where it came
+/// from: "given", "exif" or "default" (as [`LightLevel::fov_from`]).
+#[derive(Clone, Copy)]
+pub struct FieldOfView {
+    /// Degrees.
+    pub deg: f64,
+    /// "given", "exif" or "default".
+    pub from: &'static str,
+}
+
+/// The factor that puts `light` (at the network's exposure) at the level of the
 /// photo's background: Σ lum(background) / Σ lum(L(direction of each background pixel)), over
 /// the pixels off the object that are not clipped (8- and 16-bit photos saturate: a clipped sky
 /// would read too dark). Falls back to the network's level, saying why, where the background
 /// is too small, clipped, black or the light black along it.
-pub fn light_level(
-    p: &Photo,
-    coverage: &[f32],
-    env: &[f32],
-    env_height: usize,
-    exposure: f64,
-    (fov_deg, fov_from): (f64, &str),
-) -> LightLevel {
+pub fn light_level(p: &Photo, coverage: &[f32], light: NetworkLight, fov: FieldOfView) -> LightLevel {
+    let NetworkLight {
+        env,
+        height: env_height,
+        exposure,
+    } = light;
+    let FieldOfView {
+        deg: fov_deg,
+        from: fov_from,
+    } = fov;
     let network = |pixels: usize, why: &str| LightLevel {
         source: super::LevelSource::Network,
         scale: 1.0,
@@ -149,6 +172,15 @@ pub fn light_level(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn net(env: &[f32], height: usize, exposure: f64) -> NetworkLight<'_> {
+        NetworkLight { env, height, exposure }
+    }
+
+    const DEFAULT: FieldOfView = FieldOfView {
+        deg: DEFAULT_FOV_DEG,
+        from: "default",
+    };
 
     /// A `[3, H, 2H]` map from a function of the direction.
     fn map(h: usize, f: impl Fn([f64; 3]) -> [f32; 3]) -> Vec<f32> {
@@ -233,7 +265,15 @@ mod tests {
         let env = map(64, sky);
         for fov in [10.0, 40.0, 90.0, 150.0] {
             let (p, cov) = photo(Encoding::Linear, fov, |d| sky(d).map(|v| v * 0.25));
-            let level = light_level(&p, &cov, &env, 64, 3.0, (fov, "given"));
+            let level = light_level(
+                &p,
+                &cov,
+                net(&env, 64, 3.0),
+                FieldOfView {
+                    deg: fov,
+                    from: "given",
+                },
+            );
             assert_eq!(level.source.as_str(), "background", "{fov}: {level:?}");
             assert!((level.scale - 0.75).abs() < 0.75 * 0.01, "{fov}: {level:?}");
         }
@@ -244,19 +284,19 @@ mod tests {
         let env = map(16, |_| [1.0; 3]);
         // Clipped everywhere (8-bit white).
         let (p, cov) = photo(Encoding::Srgb8, 40.0, |_| [1.0; 3]);
-        let l = light_level(&p, &cov, &env, 16, 1.0, (40.0, "default"));
+        let l = light_level(&p, &cov, net(&env, 16, 1.0), DEFAULT);
         assert_eq!((l.source.as_str(), l.scale), ("network", 1.0));
         assert!(l.note.as_deref().is_some_and(|n| n.contains("clipped")), "{l:?}");
         // The same white in a linear photo is not clipped.
         let (p, cov) = photo(Encoding::Linear, 40.0, |_| [1.0; 3]);
         assert_eq!(
-            light_level(&p, &cov, &env, 16, 1.0, (40.0, "default")).source,
+            light_level(&p, &cov, net(&env, 16, 1.0), DEFAULT).source,
             super::super::LevelSource::Background
         );
         // Black background (a cut-out), NaN/negative background, the object filling the frame.
         let (p, cov) = photo(Encoding::Srgb8, 40.0, |_| [0.0; 3]);
         assert!(
-            light_level(&p, &cov, &env, 16, 1.0, (40.0, "default"))
+            light_level(&p, &cov, net(&env, 16, 1.0), DEFAULT)
                 .note
                 .unwrap()
                 .contains("black")
@@ -265,17 +305,17 @@ mod tests {
             [if d[0] > 0.0 { f32::NAN } else { -1.0 }; 3]
         });
         assert_eq!(
-            light_level(&p, &cov, &env, 16, 1.0, (40.0, "default")).source,
+            light_level(&p, &cov, net(&env, 16, 1.0), DEFAULT).source,
             super::super::LevelSource::Network
         );
         let (p, _) = photo(Encoding::Linear, 40.0, |_| [0.5; 3]);
         let full = vec![1.0; p.width * p.height];
-        let l = light_level(&p, &full, &env, 16, 1.0, (40.0, "default"));
+        let l = light_level(&p, &full, net(&env, 16, 1.0), DEFAULT);
         assert!(l.note.unwrap().contains("too little background"));
         // A black light along the background: no level, no division by zero.
         let dark_back = map(16, |d| [if d[2] < 0.0 { 0.0 } else { 1.0 }; 3]);
         let (p, cov) = photo(Encoding::Linear, 40.0, |_| [0.5; 3]);
-        let l = light_level(&p, &cov, &dark_back, 16, 1.0, (40.0, "default"));
+        let l = light_level(&p, &cov, net(&dark_back, 16, 1.0), DEFAULT);
         assert_eq!((l.source.as_str(), l.scale), ("network", 1.0), "{l:?}");
     }
 }

@@ -155,14 +155,16 @@ pub(crate) fn level(
     };
     let from = light.level_from();
     if from == LevelFrom::Background {
-        let level = background::light_level(
-            &read.photo,
-            &read.coverage,
+        let light = background::NetworkLight {
             env,
-            model.state.net.env_height,
-            prep.exposure,
-            (fov_deg, fov_from),
-        );
+            height: model.state.net.env_height,
+            exposure: prep.exposure,
+        };
+        let fov = background::FieldOfView {
+            deg: fov_deg,
+            from: fov_from,
+        };
+        let level = background::light_level(&read.photo, &read.coverage, light, fov);
         let k = level.scale as f32;
         env.iter_mut().for_each(|v| *v *= k);
         return level;
