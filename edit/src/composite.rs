@@ -124,18 +124,21 @@ pub fn blend(
 /// What [`object_values`] holds where the photo is kept.
 pub const KEEP: [f32; 3] = [f32::NAN; 3];
 
+/// What the layer rendered at the detail square, for [`object_values`]: both `[3, S, S]` at the
+/// training exposure.
+#[derive(Clone, Copy)]
+pub struct Renders<'a> {
+    /// The render put into the photo (O', or the relit image).
+    pub render: &'a [f32],
+    /// I', the re-rendered input, used by every composite but [`Composite::Render`].
+    pub i_prime: &'a [f32],
+}
+
 /// The edited object's value at every photo pixel ([`KEEP`] outside the object, or where no
 /// rendered pixel lies near), in the photo's linear units, before [`blend`] puts it into the
-/// photo: `render` (`[3, S, S]`, at the training exposure) composited `how`; `i_prime` is the
-/// re-rendered input, used by every composite but [`Composite::Render`].
-pub fn object_values(
-    p: &Photo,
-    coverage: &[f32],
-    prep: &Prepared,
-    render: &[f32],
-    i_prime: &[f32],
-    how: Composite,
-) -> Vec<[f32; 3]> {
+/// photo: the render composited `how` ([`Renders`]).
+pub fn object_values(p: &Photo, coverage: &[f32], prep: &Prepared, renders: Renders, how: Composite) -> Vec<[f32; 3]> {
+    let Renders { render, i_prime } = renders;
     let n = prep.size;
     let back = (1.0 / prep.exposure) as f32;
     let mut out = vec![KEEP; p.rgb.len()];
@@ -307,14 +310,13 @@ mod tests {
         p: &Photo,
         coverage: &[f32],
         prep: &Prepared,
-        render: &[f32],
-        i_prime: &[f32],
+        (render, i_prime): (&[f32], &[f32]),
         how: Composite,
     ) -> Vec<[f32; 3]> {
         blend(
             p,
             coverage,
-            object_values(p, coverage, prep, render, i_prime, how),
+            object_values(p, coverage, prep, Renders { render, i_prime }, how),
             |v| v,
         )
     }
@@ -383,7 +385,7 @@ mod tests {
         let (p, cov, prep) = scene();
         let same = planar(|k| p.rgb[k]);
         for how in ALL {
-            let out = composite(&p, &cov, &prep, &same, &same, how);
+            let out = composite(&p, &cov, &prep, (&same, &same), how);
             for k in 0..N * N {
                 if cov[k] == 0.0 {
                     assert_eq!(out[k], p.rgb[k], "{how:?}: background pixel {k} changed");
@@ -406,7 +408,7 @@ mod tests {
         // I* explains half of the photo's luminance and none of its colour: grey.
         let i_star = planar(|k| [0.5 * luminance(p.rgb[k]) as f32; 3]);
         let target = planar(|_| [0.02, 0.2, 0.03]);
-        let out = composite(&p, &cov, &prep, &target, &i_star, Composite::Shading);
+        let out = composite(&p, &cov, &prep, (&target, &i_star), Composite::Shading);
         for k in (0..N * N).filter(|&k| cov[k] == 1.0) {
             // Gain 2 on the target's colour, whatever the photo's hue.
             for (c, t) in [0.02, 0.2, 0.03].into_iter().enumerate() {
@@ -429,7 +431,7 @@ mod tests {
         let i_star = plane(&|k| 0.5 * smooth(k));
         let target = [0.1_f32, 0.6, 0.2];
         let render: Vec<f32> = (0..3).flat_map(|c| (0..M * M).map(move |_| target[c])).collect();
-        let out = composite(&p, &coverage, &prep, &render, &i_star, Composite::Detail);
+        let out = composite(&p, &coverage, &prep, (&render, &i_star), Composite::Detail);
         let mut worst = 0.0_f32;
         for k in (0..M * M).filter(|&k| inside(k)) {
             // Away from the mask's edge (where the blur sees fewer pixels) the checker's ±20 %
@@ -511,7 +513,7 @@ mod tests {
         // A uniform change: exact at every σ, the photo's checker and shading times the change
         // (shrunk by its power), in T's colour.
         let even = plane(&|c, k| t[c] * smooth(k));
-        let out = composite(&p, &cov, &prep, &even, &i_star, Composite::Structure);
+        let out = composite(&p, &cov, &prep, (&even, &i_star), Composite::Structure);
         let shrunk = |c: f32| c.powf(STRUCTURE_CHANGE_POWER as f32);
         for k in (0..M * M).filter(|&k| inside(k)) {
             for c in 0..3 {
@@ -524,7 +526,7 @@ mod tests {
         // colour T's.
         let step = |k: usize| if k % M >= 32 { 2.0 } else { 1.0 };
         let stepped = plane(&|c, k| t[c] * smooth(k) * step(k));
-        let out = composite(&p, &cov, &prep, &stepped, &i_star, Composite::Structure);
+        let out = composite(&p, &cov, &prep, (&stepped, &i_star), Composite::Structure);
         let row = 30 * M;
         let change: Vec<f32> = (8..56)
             .map(|x| luminance(out[row + x]) as f32 / luminance(p.rgb[row + x]) as f32 / shrunk(t_lum))
@@ -569,7 +571,7 @@ mod tests {
                 (&inf, &bright),
                 (&bright, &inf),
             ] {
-                let out = composite(&p, &cov, &prep, render, i_star, how);
+                let out = composite(&p, &cov, &prep, (render, i_star), how);
                 for (k, o) in out.iter().enumerate() {
                     assert!(o.iter().all(|v| v.is_finite() && *v >= 0.0), "{how:?} pixel {k}: {o:?}");
                     if cov[k] == 0.0 {
@@ -579,7 +581,7 @@ mod tests {
             }
         }
         // A near-black I* under a bright photo: the gain is capped, not 10³⁰.
-        let out = composite(&p, &cov, &prep, &bright, &tiny, Composite::Shading);
+        let out = composite(&p, &cov, &prep, (&bright, &tiny), Composite::Shading);
         let k = 4 * N + 4;
         assert!(out[k][0] <= MAX_RATIO + 1e-4, "{:?}", out[k]);
     }

@@ -119,7 +119,16 @@ fn render_and_composite(model: &Model, u: &mut Understood, edit: &Edit) -> Resul
         ("relit", &fine.relit, edit.look.relit),
     ] {
         if let Some(img) = img {
-            let values = composite::object_values(&u.photo, &u.coverage, &u.detail.prep, img, &fine.i_prime, how);
+            let values = composite::object_values(
+                &u.photo,
+                &u.coverage,
+                &u.detail.prep,
+                composite::Renders {
+                    render: img,
+                    i_prime: &fine.i_prime,
+                },
+                how,
+            );
             let held = range::fit(&u.photo, &u.coverage, &values, edit.look.range, name);
             composites.push((
                 name,
