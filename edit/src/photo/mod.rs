@@ -99,120 +99,125 @@ pub struct PhotoFile {
 
 /// [`load_photo`], with what its file says beyond its pixels.
 pub fn load_photo_shown(path: &Path) -> Result<(Photo, PhotoFile)> {
-    let what = path.display();
     check_file(path)?;
     match extension(path).as_str() {
-        "exr" => {
-            // Only R, G, B and A are decoded, whatever else the file holds, after the header's
-            // size was checked against the pixel limit and the file's length.
-            let bytes = std::fs::read(path).with_context(|| format!("cannot read {what}"))?;
-            matedit_contract::io::check_exr_size(path, &bytes)?;
-            let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&bytes), false)
-                .with_context(|| format!("{what}: cannot decode the EXR header (truncated or corrupt?)"))?;
-            // One part, as the editing page requires: the pixel limit is a limit on what is
-            // decoded, and the RGBA reader takes the first part that has R, G and B, which
-            // need not be the first part.
-            if meta.headers.len() != 1 {
-                bail!(
-                    "{what}: an EXR photo must have one part (layer), this one has {}; write the photo alone",
-                    meta.headers.len()
-                );
-            }
-            let size = meta.headers.first().map(|h| h.layer_size).unwrap_or_default();
-            check_size(path, size.width() as u64, size.height() as u64)?;
-            for n in ["R", "G", "B"] {
-                if !meta
-                    .headers
-                    .iter()
-                    .any(|h| h.channels.list.iter().any(|c| c.name.to_string() == n))
-                {
-                    bail!("{what}: no {n} channel (an EXR photo needs R, G, B)");
-                }
-            }
-            use exr::prelude::{ReadChannels as _, ReadLayers as _};
-            type Pixels = (usize, bool, Vec<[f32; 4]>);
-            let image = exr::prelude::read()
-                .no_deep_data()
-                .largest_resolution_level()
-                .rgba_channels(
-                    |s, ch: &exr::image::RgbaChannels| -> Pixels {
-                        (s.width(), ch.3.is_some(), vec![[0.0; 4]; s.area()])
-                    },
-                    |px: &mut Pixels, at, (r, g, b, a): (f32, f32, f32, f32)| {
-                        px.2[at.y() * px.0 + at.x()] = [r, g, b, a]
-                    },
-                )
-                .first_valid_layer()
-                .all_attributes()
-                .from_buffered(std::io::Cursor::new(bytes))
-                .with_context(|| format!("{what}: cannot decode the EXR (truncated or corrupt?)"))?;
-            let size = image.layer_data.size;
-            let (w, h) = (size.width(), size.height());
-            let (_, has_alpha, px) = image.layer_data.channel_data.pixels;
-            let (r, g, b): (Vec<f32>, Vec<f32>, Vec<f32>) = (
-                px.iter().map(|p| p[0]).collect(),
-                px.iter().map(|p| p[1]).collect(),
-                px.iter().map(|p| p[2]).collect(),
-            );
-            let a: Option<Vec<f32>> = has_alpha.then(|| px.iter().map(|p| p[3]).collect());
-            let rgb: Vec<[f32; 3]> = (0..w * h).map(|k| [r[k], g[k], b[k]]).collect();
-            check_linear(path, &rgb)?;
-            if let Some(k) = a.as_ref().and_then(|a| a.iter().position(|v| v.is_nan())) {
-                bail!("{what}: alpha is NaN at pixel ({}, {})", k % w, k / w);
-            }
-            let alpha = a.map(|a| a.iter().map(|v| v.clamp(0.0, 1.0)).collect());
-            let p = Photo {
-                width: w,
-                height: h,
-                rgb,
-                alpha,
-                encoding: Encoding::Linear,
-            };
-            let file = PhotoFile {
-                orientation: Orientation::NoTransforms,
-                fov_deg: None,
-            };
-            Ok((p, file))
-        }
-        "png" | "jpg" | "jpeg" | "hdr" => {
-            let (img, turned, exif) = decode_as(path, true)?;
-            let (w, h) = (img.width() as usize, img.height() as usize);
-            use image::DynamicImage as D;
-            let encoding = match &img {
-                D::ImageRgb32F(_) | D::ImageRgba32F(_) => Encoding::Linear,
-                D::ImageLuma16(_) | D::ImageLumaA16(_) | D::ImageRgb16(_) | D::ImageRgba16(_) => Encoding::Srgb16,
-                _ => Encoding::Srgb8,
-            };
-            let has_alpha = img.color().has_alpha();
-            let rgba = img.into_rgba32f();
-            let decode = |v: f32| {
-                if encoding == Encoding::Linear {
-                    v
-                } else {
-                    srgb_decode(v.clamp(0.0, 1.0))
-                }
-            };
-            let rgb: Vec<[f32; 3]> = rgba
-                .pixels()
-                .map(|p| [decode(p[0]), decode(p[1]), decode(p[2])])
-                .collect();
-            check_linear(path, &rgb)?;
-            let alpha = has_alpha.then(|| rgba.pixels().map(|p| p[3].clamp(0.0, 1.0)).collect());
-            let p = Photo {
-                width: w,
-                height: h,
-                rgb,
-                alpha,
-                encoding,
-            };
-            let file = PhotoFile {
-                orientation: turned,
-                fov_deg: exif.and_then(|e| crate::photo::camera::field_of_view(&e, w, h)),
-            };
-            Ok((p, file))
-        }
-        other => bail!("{what}: cannot read .{other} photos (PNG, JPEG, EXR or HDR)"),
+        "exr" => read_exr_photo(path),
+        "png" | "jpg" | "jpeg" | "hdr" => read_image_photo(path),
+        other => bail!(
+            "{}: cannot read .{other} photos (PNG, JPEG, EXR or HDR)",
+            path.display()
+        ),
     }
+}
+
+/// An EXR photo: linear, one part, R, G and B required and A kept where present.
+fn read_exr_photo(path: &Path) -> Result<(Photo, PhotoFile)> {
+    let what = path.display();
+    // Only R, G, B and A are decoded, whatever else the file holds, after the header's
+    // size was checked against the pixel limit and the file's length.
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {what}"))?;
+    matedit_contract::io::check_exr_size(path, &bytes)?;
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&bytes), false)
+        .with_context(|| format!("{what}: cannot decode the EXR header (truncated or corrupt?)"))?;
+    // One part, as the editing page requires: the pixel limit is a limit on what is
+    // decoded, and the RGBA reader takes the first part that has R, G and B, which
+    // need not be the first part.
+    if meta.headers.len() != 1 {
+        bail!(
+            "{what}: an EXR photo must have one part (layer), this one has {}; write the photo alone",
+            meta.headers.len()
+        );
+    }
+    let size = meta.headers.first().map(|h| h.layer_size).unwrap_or_default();
+    check_size(path, size.width() as u64, size.height() as u64)?;
+    for n in ["R", "G", "B"] {
+        if !meta
+            .headers
+            .iter()
+            .any(|h| h.channels.list.iter().any(|c| c.name.to_string() == n))
+        {
+            bail!("{what}: no {n} channel (an EXR photo needs R, G, B)");
+        }
+    }
+    use exr::prelude::{ReadChannels as _, ReadLayers as _};
+    type Pixels = (usize, bool, Vec<[f32; 4]>);
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .rgba_channels(
+            |s, ch: &exr::image::RgbaChannels| -> Pixels { (s.width(), ch.3.is_some(), vec![[0.0; 4]; s.area()]) },
+            |px: &mut Pixels, at, (r, g, b, a): (f32, f32, f32, f32)| px.2[at.y() * px.0 + at.x()] = [r, g, b, a],
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(std::io::Cursor::new(bytes))
+        .with_context(|| format!("{what}: cannot decode the EXR (truncated or corrupt?)"))?;
+    let size = image.layer_data.size;
+    let (w, h) = (size.width(), size.height());
+    let (_, has_alpha, px) = image.layer_data.channel_data.pixels;
+    let (r, g, b): (Vec<f32>, Vec<f32>, Vec<f32>) = (
+        px.iter().map(|p| p[0]).collect(),
+        px.iter().map(|p| p[1]).collect(),
+        px.iter().map(|p| p[2]).collect(),
+    );
+    let a: Option<Vec<f32>> = has_alpha.then(|| px.iter().map(|p| p[3]).collect());
+    let rgb: Vec<[f32; 3]> = (0..w * h).map(|k| [r[k], g[k], b[k]]).collect();
+    check_linear(path, &rgb)?;
+    if let Some(k) = a.as_ref().and_then(|a| a.iter().position(|v| v.is_nan())) {
+        bail!("{what}: alpha is NaN at pixel ({}, {})", k % w, k / w);
+    }
+    let alpha = a.map(|a| a.iter().map(|v| v.clamp(0.0, 1.0)).collect());
+    let p = Photo {
+        width: w,
+        height: h,
+        rgb,
+        alpha,
+        encoding: Encoding::Linear,
+    };
+    let file = PhotoFile {
+        orientation: Orientation::NoTransforms,
+        fov_deg: None,
+    };
+    Ok((p, file))
+}
+
+/// A PNG, JPEG or Radiance HDR photo, turned as its EXIF says and decoded to linear.
+fn read_image_photo(path: &Path) -> Result<(Photo, PhotoFile)> {
+    let (img, turned, exif) = decode_as(path, true)?;
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    use image::DynamicImage as D;
+    let encoding = match &img {
+        D::ImageRgb32F(_) | D::ImageRgba32F(_) => Encoding::Linear,
+        D::ImageLuma16(_) | D::ImageLumaA16(_) | D::ImageRgb16(_) | D::ImageRgba16(_) => Encoding::Srgb16,
+        _ => Encoding::Srgb8,
+    };
+    let has_alpha = img.color().has_alpha();
+    let rgba = img.into_rgba32f();
+    let decode = |v: f32| {
+        if encoding == Encoding::Linear {
+            v
+        } else {
+            srgb_decode(v.clamp(0.0, 1.0))
+        }
+    };
+    let rgb: Vec<[f32; 3]> = rgba
+        .pixels()
+        .map(|p| [decode(p[0]), decode(p[1]), decode(p[2])])
+        .collect();
+    check_linear(path, &rgb)?;
+    let alpha = has_alpha.then(|| rgba.pixels().map(|p| p[3].clamp(0.0, 1.0)).collect());
+    let p = Photo {
+        width: w,
+        height: h,
+        rgb,
+        alpha,
+        encoding,
+    };
+    let file = PhotoFile {
+        orientation: turned,
+        fov_deg: exif.and_then(|e| crate::photo::camera::field_of_view(&e, w, h)),
+    };
+    Ok((p, file))
 }
 
 fn check_size(path: &Path, w: u64, h: u64) -> Result<()> {
