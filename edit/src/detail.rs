@@ -153,21 +153,25 @@ pub fn upsample_normals(coarse: &Prepared, normals: &[f32], fine: &Prepared) -> 
                     None => [0.0, 0.0, 1.0, 1.0],
                 }
             };
-            // The weighted mean (weights can be tiny), then unit length; opposite normals that
-            // cancel face the camera.
-            let mean = [sum[0] / sum[3], sum[1] / sum[3], sum[2] / sum[3]];
-            let len = (mean[0] * mean[0] + mean[1] * mean[1] + mean[2] * mean[2]).sqrt();
-            let n = if len.is_finite() && len > 1e-6 {
-                [mean[0] / len, mean[1] / len, mean[2] / len]
-            } else {
-                [0.0, 0.0, 1.0]
-            };
+            let n = unit_mean(sum);
             for ch in 0..3 {
                 out[ch * fw + k] = n[ch] as f32;
             }
         }
     }
     out
+}
+
+/// The weighted mean of `sum` (`[Σ w·n, Σ w]`; the weights can be tiny) at unit length;
+/// opposite normals that cancel face the camera.
+fn unit_mean(sum: [f64; 4]) -> [f64; 3] {
+    let mean = [sum[0] / sum[3], sum[1] / sum[3], sum[2] / sum[3]];
+    let len = (mean[0] * mean[0] + mean[1] * mean[1] + mean[2] * mean[2]).sqrt();
+    if len.is_finite() && len > 1e-6 {
+        [mean[0] / len, mean[1] / len, mean[2] / len]
+    } else {
+        [0.0, 0.0, 1.0]
+    }
 }
 
 /// The usable coarse pixel nearest to `(u, v)` (coarse pixel units), searched in growing
