@@ -64,7 +64,11 @@ pub fn finish(model: &Model, mut u: Understood, edit: &Edit, out: &Path, clock: 
     // Every file goes to a staging folder first: a full disk or a failed write leaves `out` as
     // it was, never an edited.png without its report.
     let stage = output::Staging::new(out)?;
-    report.files = output::write_all(stage.path(), &u.photo, &u.prep, &made.pred, &made.composites, &mats)?;
+    let edited = output::EditedPhotos {
+        photo: &u.photo,
+        composites: &made.composites,
+    };
+    report.files = output::write_all(stage.path(), edited, &u.prep, &made.pred, &mats)?;
     if let Some(e) = &report.eq6 {
         output::energy_plot(&stage.path().join("energy.png"), e)?;
         report.files.push("energy.png".into());

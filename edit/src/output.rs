@@ -385,19 +385,28 @@ impl Drop for Staging {
     }
 }
 
+/// The edited photos, for [`write_all`]: each composite (by output name) at the size of the
+/// photo it was composited into, which also gives their encoding.
+#[derive(Clone, Copy)]
+pub struct EditedPhotos<'a> {
+    /// The photo.
+    pub photo: &'a Photo,
+    /// The composites, by output name ("edited", "relit").
+    pub composites: &'a [(&'a str, Vec<[f32; 3]>)],
+}
+
 /// Writes every output of an edit but the report; returns the file names.
 pub fn write_all(
     out: &Path,
-    p: &Photo,
+    edited: EditedPhotos,
     prep: &Prepared,
     pred: &Predicted,
-    composites: &[(&str, Vec<[f32; 3]>)],
     targets: &[Dsbrdf],
 ) -> Result<Vec<String>> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut files = Vec::new();
-    for image in composites {
-        write_photo(out, image, p, prep.exposure, &mut files)?;
+    for image in edited.composites {
+        write_photo(out, image, edited.photo, prep.exposure, &mut files)?;
     }
     write_net_image(out, "input", &prep.input, prep, &mut files)?;
     write_net_image(out, "i_prime", &pred.i_prime, prep, &mut files)?;
