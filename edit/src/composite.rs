@@ -300,7 +300,7 @@ fn detail_gain(p: &Photo, coverage: &[f32], prep: &Prepared, i_prime: &[f32]) ->
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::photo::{Encoding, Framing};
+    use crate::photo::Encoding;
 
     const N: usize = 8;
 
@@ -336,20 +336,7 @@ mod tests {
             })
             .collect();
         let mask: Vec<f32> = (0..N * N).map(|k| f32::from(u8::from(inside(k)))).collect();
-        let prep = Prepared {
-            size: N,
-            regions: 1,
-            framing: Framing {
-                x0: 0.0,
-                y0: 0.0,
-                side: N as f64,
-                size: N,
-            },
-            exposure: 2.0,
-            input: vec![0.0; 3 * N * N],
-            region_map: mask.iter().map(|&m| m as u8).collect(),
-            mask,
-        };
+        let prep = Prepared::square(N, vec![0.0; 3 * N * N], mask, 2.0);
         let photo = Photo {
             width: N,
             height: N,
@@ -471,20 +458,7 @@ mod tests {
             .map(|k| if inside(k) { [photo(k); 3] } else { [0.4, 0.5, 0.6] })
             .collect();
         let coverage: Vec<f32> = (0..M * M).map(|k| f32::from(u8::from(inside(k)))).collect();
-        let prep = Prepared {
-            size: M,
-            regions: 1,
-            framing: Framing {
-                x0: 0.0,
-                y0: 0.0,
-                side: M as f64,
-                size: M,
-            },
-            exposure: 1.0,
-            input: vec![0.0; 3 * M * M],
-            region_map: coverage.iter().map(|&c| c as u8).collect(),
-            mask: coverage.clone(),
-        };
+        let prep = Prepared::square(M, vec![0.0; 3 * M * M], coverage.clone(), 1.0);
         let p = Photo {
             width: M,
             height: M,

@@ -265,20 +265,7 @@ mod tests {
                 }
             }
         }
-        Prepared {
-            size: n,
-            regions: 1,
-            framing: Framing {
-                x0: 0.0,
-                y0: 0.0,
-                side: n as f64,
-                size: n,
-            },
-            exposure: 1.0,
-            region_map: mask.iter().map(|&m| m as u8).collect(),
-            input,
-            mask,
-        }
+        Prepared::square(n, input, mask, 1.0)
     }
 
     fn planar(n: usize, normal: impl Fn(usize, usize) -> [f32; 3]) -> Vec<f32> {

@@ -268,7 +268,6 @@ fn the_objects_known_material_replaces_m_prime_and_sets_the_lights_level() {
 
 #[test]
 fn the_fitted_level_is_the_least_squares_scale_and_refuses_what_the_layer_cannot_render() {
-    use crate::photo::Framing;
     use matedit_trainer::rendering_layer::{LayerInput, RenderingLayer};
     let (n, he) = (4, 4);
     let layer = RenderingLayer::new(he);
@@ -283,20 +282,7 @@ fn the_fitted_level_is_the_least_squares_scale_and_refuses_what_the_layer_cannot
         materials: m.clone(),
         env,
     };
-    let prep = |value: f32| Prepared {
-        size: n,
-        regions: 1,
-        framing: Framing {
-            x0: 0.0,
-            y0: 0.0,
-            side: n as f64,
-            size: n,
-        },
-        exposure: 1.0,
-        input: vec![value; 3 * n * n],
-        region_map: vec![1; n * n],
-        mask: vec![1.0; n * n],
-    };
+    let prep = |value: f32| Prepared::square(n, vec![value; 3 * n * n], vec![1.0; n * n], 1.0);
     let l = vec![1.0_f32; 3 * he * 2 * he];
     let rendered = layer
         .forward(&LayerInput {

@@ -581,6 +581,28 @@ pub struct Prepared {
     pub region_map: Vec<u8>,
 }
 
+#[cfg(test)]
+impl Prepared {
+    /// A test's input: an `n`×`n` photo framed one network pixel per photo pixel, one region
+    /// wherever `mask` is set.
+    pub(crate) fn square(n: usize, input: Vec<f32>, mask: Vec<f32>, exposure: f64) -> Prepared {
+        Prepared {
+            size: n,
+            regions: 1,
+            framing: Framing {
+                x0: 0.0,
+                y0: 0.0,
+                side: n as f64,
+                size: n,
+            },
+            exposure,
+            region_map: mask.iter().map(|&m| m as u8).collect(),
+            input,
+            mask,
+        }
+    }
+}
+
 /// Frames a photo for a network of input side `size`: `coverage` is the soft object mask,
 /// `labels` (optional) the region of every photo pixel (0: none).
 pub fn prepare(p: &Photo, coverage: &[f32], labels: Option<(&[u8], usize)>, size: usize) -> Result<Prepared> {
