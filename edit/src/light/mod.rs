@@ -148,21 +148,18 @@ pub(crate) fn level(
     env: &mut [f32],
     light: &LightOptions,
 ) -> background::LightLevel {
-    let (fov_deg, fov_from) = match (light.fov_deg, read.exif_fov_deg) {
+    let (deg, from) = match (light.fov_deg, read.exif_fov_deg) {
         (Some(f), _) => (f, "given"),
         (None, Some(f)) => (f, "exif"),
         (None, None) => (background::DEFAULT_FOV_DEG, "default"),
     };
-    let from = light.level_from();
-    if from == LevelFrom::Background {
+    let fov = background::FieldOfView { deg, from };
+    let level_from = light.level_from();
+    if level_from == LevelFrom::Background {
         let light = background::NetworkLight {
             env,
             height: model.state.net.env_height,
             exposure: prep.exposure,
-        };
-        let fov = background::FieldOfView {
-            deg: fov_deg,
-            from: fov_from,
         };
         let level = background::light_level(&read.photo, &read.coverage, light, fov);
         let k = level.scale as f32;
@@ -170,15 +167,15 @@ pub(crate) fn level(
         return level;
     }
     background::LightLevel {
-        source: match (from, &light.input_material) {
+        source: match (level_from, &light.input_material) {
             (LevelFrom::Given, _) => LevelSource::Given,
             (_, Some(_)) => LevelSource::InputMaterial,
             _ => LevelSource::Network,
         },
         scale: 1.0,
         pixels: 0,
-        fov_deg,
-        fov_from: fov_from.into(),
+        fov_deg: fov.deg,
+        fov_from: fov.from.into(),
         note: None,
     }
 }
