@@ -364,65 +364,46 @@ fn serve_command(args: ServeArgs) -> Result<()> {
     serve(cfg)
 }
 
+impl EditArgs {
+    /// The edit these options ask for.
+    fn request(&self) -> EditRequest {
+        EditRequest {
+            photo: self.image.clone(),
+            mask: self.mask.clone(),
+            regions: self.regions.clone(),
+            materials: self.materials.clone(),
+            relight: self.relight.clone(),
+            relight_level: self.relight_level,
+            light: self.light.clone(),
+            light_level: self.light_level,
+            light_estimate: self.light_estimate,
+            fov_deg: self.fov,
+            composite: self.composite,
+            range: self.range,
+            input_material: self.input_material.clone(),
+            normals: self.normals.clone(),
+            optimize: self.optimize.then(|| Eq6Config {
+                a: self.eq6_a,
+                b: self.eq6_b,
+                rounds: self.eq6_rounds,
+                iterations: self.eq6_iterations,
+                coarse_pixels: self.eq6_coarse_pixels,
+                ..Eq6Config::default()
+            }),
+        }
+    }
+}
+
 /// `matedit edit`.
 fn edit_command(args: EditArgs) -> Result<()> {
-    let EditArgs {
-        model,
-        image,
-        mask,
-        regions,
-        materials,
-        relight,
-        relight_level,
-        light,
-        light_level,
-        light_estimate,
-        fov,
-        input_material,
-        normals,
-        composite,
-        range,
-        optimize,
-        eq6_a,
-        eq6_b,
-        eq6_rounds,
-        eq6_iterations,
-        eq6_coarse_pixels,
-        truth,
-        out,
-    } = args;
-    let scored_mask = mask.clone();
-    let req = EditRequest {
-        photo: image,
-        mask,
-        regions,
-        materials,
-        relight,
-        relight_level,
-        light,
-        light_level,
-        light_estimate,
-        fov_deg: fov,
-        composite,
-        range,
-        input_material,
-        normals,
-        optimize: optimize.then(|| Eq6Config {
-            a: eq6_a,
-            b: eq6_b,
-            rounds: eq6_rounds,
-            iterations: eq6_iterations,
-            coarse_pixels: eq6_coarse_pixels,
-            ..Eq6Config::default()
-        }),
-    };
-    let report = edit(&model, &req, &out)?;
-    if let Some(t) = &truth {
-        let s = crate::truth::score(&req.photo, scored_mask.as_deref(), t, &out)?;
-        crate::truth::add_to_report(&out, &s)?;
+    let req = args.request();
+    let report = edit(&args.model, &req, &args.out)?;
+    if let Some(t) = &args.truth {
+        let s = crate::truth::score(&req.photo, args.mask.as_deref(), t, &args.out)?;
+        crate::truth::add_to_report(&args.out, &s)?;
         say!("{}", s.line());
     }
-    say_edit(&report, &out);
+    say_edit(&report, &args.out);
     Ok(())
 }
 
@@ -483,41 +464,32 @@ fn given<'a>(
     }
 }
 
+impl Finish {
+    /// The two photos with what these options say of the result; `known`: every receiving
+    /// object's own material is given.
+    fn pair<'a>(&self, photos: [Given<'a>; 2], eq6: Option<&'a Eq6Config>, known: bool) -> Pair<'a> {
+        let [first, second] = photos;
+        Pair {
+            first,
+            second,
+            eq6,
+            look: Look::chosen(self.composite, self.range, known),
+        }
+    }
+}
+
 /// `matedit transfer`.
 fn transfer_command(args: TransferArgs) -> Result<()> {
-    let TransferArgs {
-        model,
-        from,
-        from_mask,
-        to,
-        to_mask,
-        from_material,
-        to_material,
-        from_normals,
-        to_normals,
-        finish:
-            Finish {
-                optimize,
-                composite,
-                range,
-                light_estimate,
-                out,
-            },
-    } = args;
-    let cfg = optimize.then(Eq6Config::default);
-    let r = transfer(
-        &model,
-        Pair {
-            first: given(&from, &from_mask, &from_material, &from_normals, light_estimate),
-            second: given(&to, &to_mask, &to_material, &to_normals, light_estimate),
-            eq6: cfg.as_ref(),
-            look: Look::chosen(composite, range, to_material.is_some()),
-        },
-        &out,
-    )?;
+    let f = &args.finish;
+    let cfg = f.optimize.then(Eq6Config::default);
+    let le = f.light_estimate;
+    let from = given(&args.from, &args.from_mask, &args.from_material, &args.from_normals, le);
+    let to = given(&args.to, &args.to_mask, &args.to_material, &args.to_normals, le);
+    let known = args.to_material.is_some();
+    let r = transfer(&args.model, f.pair([from, to], cfg.as_ref(), known), &f.out)?;
     say!(
         "{}: transferred in {:.2} s; report.json",
-        out.display(),
+        f.out.display(),
         r.seconds.total
     );
     Ok(())
@@ -525,40 +497,16 @@ fn transfer_command(args: TransferArgs) -> Result<()> {
 
 /// `matedit swap`.
 fn swap_command(args: SwapArgs) -> Result<()> {
-    let SwapArgs {
-        model,
-        a,
-        a_mask,
-        b,
-        b_mask,
-        a_material,
-        b_material,
-        a_normals,
-        b_normals,
-        finish:
-            Finish {
-                optimize,
-                composite,
-                range,
-                light_estimate,
-                out,
-            },
-    } = args;
-    let cfg = optimize.then(Eq6Config::default);
-    let both_known = a_material.is_some() && b_material.is_some();
-    let [_, rb] = swap(
-        &model,
-        Pair {
-            first: given(&a, &a_mask, &a_material, &a_normals, light_estimate),
-            second: given(&b, &b_mask, &b_material, &b_normals, light_estimate),
-            eq6: cfg.as_ref(),
-            look: Look::chosen(composite, range, both_known),
-        },
-        &out,
-    )?;
+    let f = &args.finish;
+    let cfg = f.optimize.then(Eq6Config::default);
+    let le = f.light_estimate;
+    let a = given(&args.a, &args.a_mask, &args.a_material, &args.a_normals, le);
+    let b = given(&args.b, &args.b_mask, &args.b_material, &args.b_normals, le);
+    let known = args.a_material.is_some() && args.b_material.is_some();
+    let [_, rb] = swap(&args.model, f.pair([a, b], cfg.as_ref(), known), &f.out)?;
     say!(
         "{}: swapped in {:.2} s; a/ and b/ with report.json each",
-        out.display(),
+        f.out.display(),
         rb.seconds.total
     );
     Ok(())

@@ -5,7 +5,7 @@
 use crate::light::relight::{self, Relight, RelightLevelReport};
 use crate::output::{self, EditReport, Timings};
 use crate::photo::TRAINING_MEAN_LUMINANCE;
-use crate::progress::{Progress, enter};
+use crate::progress::Watch;
 use crate::understand::Understood;
 use crate::{Look, Model, Predicted, composite, range, render_all, target};
 use anyhow::{Context, Result};
@@ -26,15 +26,23 @@ pub struct Edit<'a> {
     pub look: Look,
 }
 
-/// When an edit began and what watches it.
+/// When an edit began, what watches it, and how long reading its inputs took.
 #[derive(Clone, Copy)]
 pub struct Clock<'a> {
-    /// When the request began.
-    pub t0: Instant,
+    /// When the request began, and what watches it.
+    pub watch: Watch<'a>,
     /// Seconds reading its inputs and loading took.
     pub t_load: f64,
-    /// Shown each phase.
-    pub watcher: Option<&'a Progress>,
+}
+
+impl<'a> Clock<'a> {
+    /// The clock of a request whose inputs were read just now.
+    pub fn inputs_read(watch: Watch<'a>) -> Self {
+        Clock {
+            watch,
+            t_load: watch.t0.elapsed().as_secs_f64(),
+        }
+    }
 }
 
 /// What rendering and compositing made of an understood photo.
@@ -55,10 +63,10 @@ struct Made {
 
 /// Renders an understood photo as `edit` asks, composites, and writes every output into `out`.
 pub fn finish(model: &Model, mut u: Understood, edit: &Edit, out: &Path, clock: Clock) -> Result<EditReport> {
-    enter(clock.watcher, "render")?;
+    clock.watch.enter("render")?;
     let made = render_and_composite(model, &mut u, edit)?;
     let mut report = report(model, &u, edit, &made, clock);
-    enter(clock.watcher, "write")?;
+    clock.watch.enter("write")?;
     let t3 = Instant::now();
     let mats: Vec<Dsbrdf> = edit.targets.iter().map(|(m, _)| m.clone()).collect();
     // Every file goes to a staging folder first: a full disk or a failed write leaves `out` as
@@ -74,7 +82,7 @@ pub fn finish(model: &Model, mut u: Understood, edit: &Edit, out: &Path, clock: 
         report.files.push("energy.png".into());
     }
     report.seconds.write = t3.elapsed().as_secs_f64();
-    report.seconds.total = clock.t0.elapsed().as_secs_f64();
+    report.seconds.total = clock.watch.t0.elapsed().as_secs_f64();
     output::write_report(stage.path(), &report)?;
     stage.publish()?;
     Ok(report)

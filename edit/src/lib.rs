@@ -42,8 +42,6 @@ pub mod composite;
 pub mod detail;
 pub mod eq6;
 pub mod finish;
-#[cfg(test)]
-mod input_tests;
 pub mod light;
 pub mod look;
 pub mod model;
@@ -73,6 +71,7 @@ pub use output::EditReport;
 pub use photo::read::{ReadPhoto, read_photo};
 pub use photo::{Prepared, prepare, prepare_framed};
 pub use predict::{Predicted, network_prediction, render_all};
+pub use progress::Watch;
 pub use range::Range;
 pub use request::EditRequest;
 pub use transfer::{Given, Pair, swap, transfer, transfer_with};
@@ -80,42 +79,22 @@ pub use understand::{Understanding, Understood, understand};
 
 use anyhow::Result;
 use matedit_physics::brdf::Dsbrdf;
-use progress::{Progress, enter};
 use std::path::Path;
-use std::sync::Arc;
-use std::time::Instant;
 
 /// Reads the inputs, edits, and writes every output into `out` (see [`output`]). Nothing is
 /// written when any input is bad.
 pub fn edit(model: &Path, req: &EditRequest, out: &Path) -> Result<EditReport> {
-    let t0 = Instant::now();
+    let watch = Watch::unwatched();
+    // Before the model's load, so that a bad request costs nothing.
     request::check_request(req, out)?;
-    let model = Model::load(model)?;
-    edit_checked(&model, req, out, None, t0)
+    edit_with(&Model::load(model)?, req, out, watch)
 }
 
 /// [`edit`] with a loaded model (what `matedit serve` runs for every request), its phases and
-/// Eq. 6's energies shown to `watcher`; `t0` is when the request began.
-pub fn edit_with(
-    model: &Model,
-    req: &EditRequest,
-    out: &Path,
-    watcher: Option<&Arc<Progress>>,
-    t0: Instant,
-) -> Result<EditReport> {
+/// Eq. 6's energies shown to `watch`: the stages in order.
+pub fn edit_with(model: &Model, req: &EditRequest, out: &Path, watch: Watch) -> Result<EditReport> {
     request::check_request(req, out)?;
-    edit_checked(model, req, out, watcher, t0)
-}
-
-/// [`edit_with`] once the request and the output folder were checked: the stages in order.
-fn edit_checked(
-    model: &Model,
-    req: &EditRequest,
-    out: &Path,
-    watcher: Option<&Arc<Progress>>,
-    t0: Instant,
-) -> Result<EditReport> {
-    enter(watcher.map(|w| w.as_ref()), "reading")?;
+    watch.enter("reading")?;
     let read = read_photo(&req.photo, req.mask.as_deref(), req.regions.as_deref())?;
     let regions = read.labels.as_ref().map_or(1, |l| l.1);
     let targets: Vec<(Dsbrdf, target::RegionTarget)> =
@@ -130,12 +109,12 @@ fn edit_checked(
         .map(|spec| Relight::read(spec, req.relight_level, env_height))
         .transpose()?;
     let light = request::light_options(req, &read, env_height)?;
-    let t_load = t0.elapsed().as_secs_f64();
+    let clock = Clock::inputs_read(watch);
     let how = Understanding {
         light: &light,
         eq6: req.optimize.as_ref(),
     };
-    let u = understand(model, read, how, watcher)?;
+    let u = understand(model, read, how, watch)?;
     let look = Look::for_known(
         req.composite,
         req.range,
@@ -147,11 +126,6 @@ fn edit_checked(
         relight,
         light_spec: req.light.as_deref(),
         look,
-    };
-    let clock = Clock {
-        t0,
-        t_load,
-        watcher: watcher.map(|w| w.as_ref()),
     };
     finish(model, u, &edit, out, clock)
 }

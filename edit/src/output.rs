@@ -261,15 +261,7 @@ pub(crate) fn spheres(
     materials
         .iter()
         .map(|m| {
-            let img = layer.forward(&LayerInput {
-                batch: 1,
-                size: (n, n),
-                regions: 1,
-                normals: &planar_n,
-                region_map: &region,
-                materials: m,
-                env,
-            })?;
+            let img = layer.forward(&LayerInput::one_region(n, &planar_n, &region, m, env))?;
             Ok((img, mask.clone()))
         })
         .collect()

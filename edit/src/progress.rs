@@ -4,8 +4,9 @@
 //! evaluation. `matedit edit` passes none.
 
 use matedit_trainer::post_optimisation::watcher::{Cancelled, Watcher};
-use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
 
 /// Shared between the thread that edits and those that watch it.
 #[derive(Debug, Default)]
@@ -64,4 +65,34 @@ pub fn enter(p: Option<&Progress>, phase: &'static str) -> anyhow::Result<()> {
         p.enter(phase)?;
     }
     Ok(())
+}
+
+/// Who watches a request and when it began: what `matedit serve` hands each job; the command
+/// line's edits are watched by nobody.
+#[derive(Clone, Copy, Debug)]
+pub struct Watch<'a> {
+    /// Shown each phase and Eq. 6's energies; `None` from the command line.
+    pub progress: Option<&'a Arc<Progress>>,
+    /// When the request began (the report's seconds count from it).
+    pub t0: Instant,
+}
+
+impl Watch<'_> {
+    /// A request that begins now and that nobody watches.
+    pub fn unwatched() -> Self {
+        Watch {
+            progress: None,
+            t0: Instant::now(),
+        }
+    }
+
+    /// [`Progress::enter`], when somebody watches.
+    pub fn enter(&self, phase: &'static str) -> anyhow::Result<()> {
+        enter(self.progress.map(|p| p.as_ref()), phase)
+    }
+
+    /// The watcher as the stages that show a phase take it.
+    pub fn progress(&self) -> Option<&Progress> {
+        self.progress.map(|p| p.as_ref())
+    }
 }

@@ -5,14 +5,12 @@ use super::{
     Clock, Edit, EditReport, LightOptions, Look, Model, ReadPhoto, Understanding, Understood, finish, known_material,
     normals, output, read_photo, target, understand,
 };
-use crate::progress::{Progress, enter};
+use crate::progress::Watch;
 use anyhow::{Context, Result, bail};
 use matedit_physics::brdf::Dsbrdf;
 use matedit_physics::brdf::dsbrdf::PARAMS;
 use matedit_trainer::post_optimisation;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::time::Instant;
 
 /// A photo given to [`transfer`] or [`swap`], with what is known of its object.
 #[derive(Clone, Copy, Debug)]
@@ -68,22 +66,9 @@ pub struct Pair<'a> {
 /// rendered on the object of photo `second`, under that photo's predicted light; outputs as
 /// [`crate::edit`]'s. What is known of either object ([`Given`]) replaces that photo's estimate.
 pub fn transfer(model: &Path, photos: Pair, out: &Path) -> Result<EditReport> {
-    let t0 = Instant::now();
+    let watch = Watch::unwatched();
     refuse_overwriting(out, [&photos.first, &photos.second])?;
-    let model = Model::load(model)?;
-    transfer_checked(&model, photos, out, None, t0)
-}
-
-/// [`transfer`] with a loaded model, watched as [`crate::edit_with`].
-pub fn transfer_with(
-    model: &Model,
-    photos: Pair,
-    out: &Path,
-    watcher: Option<&Arc<Progress>>,
-    t0: Instant,
-) -> Result<EditReport> {
-    refuse_overwriting(out, [&photos.first, &photos.second])?;
-    transfer_checked(model, photos, out, watcher, t0)
+    transfer_with(&Model::load(model)?, photos, out, watch)
 }
 
 /// Refuses an output folder that holds any input of the two photos.
@@ -100,28 +85,18 @@ fn refuse_overwriting(out: &Path, photos: [&Given; 2]) -> Result<()> {
     output::refuse_overwriting_inputs(out, &inputs)
 }
 
-/// [`transfer_with`] once the output folder was checked.
-fn transfer_checked(
-    model: &Model,
-    photos: Pair,
-    out: &Path,
-    watcher: Option<&Arc<Progress>>,
-    t0: Instant,
-) -> Result<EditReport> {
+/// [`transfer`] with a loaded model, watched as [`crate::edit_with`].
+pub fn transfer_with(model: &Model, photos: Pair, out: &Path, watch: Watch) -> Result<EditReport> {
+    refuse_overwriting(out, [&photos.first, &photos.second])?;
     let (from, to, optimize) = (photos.first, photos.second, photos.eq6);
-    enter(watcher.map(|w| w.as_ref()), "reading")?;
+    watch.enter("reading")?;
     let read_from = read_photo(from.photo, from.mask, None)?;
     let read_to = read_photo(to.photo, to.mask, None)?;
     let [light_from, light_to] = light_options([(&from, &read_from), (&to, &read_to)], optimize, ["from", "to"])?;
-    let t_load = t0.elapsed().as_secs_f64();
-    let source = understand(model, read_from, understanding(&light_from, optimize), watcher)?;
+    let clock = Clock::inputs_read(watch);
+    let source = understand(model, read_from, understanding(&light_from, optimize), watch)?;
     let target = source_material(&source)?;
-    let u = understand(model, read_to, understanding(&light_to, optimize), watcher)?;
-    let clock = Clock {
-        t0,
-        t_load,
-        watcher: watcher.map(|w| w.as_ref()),
-    };
+    let u = understand(model, read_to, understanding(&light_to, optimize), watch)?;
     finish(model, u, &onto(&[target], photos.look), out, clock)
 }
 
@@ -195,7 +170,7 @@ fn source_material(u: &Understood) -> Result<(Dsbrdf, target::RegionTarget)> {
 /// predicted material (or its own, where [`Given`] holds it), into `out/a` and `out/b`.
 pub fn swap(model: &Path, photos: Pair, out: &Path) -> Result<[EditReport; 2]> {
     let (a, b, optimize, how) = (photos.first, photos.second, photos.eq6, photos.look);
-    let t0 = Instant::now();
+    let watch = Watch::unwatched();
     let (out_a, out_b) = (out.join("a"), out.join("b"));
     for o in [&out_a, &out_b] {
         refuse_overwriting(o, [&a, &b])?;
@@ -203,15 +178,10 @@ pub fn swap(model: &Path, photos: Pair, out: &Path) -> Result<[EditReport; 2]> {
     let model = Model::load(model)?;
     let (read_a, read_b) = (read_photo(a.photo, a.mask, None)?, read_photo(b.photo, b.mask, None)?);
     let [light_a, light_b] = light_options([(&a, &read_a), (&b, &read_b)], optimize, ["a", "b"])?;
-    let t_load = t0.elapsed().as_secs_f64();
-    let ua = understand(&model, read_a, understanding(&light_a, optimize), None)?;
-    let ub = understand(&model, read_b, understanding(&light_b, optimize), None)?;
+    let clock = Clock::inputs_read(watch);
+    let ua = understand(&model, read_a, understanding(&light_a, optimize), watch)?;
+    let ub = understand(&model, read_b, understanding(&light_b, optimize), watch)?;
     let (ta, tb) = (source_material(&ua)?, source_material(&ub)?);
-    let clock = Clock {
-        t0,
-        t_load,
-        watcher: None,
-    };
     let ra = finish(&model, ua, &onto(&[tb], how), &out_a, clock)?;
     let rb = finish(&model, ub, &onto(&[ta], how), &out_b, clock)?;
     Ok([ra, rb])

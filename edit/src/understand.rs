@@ -6,13 +6,12 @@
 use crate::light::{self, LightOptions, background, estimate};
 use crate::photo::read::ReadPhoto;
 use crate::photo::{Photo, orientation};
-use crate::progress::{Progress, enter};
+use crate::progress::Watch;
 use crate::{Eq6Report, Model, Prepared, detail, eq6, network_prediction, normals, prepare};
 use anyhow::{Context, Result};
 use matedit_trainer::model::prediction::Prediction;
 use matedit_trainer::post_optimisation::Eq6Config;
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::time::Instant;
 
 /// A photo read, framed and understood: n*, m*, L* (the network's, what is known instead, or
@@ -57,18 +56,13 @@ pub struct Understanding<'a> {
     pub eq6: Option<&'a Eq6Config>,
 }
 
-/// Frames a read photo and runs the stages, showing their phases to `watcher`.
-pub fn understand(
-    model: &Model,
-    read: ReadPhoto,
-    how: Understanding,
-    watcher: Option<&Arc<Progress>>,
-) -> Result<Understood> {
+/// Frames a read photo and runs the stages, showing their phases to `watch`.
+pub fn understand(model: &Model, read: ReadPhoto, how: Understanding, watch: Watch) -> Result<Understood> {
     let light = how.light;
     let labels = read.labels.as_ref().map(|(l, n)| (l.as_slice(), *n));
     let prep = prepare(&read.photo, &read.coverage, labels, model.state.net.input_size)
         .with_context(|| read.path.display().to_string())?;
-    enter(watcher.map(|w| w.as_ref()), "network")?;
+    watch.enter("network")?;
     let t = Instant::now();
     let mut x = network_prediction(&model.net, &prep)?;
     let light_estimate = match light.given {
@@ -91,12 +85,12 @@ pub fn understand(
     }
     let eq6 = match how.eq6 {
         Some(cfg) => {
-            enter(watcher.map(|w| w.as_ref()), "eq6")?;
+            watch.enter("eq6")?;
             let estimates = eq6::Estimates {
                 coarse: &mut x,
                 fine: &mut detail,
             };
-            Some(eq6::refine(model, &prep, estimates, cfg, watcher)?)
+            Some(eq6::refine(model, &prep, estimates, cfg, watch.progress)?)
         }
         None => None,
     };

@@ -260,15 +260,7 @@ impl LightSkill {
             size,
         };
         let look = |l: &[f32]| -> Result<Vec<f32>> {
-            let img = layer.forward(&LayerInput {
-                batch: 1,
-                size: (size, size),
-                regions: 1,
-                normals: &normals,
-                region_map: &region_map,
-                materials: &material,
-                env: l,
-            })?;
+            let img = layer.forward(&LayerInput::one_region(size, &normals, &region_map, &material, l))?;
             let p = size * size;
             let photo = Photo {
                 width: size,

@@ -111,49 +111,4 @@ pub(crate) mod tests {
         let only_turn = crate::photo::orientation::tests::exif_with_orientation(6);
         assert_eq!(field_of_view(&only_turn, 3024, 4032), None);
     }
-
-    #[test]
-    fn the_photos_focal_length_sets_the_backgrounds_directions_unless_fov_is_given() {
-        let d = crate::tests::dir("camera-edit");
-        let (plain, mask, _) = crate::tests::write_photo(&d);
-        let img = image::open(&plain).expect("photo").to_rgb8();
-        let jpeg = d.join("phone.jpg");
-        {
-            use image::ImageEncoder;
-            let f = std::io::BufWriter::new(std::fs::File::create(&jpeg).expect("create"));
-            let mut enc = image::codecs::jpeg::JpegEncoder::new_with_quality(f, 95);
-            enc.set_exif_metadata(exif_block(26, 1)).expect("exif");
-            enc.write_image(img.as_raw(), img.width(), img.height(), image::ExtendedColorType::Rgb8)
-                .expect("jpeg");
-        }
-        let level = |photo: &std::path::Path, fov: Option<f64>, name: &str| {
-            let req = crate::EditRequest {
-                light: Some("builtin:sky".into()),
-                fov_deg: fov,
-                ..crate::tests::request(photo, &mask, "lambert:0.1,0.5,0.1")
-            };
-            crate::edit(crate::tests::model(), &req, &d.join(name))
-                .expect("edit")
-                .light_level
-        };
-        let from_exif = level(&jpeg, None, "exif");
-        let want = fov_of_equivalent_focal_length(26.0, 60, 40).expect("fov");
-        assert_eq!(from_exif.fov_from, "exif");
-        assert!((from_exif.fov_deg - want).abs() < 1e-9, "{from_exif:?}");
-        // The field of view reaches the directions: the background's level moves with it.
-        assert_eq!(from_exif.source.as_str(), "background", "{from_exif:?}");
-        let at_default = level(&jpeg, Some(crate::light::background::DEFAULT_FOV_DEG), "at-default");
-        assert!(
-            (from_exif.scale / at_default.scale - 1.0).abs() > 1e-3,
-            "{from_exif:?} {at_default:?}"
-        );
-        let given = level(&jpeg, Some(30.0), "given");
-        assert_eq!((given.fov_deg, given.fov_from.as_str()), (30.0, "given"));
-        let plain_level = level(&plain, None, "default");
-        assert_eq!(
-            (plain_level.fov_deg, plain_level.fov_from.as_str()),
-            (crate::light::background::DEFAULT_FOV_DEG, "default")
-        );
-        std::fs::remove_dir_all(d).ok();
-    }
 }

@@ -349,7 +349,7 @@ pub(crate) mod tests {
     }
 
     /// The stored pixels of an image shown as `shown` under `o` (the inverse turn).
-    fn stored_of(shown: &DynamicImage, o: Orientation) -> DynamicImage {
+    pub(crate) fn stored_of(shown: &DynamicImage, o: Orientation) -> DynamicImage {
         let inverse = match o {
             Orientation::Rotate90 => Orientation::Rotate270,
             Orientation::Rotate270 => Orientation::Rotate90,
@@ -358,99 +358,5 @@ pub(crate) mod tests {
         let mut img = shown.clone();
         img.apply_orientation(inverse);
         img
-    }
-
-    #[test]
-    fn a_turned_photo_edits_as_it_is_shown_with_its_mask_drawn_either_way() {
-        let d = crate::tests::dir("orientation-edit");
-        let (plain, mask, regions) = crate::tests::write_photo(&d);
-        let model = crate::tests::model();
-        let edit = |photo: &Path, mask: &Path, regions: Option<&Path>, name: &str| {
-            let out = d.join(name);
-            let req = crate::EditRequest {
-                regions: regions.map(Path::to_path_buf),
-                materials: vec![
-                    (Some(1), "lambert:0.1,0.5,0.1".into()),
-                    (Some(2), "ggx:0.15:1,1,1".into()),
-                ],
-                ..crate::tests::request(photo, mask, "")
-            };
-            let report = crate::edit(model, &req, &out);
-            (report, out)
-        };
-        let (want, out) = edit(&plain, &mask, Some(&regions), "plain");
-        assert!(want.expect("plain photo").orientation.is_none());
-        let want_png = image::open(out.join("edited.png")).expect("edited").to_rgb8();
-        assert_eq!(want_png.dimensions(), (60, 40));
-        let shown = image::open(&plain).expect("photo");
-        let (shown_mask, shown_regions) = (
-            image::open(&mask).expect("mask"),
-            image::open(&regions).expect("regions"),
-        );
-        for tag in [6u16, 8, 3, 5] {
-            let o = Orientation::from_exif(tag as u8).expect("tag");
-            let photo = d.join(format!("photo-{tag}.png"));
-            write_with_orientation(&photo, &stored_of(&shown, o).to_rgb8(), tag);
-            // The mask and regions drawn on the photo as shown, then on its stored pixels.
-            let stored_mask = d.join(format!("stored-mask-{tag}.png"));
-            let stored_regions = d.join(format!("stored-regions-{tag}.png"));
-            stored_of(&shown_mask, o).save(&stored_mask).expect("save");
-            stored_of(&shown_regions, o).save(&stored_regions).expect("save");
-            // A half turn keeps the size: a mask drawn on the stored pixels would fit too.
-            let as_shown = if swaps_axes(o) {
-                Fit::AsShown
-            } else {
-                Fit::AsShownOrStored
-            };
-            let mut cases = vec![(mask.clone(), regions.clone(), as_shown)];
-            if swaps_axes(o) {
-                cases.push((stored_mask, stored_regions, Fit::TurnedWithPhoto));
-            }
-            for (i, (m, r, fit)) in cases.into_iter().enumerate() {
-                let (report, out) = edit(&photo, &m, Some(&r), &format!("turned-{tag}-{i}"));
-                let report = report.unwrap_or_else(|e| panic!("tag {tag}, {fit:?}: {e:#}"));
-                let o_report = report.orientation.expect("turned");
-                assert_eq!(
-                    (o_report.exif, o_report.mask, o_report.regions),
-                    (tag as u8, Some(fit), Some(fit)),
-                    "tag {tag}"
-                );
-                assert_eq!(report.photo_size, [60, 40], "tag {tag}");
-                // The same pixels in, the same edit out, byte for byte.
-                let got = image::open(out.join("edited.png")).expect("edited").to_rgb8();
-                assert!(
-                    got == want_png,
-                    "tag {tag}, {fit:?}: the turned photo's edit differs from the plain one's"
-                );
-                let json = std::fs::read_to_string(out.join("report.json")).expect("report");
-                assert!(json.contains("\"orientation\""), "{json}");
-            }
-        }
-        // A mask that fits neither the photo as shown nor its stored pixels names both sizes.
-        let photo = d.join("photo-6.png");
-        let wrong = d.join("wrong.png");
-        image::GrayImage::new(50, 50).save(&wrong).expect("save");
-        let e = format!("{:#}", edit(&photo, &wrong, None, "wrong").0.expect_err("refused"));
-        assert!(
-            e.contains("wrong.png")
-                && e.contains("50×50")
-                && e.contains("60×40")
-                && e.contains("EXIF orientation 6")
-                && e.contains("stored 40×60"),
-            "{e}"
-        );
-        // A mask that carries an EXIF turn of its own but was written upright (a tool that
-        // kept the tag) fits the plain photo as stored: its tag is ignored, and the edit is the
-        // plain one.
-        let tagged = d.join("tagged-mask.png");
-        write_with_orientation(&tagged, &shown_mask.to_rgb8(), 6);
-        let (report, out) = edit(&plain, &tagged, Some(&regions), "tagged");
-        let o_report = report.expect("tagged mask").orientation.expect("said");
-        assert_eq!((o_report.exif, o_report.mask), (1, Some(Fit::OwnOrientationIgnored)));
-        let (want_one, want_out) = edit(&plain, &mask, Some(&regions), "plain-one");
-        want_one.expect("plain");
-        let got = image::open(out.join("edited.png")).expect("edited").to_rgb8();
-        assert!(got == image::open(want_out.join("edited.png")).expect("edited").to_rgb8());
-        std::fs::remove_dir_all(d).ok();
     }
 }

@@ -4,7 +4,7 @@
 
 use super::upload::name_uploads;
 use crate::progress::Progress;
-use crate::{Composite, EditReport, EditRequest, Given, Look, Model, Pair, edit_with, transfer_with};
+use crate::{Composite, EditReport, EditRequest, Given, Look, Model, Pair, Watch, edit_with, transfer_with};
 use matedit_trainer::post_optimisation::Eq6Config;
 use matedit_trainer::post_optimisation::watcher::{Cancelled, Watcher as _};
 use serde_json::{Value, json};
@@ -412,11 +412,13 @@ pub fn work(queue: &Queue, model: &Model) {
 }
 
 fn run(model: &Model, job: &Job) -> anyhow::Result<EditReport> {
-    let t0 = Instant::now();
     let out = job.out();
-    let watcher = Some(&job.progress);
+    let watch = Watch {
+        progress: Some(&job.progress),
+        t0: Instant::now(),
+    };
     match &job.work {
-        Work::Edit(req) => edit_with(model, req, &out, watcher, t0),
+        Work::Edit(req) => edit_with(model, req, &out, watch),
         Work::Transfer {
             from,
             to,
@@ -437,8 +439,7 @@ fn run(model: &Model, job: &Job) -> anyhow::Result<EditReport> {
                 look: Look::chosen(Some(*composite), None, to_material.is_some()),
             },
             &out,
-            watcher,
-            t0,
+            watch,
         ),
     }
 }

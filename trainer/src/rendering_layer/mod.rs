@@ -172,6 +172,21 @@ pub struct LayerInput<'a> {
     pub env: &'a [f32],
 }
 
+impl<'a> LayerInput<'a> {
+    /// One `n`×`n` image of one material: `region_map` 1 on the object, 0 elsewhere.
+    pub fn one_region(n: usize, normals: &'a [f32], region_map: &'a [u8], material: &'a [f32], env: &'a [f32]) -> Self {
+        LayerInput {
+            batch: 1,
+            size: (n, n),
+            regions: 1,
+            normals,
+            region_map,
+            materials: material,
+            env,
+        }
+    }
+}
+
 /// Gradients of a loss with respect to the layer's inputs, in the inputs' layouts.
 #[derive(Clone, Debug)]
 pub struct Gradients {

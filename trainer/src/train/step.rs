@@ -158,7 +158,7 @@ pub fn losses_and_gradients(
     let (w, device) = (ctx.weights, ctx.device);
     let b = host_batch.to_device(device);
     let rw = step.render_with;
-    let direct_light = TERMS.iter().any(|t| t.reads_light && t.computed(step.kind, w));
+    let direct_light = TERMS.iter().any(|t| t.reads_light() && t.computed(step.kind, w));
     let light = (step.joint() && rw.illumination.reads_prediction()) || direct_light;
     let p = net.predict(&b.input, &b.mask, &b.region_masks, light);
     let predicted = Predicted {
@@ -208,9 +208,12 @@ fn prediction_terms(
 ) -> Option<Tensor<1>> {
     let mut total = None;
     for t in TERMS.iter().filter(|t| t.computed(kind, w)) {
-        if let Compute::Prediction(f) = t.compute
-            && let Some(l) = f(p, b)
-        {
+        let l = match t.compute {
+            Compute::Prediction(f) => f(p, b),
+            Compute::Light(f) => p.env.map(|env| f(env.clone(), b.env.clone())),
+            Compute::Image(_) => None,
+        };
+        if let Some(l) = l {
             losses.set(t, scalar(&l));
             total = add(total, l.mul_scalar(w[t]));
         }

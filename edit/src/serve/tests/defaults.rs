@@ -79,14 +79,7 @@ fn with_the_defaults_a_thin_photo_is_answered_in_seconds() {
     let server = rt.block_on(start(defaults())).unwrap();
     let addr = server.addr;
     let t = Instant::now();
-    let (s, v) = post_edit(
-        addr,
-        &[
-            ("photo", Some("thin.png"), &photo),
-            ("mask", Some("thin-mask.png"), &mask),
-            ("material", None, b"library:gold-polished"),
-        ],
-    );
+    let (s, v) = post_edit(addr, &Upload::gold(&photo, &mask).0);
     let ended = if s == 202 {
         wait_for(addr, v["url"].as_str().unwrap(), &["done", "failed"])
     } else {

@@ -104,15 +104,7 @@ fn a_transfer_takes_the_material_of_the_other_photo() {
     let rt = runtime();
     let server = rt.block_on(start(config(2))).unwrap();
     let (photo, mask) = photo_and_mask();
-    let (s, v) = post_edit(
-        server.addr,
-        &[
-            ("photo", Some("to.png"), &photo),
-            ("mask", Some("to-mask.png"), &mask),
-            ("source", Some("from.png"), &photo),
-            ("source_mask", Some("from-mask.png"), &mask),
-        ],
-    );
+    let (s, v) = post_edit(server.addr, &Upload::transfer(&photo, &mask).0);
     assert_eq!(s, 202, "{v}");
     let done = wait_for(server.addr, v["url"].as_str().unwrap(), &["done", "failed"]);
     assert_eq!(done["state"], "done", "{done}");
@@ -126,17 +118,10 @@ fn a_transfer_takes_the_receiving_objects_own_material_and_normals() {
     let server = rt.block_on(start(config(2))).unwrap();
     let (photo, mask) = photo_and_mask();
     let facing = png(image::RgbImage::from_pixel(60, 40, image::Rgb([128, 128, 255])));
-    let (s, v) = post_edit(
-        server.addr,
-        &[
-            ("photo", Some("to.png"), &photo),
-            ("mask", Some("to-mask.png"), &mask),
-            ("source", Some("from.png"), &photo),
-            ("source_mask", Some("from-mask.png"), &mask),
-            ("input_material", None, b"plastic:0.1:0.6,0.1,0.1"),
-            ("normals", Some("to-normals.png"), &facing),
-        ],
-    );
+    let upload = Upload::transfer(&photo, &mask)
+        .with("input_material", None, b"plastic:0.1:0.6,0.1,0.1")
+        .with("normals", Some("to-normals.png"), &facing);
+    let (s, v) = post_edit(server.addr, &upload.0);
     assert_eq!(s, 202, "{v}");
     let done = wait_for(server.addr, v["url"].as_str().unwrap(), &["done", "failed"]);
     assert_eq!(done["state"], "done", "{done}");
@@ -163,12 +148,10 @@ fn the_queue_is_bounded_shows_places_and_cancels_waiting_and_running_edits() {
     let server = rt.block_on(start(cfg)).unwrap();
     let addr = server.addr;
     let (photo, mask) = photo_and_mask();
-    let parts: [(&str, Option<&str>, &[u8]); 4] = [
-        ("photo", Some("p.png"), &photo),
-        ("mask", Some("m.png"), &mask),
-        ("material", None, b"lambert:0.2,0.5,0.8"),
-        ("optimize", None, b"on"),
-    ];
+    let parts = Upload::gold(&photo, &mask)
+        .with("material", None, b"lambert:0.2,0.5,0.8")
+        .with("optimize", None, b"on")
+        .0;
     let (_, a) = post_edit(addr, &parts);
     let a_url = a["url"].as_str().unwrap().to_string();
     // Running and past its first Eq. 6 iterations.
@@ -249,15 +232,8 @@ fn the_objects_normals_reach_the_edit() {
     let addr = server.addr;
     let (photo, mask) = photo_and_mask();
     let facing = png(image::RgbImage::from_pixel(60, 40, image::Rgb([128, 128, 255])));
-    let (s, v) = post_edit(
-        addr,
-        &[
-            ("photo", Some("car.png"), &photo),
-            ("mask", Some("car-mask.png"), &mask),
-            ("material", None, b"library:gold-polished"),
-            ("normals", Some("car-normals.png"), &facing),
-        ],
-    );
+    let upload = Upload::gold(&photo, &mask).with("normals", Some("car-normals.png"), &facing);
+    let (s, v) = post_edit(addr, &upload.0);
     assert_eq!(s, 202, "{v}");
     let done = wait_for(addr, v["url"].as_str().unwrap(), &["done", "failed"]);
     assert_eq!(done["state"], "done", "{done}");
@@ -276,16 +252,10 @@ fn the_objects_own_material_reaches_the_edit_and_picks_its_composite() {
     let addr = server.addr;
     let (photo, mask) = photo_and_mask();
     for (composite, want) in [(&b""[..], "ratio"), (&b"detail"[..], "detail")] {
-        let (s, v) = post_edit(
-            addr,
-            &[
-                ("photo", Some("car.png"), &photo),
-                ("mask", Some("car-mask.png"), &mask),
-                ("material", None, b"library:gold-polished"),
-                ("input_material", None, b"plastic:0.1:0.6,0.1,0.1"),
-                ("composite", None, composite),
-            ],
-        );
+        let upload = Upload::gold(&photo, &mask)
+            .with("input_material", None, b"plastic:0.1:0.6,0.1,0.1")
+            .with("composite", None, composite);
+        let (s, v) = post_edit(addr, &upload.0);
         assert_eq!(s, 202, "{v}");
         let done = wait_for(addr, v["url"].as_str().unwrap(), &["done", "failed"]);
         assert_eq!(done["state"], "done", "{done}");

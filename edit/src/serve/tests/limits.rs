@@ -157,17 +157,9 @@ fn kept_edits_stay_within_their_disk_budget_the_newest_always_kept() {
     cfg.keep_bytes = 1; // smaller than any edit: only the newest stays
     let server = rt.block_on(start(cfg)).unwrap();
     let addr = server.addr;
-    let (photo, mask) = photo_and_mask();
     let mut urls = Vec::new();
     for _ in 0..3 {
-        let (s, v) = post_edit(
-            addr,
-            &[
-                ("photo", Some("car.png"), &photo),
-                ("mask", Some("car-mask.png"), &mask),
-                ("material", None, b"library:gold-polished"),
-            ],
-        );
+        let (s, v) = post_gold_edit(addr);
         assert_eq!(s, 202, "{v}");
         let url = v["url"].as_str().unwrap().to_string();
         assert_eq!(wait_for(addr, &url, &["done", "failed"])["state"], "done");
@@ -193,11 +185,7 @@ fn kept_edits_stay_within_their_disk_budget_the_newest_always_kept() {
 fn edits_are_admitted_by_the_memory_their_photos_need() {
     let rt = runtime();
     let (photo, mask) = photo_and_mask();
-    let parts: [(&str, Option<&str>, &[u8]); 3] = [
-        ("photo", Some("car.png"), &photo),
-        ("mask", Some("car-mask.png"), &mask),
-        ("material", None, b"library:gold-polished"),
-    ];
+    let parts = Upload::gold(&photo, &mask).0;
     let need = upload::memory_mb([photo.as_slice()], u64::MAX);
     assert_eq!(
         upload::memory_mb([photo.as_slice()], 100),
@@ -220,14 +208,8 @@ fn edits_are_admitted_by_the_memory_their_photos_need() {
     cfg.max_upload_bytes = 8 << 20;
     cfg.max_memory_mb = need + 10;
     let server = rt.block_on(start(cfg)).unwrap();
-    let (s, v) = post_edit(
-        server.addr,
-        &[
-            ("photo", Some("car.png"), &photo),
-            ("mask", Some("huge-mask.png"), &big_mask),
-            ("material", None, b"library:gold-polished"),
-        ],
-    );
+    let huge_mask = Upload::gold(&photo, &mask).with("mask", Some("huge-mask.png"), &big_mask);
+    let (s, v) = post_edit(server.addr, &huge_mask.0);
     assert_eq!(s, 413, "{v}");
     assert!(v["error"].as_str().unwrap().contains("of memory"), "{v}");
     rt.block_on(server.stop());

@@ -151,17 +151,57 @@ fn post_edit(addr: SocketAddr, parts: &[(&str, Option<&str>, &[u8])]) -> (u16, V
     (s, json_of(&b))
 }
 
+/// An upload's parts, made from one of the requests here by putting a field in place (or at the
+/// end), or leaving one out: what most tests send differs from these in a field or two.
+#[derive(Clone)]
+struct Upload<'a>(Parts<'a>);
+
+impl<'a> Upload<'a> {
+    /// `photo` (as p.png) inside `mask` (m.png) edited to polished gold.
+    fn gold(photo: &'a [u8], mask: &'a [u8]) -> Self {
+        Upload(vec![
+            ("photo", Some("p.png"), photo),
+            ("mask", Some("m.png"), mask),
+            ("material", None, b"library:gold-polished"),
+        ])
+    }
+
+    /// `photo` (to.png, inside `mask`) given the material of the same photo as the source
+    /// (from.png): a transfer.
+    fn transfer(photo: &'a [u8], mask: &'a [u8]) -> Self {
+        Upload(vec![
+            ("photo", Some("to.png"), photo),
+            ("mask", Some("to-mask.png"), mask),
+            ("source", Some("from.png"), photo),
+            ("source_mask", Some("from-mask.png"), mask),
+        ])
+    }
+
+    /// With `field` set to `bytes` (a file named `file`, or a text field where `None`).
+    fn with(mut self, field: &'a str, file: Option<&'a str>, bytes: &'a [u8]) -> Self {
+        match self.0.iter_mut().find(|p| p.0 == field) {
+            Some(p) => *p = (field, file, bytes),
+            None => self.0.push((field, file, bytes)),
+        }
+        self
+    }
+
+    /// The parts of this upload with `field` set to `bytes`.
+    fn parts_with(&self, field: &'a str, file: Option<&'a str>, bytes: &'a [u8]) -> Parts<'a> {
+        self.clone().with(field, file, bytes).0
+    }
+
+    /// Without `field`.
+    fn without(mut self, field: &str) -> Self {
+        self.0.retain(|p| p.0 != field);
+        self
+    }
+}
+
 /// The test photo and its mask edited to polished gold: the edit most tests queue.
 fn post_gold_edit(addr: SocketAddr) -> (u16, Value) {
     let (photo, mask) = photo_and_mask();
-    post_edit(
-        addr,
-        &[
-            ("photo", Some("car.png"), &photo),
-            ("mask", Some("car-mask.png"), &mask),
-            ("material", None, b"library:gold-polished"),
-        ],
-    )
+    post_edit(addr, &Upload::gold(&photo, &mask).0)
 }
 
 fn wait_for(addr: SocketAddr, url: &str, states: &[&str]) -> Value {

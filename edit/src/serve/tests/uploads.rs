@@ -51,222 +51,122 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
         .unwrap();
     let cut = |b: &[u8]| b[..b.len() * 3 / 4].to_vec();
     let (cut_jpeg, cut_exr, cut_hdr) = (cut(&jpeg), cut(&exr), cut(&hdr));
-    let gold: &[u8] = b"library:gold-polished";
+    let gold = Upload::gold(&photo, &mask);
     let mut cases: Vec<(Parts, u16, &str)> = vec![
-        (vec![("material", None, gold)], 422, "no photo"),
+        (vec![("material", None, b"library:gold-polished")], 422, "no photo"),
         (
-            vec![("photo", Some("a.png"), b"hello"), ("material", None, gold)],
+            gold.clone().without("mask").with("photo", Some("a.png"), b"hello").0,
             422,
             "“a.png”: not a PNG, JPEG, EXR or HDR image",
         ),
+        (gold.parts_with("mask", Some("m.png"), &blank), 422, "the mask is empty"),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &blank),
-                ("material", None, gold),
-            ],
-            422,
-            "the mask is empty",
-        ),
-        (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &full),
-                ("material", None, gold),
-            ],
+            gold.parts_with("mask", Some("m.png"), &full),
             422,
             "covers the whole photo",
         ),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &other_size),
-                ("material", None, gold),
-            ],
+            gold.parts_with("mask", Some("m.png"), &other_size),
             422,
             "must match pixel for pixel",
         ),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.exr"), &exr_mask),
-                ("material", None, gold),
-            ],
+            gold.parts_with("mask", Some("m.exr"), &exr_mask),
             422,
             "masks must be PNG or JPEG",
         ),
         (
-            vec![("photo", Some("p.png"), &photo), ("material", None, gold)],
+            gold.clone().without("mask").0,
             422,
             "no mask given and the photo has no alpha channel",
         ),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-                ("normals", Some("n.png"), &other_size),
-            ],
+            gold.parts_with("normals", Some("n.png"), &other_size),
             422,
             "normals “n.png”: the normal map is 30×20, the photo 60×40",
         ),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-                ("normals", Some("n.png"), &photo),
-            ],
+            gold.parts_with("normals", Some("n.png"), &photo),
             422,
             "face away from the camera",
         ),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-                ("normals", Some("n.exr"), &exr_mask),
-            ],
+            gold.parts_with("normals", Some("n.exr"), &exr_mask),
             422,
             "needs channels X, Y, Z or R, G, B",
         ),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-                ("normals", Some("n.jpg"), &jpeg),
-            ],
+            gold.parts_with("normals", Some("n.jpg"), &jpeg),
             422,
             "normal maps must be EXR or PNG images, this is JPG",
         ),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &mask),
-                ("source", Some("s.png"), &photo),
-                ("normals", Some("n.png"), &other_size),
-            ],
+            gold.clone()
+                .without("material")
+                .with("source", Some("s.png"), &photo)
+                .with("normals", Some("n.png"), &other_size)
+                .0,
             422,
             "n.png",
         ),
         (
-            vec![
-                ("photo", Some("big.png"), &huge),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-            ],
+            gold.parts_with("photo", Some("big.png"), &huge),
             422,
             "100000×100000 is 10000.0 megapixels, more than this server's limit of 1.0",
         ),
         (
-            vec![
-                ("photo", Some("many.exr"), &many),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-            ],
+            gold.parts_with("photo", Some("many.exr"), &many),
             422,
             "with 40 channels",
         ),
         (
-            vec![
-                ("photo", Some("nothing.png"), b""),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-            ],
+            gold.parts_with("photo", Some("nothing.png"), b""),
             422,
             "“nothing.png” is empty (0 bytes)",
         ),
         (
-            vec![
-                ("photo", Some("half.png"), &truncated),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-            ],
+            gold.parts_with("photo", Some("half.png"), &truncated),
             422,
             "“half.png”",
         ),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, b"dsbrdf:/etc/passwd"),
-            ],
+            gold.parts_with("material", None, b"dsbrdf:/etc/passwd"),
             422,
             "file specs are not accepted",
         ),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, b"library:../../x"),
-            ],
+            gold.parts_with("material", None, b"library:../../x"),
             422,
             "no such library material",
         ),
+        (gold.parts_with("material", None, b"lambert:2,nan,0"), 422, "lambert"),
+        (gold.clone().without("material").0, 422, "no material"),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, b"lambert:2,nan,0"),
-            ],
-            422,
-            "lambert",
-        ),
-        (
-            vec![("photo", Some("p.png"), &photo), ("mask", Some("m.png"), &mask)],
-            422,
-            "no material",
-        ),
-        (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-                ("input_material", None, b"lambert:nope"),
-            ],
+            gold.parts_with("input_material", None, b"lambert:nope"),
             422,
             "the object's own material",
         ),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-                ("input_material", None, b"lambert:0.2,0.2,0.2"),
-                ("optimize", None, b"on"),
-            ],
+            gold.clone()
+                .with("input_material", None, b"lambert:0.2,0.2,0.2")
+                .with("optimize", None, b"on")
+                .0,
             422,
             "Eq. 6 would change it",
         ),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &mask),
-                ("source", Some("s.png"), &photo),
-                ("input_material", None, b"lambert:0.2,0.2,0.2"),
-                ("optimize", None, b"on"),
-            ],
+            gold.clone()
+                .without("material")
+                .with("source", Some("s.png"), &photo)
+                .with("input_material", None, b"lambert:0.2,0.2,0.2")
+                .with("optimize", None, b"on")
+                .0,
             422,
             "Eq. 6 would change it",
         ),
+        (gold.parts_with("source", Some("s.png"), &photo), 422, "not both"),
         (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-                ("source", Some("s.png"), &photo),
-            ],
-            422,
-            "not both",
-        ),
-        (
-            vec![
-                ("photo", Some("p.png"), &photo),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-                ("composite", None, b"blend"),
-            ],
+            gold.parts_with("composite", None, b"blend"),
             400,
             "expected structure, detail, shading, delta, render or ratio",
         ),
@@ -277,26 +177,11 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
         ),
     ];
     for (name, bytes) in [("cut.jpg", &cut_jpeg), ("cut.exr", &cut_exr), ("cut.hdr", &cut_hdr)] {
-        cases.push((
-            vec![
-                ("photo", Some(name), bytes),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-            ],
-            422,
-            name,
-        ));
+        cases.push((gold.parts_with("photo", Some(name), bytes), 422, name));
     }
     // The whole files are edited.
     for (name, bytes) in [("whole.jpg", &jpeg), ("whole.exr", &exr), ("whole.hdr", &hdr)] {
-        let (s, v) = post_edit(
-            addr,
-            &[
-                ("photo", Some(name), bytes),
-                ("mask", Some("m.png"), &mask),
-                ("material", None, gold),
-            ],
-        );
+        let (s, v) = post_edit(addr, &gold.parts_with("photo", Some(name), bytes));
         assert_eq!(s, 202, "{name}: {v}");
         let done = wait_for(addr, v["url"].as_str().unwrap(), &["done", "failed"]);
         assert_eq!(done["state"], "done", "{name}: {done}");
@@ -328,11 +213,7 @@ fn bad_uploads_get_their_message_and_the_server_keeps_running() {
     assert!(v["error"].as_str().unwrap().contains("larger than this server accepts"));
     // Without the page's header (what another site's page would send): refused.
     let mut raw = TcpStream::connect(addr).unwrap();
-    let body = multipart(&[
-        ("photo", Some("p.png"), &photo),
-        ("mask", Some("m.png"), &mask),
-        ("material", None, gold),
-    ]);
+    let body = multipart(&gold.0);
     write!(
         raw,
         "POST /api/edit HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\nContent-Type: multipart/form-data; boundary={BOUNDARY}\r\nContent-Length: {}\r\n\r\n",

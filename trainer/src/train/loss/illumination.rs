@@ -1,8 +1,7 @@
 //! The direct loss on L' (not in the paper, which trains L' only through the rendering layer).
 
-use super::{Compute, Predicted, Term};
+use super::{Compute, Term};
 use super::{display, exposure, mean};
-use crate::data::TensorBatch;
 use crate::train::stage_kind::StageKind;
 use burn::tensor::Tensor;
 
@@ -15,14 +14,9 @@ pub const TERM: Term = Term {
     default_weight: 0.0,
     logged_at_zero: false,
     written_when_zero: true,
-    reads_light: true,
     stages: &[StageKind::Pretrain, StageKind::Joint],
-    compute: Compute::Prediction(on_prediction),
+    compute: Compute::Light(illumination_loss),
 };
-
-fn on_prediction(p: &Predicted, b: &TensorBatch) -> Option<Tensor<1>> {
-    Some(illumination_loss(p.env?.clone(), b.env.clone()))
-}
 
 /// The direct loss on the predicted illumination (an option, not in the paper): the mean over
 /// texels and channels of the squared difference of the two maps (`[B, 3, He, 2He]`) after

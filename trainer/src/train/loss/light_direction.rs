@@ -2,9 +2,8 @@
 //! loss lets a module average away.
 
 use super::light_energy::LIGHT_ENERGY_FLOOR;
-use super::{Compute, Predicted, Term};
+use super::{Compute, Term};
 use super::{mean, row_sums};
-use crate::data::TensorBatch;
 use crate::train::stage_kind::StageKind;
 use burn::tensor::{Tensor, TensorData};
 use matedit_physics::LUMINANCE_WEIGHTS;
@@ -19,14 +18,9 @@ pub const TERM: Term = Term {
     default_weight: 0.0,
     logged_at_zero: false,
     written_when_zero: false,
-    reads_light: true,
     stages: &[StageKind::Pretrain, StageKind::Joint],
-    compute: Compute::Prediction(on_prediction),
+    compute: Compute::Light(light_direction_loss),
 };
-
-fn on_prediction(p: &Predicted, b: &TensorBatch) -> Option<Tensor<1>> {
-    Some(light_direction_loss(p.env?.clone(), b.env.clone()))
-}
 
 /// The loss on where the predicted light comes from (an option, not in the paper): the mean over
 /// images of |d' − d|², where d = ∫ Y(ω) ω dΩ / ∫ Y(ω) dΩ is a map's mean direction weighted

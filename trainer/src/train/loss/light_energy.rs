@@ -1,8 +1,7 @@
 //! The loss on the energy of L' (not in the paper): what the direct loss clips away.
 
-use super::{Compute, Predicted, Term};
+use super::{Compute, Term};
 use super::{mean, row_sums};
-use crate::data::TensorBatch;
 use crate::train::stage_kind::StageKind;
 use burn::tensor::{Tensor, TensorData};
 use matedit_physics::envmap::texel_solid_angle;
@@ -16,14 +15,9 @@ pub const TERM: Term = Term {
     default_weight: 0.0,
     logged_at_zero: false,
     written_when_zero: false,
-    reads_light: true,
     stages: &[StageKind::Pretrain, StageKind::Joint],
-    compute: Compute::Prediction(on_prediction),
+    compute: Compute::Light(light_energy_loss),
 };
-
-fn on_prediction(p: &Predicted, b: &TensorBatch) -> Option<Tensor<1>> {
-    Some(light_energy_loss(p.env?.clone(), b.env.clone()))
-}
 
 /// Added to both energies of [`light_energy_loss`] so that a black map has a finite logarithm:
 /// far below any map's mean radiance in the datasets here (real maps' means are 1e-2 to 1e2).

@@ -15,7 +15,6 @@ pub const TERM: Term = Term {
     default_weight: 1e3,
     logged_at_zero: true,
     written_when_zero: true,
-    reads_light: false,
     stages: &[StageKind::Pretrain, StageKind::Joint, StageKind::EncoderDecoder],
     compute: Compute::Prediction(on_prediction),
 };

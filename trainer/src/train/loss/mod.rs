@@ -85,8 +85,6 @@ pub struct Term {
     /// Whether `metrics.jsonl` writes it when it is 0 (the later options are left out then, so
     /// that runs without them log what they always logged).
     pub written_when_zero: bool,
-    /// Whether it compares L' with L: a step that computes it predicts L'.
-    pub reads_light: bool,
     /// The stage kinds whose steps use it.
     pub stages: &'static [StageKind],
     /// How it is computed.
@@ -98,12 +96,20 @@ pub struct Term {
 pub enum Compute {
     /// From a prediction and its truth: `None` where the step did not predict what it compares.
     Prediction(fn(&Predicted, &TensorBatch) -> Option<Tensor<1>>),
+    /// From the predicted L' and the true L (`[B, 3, He, 2He]` each): a step that computes it
+    /// predicts L'.
+    Light(fn(Tensor<4>, Tensor<4>) -> Tensor<1>),
     /// From a rendered image and its truth on the object's pixels; a step with I' and O' adds
     /// the two.
     Image(fn(&ImagePair) -> Tensor<1>),
 }
 
 impl Term {
+    /// Whether it compares L' with L: a step that computes it predicts L'.
+    pub fn reads_light(&self) -> bool {
+        matches!(self.compute, Compute::Light(_))
+    }
+
     /// Whether a step of `kind` under the weights `w` computes this term.
     pub fn computed(&self, kind: StageKind, w: &LossWeights) -> bool {
         self.stages.contains(&kind) && (self.logged_at_zero || w[self] > 0.0)
@@ -282,10 +288,6 @@ mod registry {
                 "{} is another field's name",
                 t.name
             );
-            // A term of the paper is logged at weight 0; a term on L' reads L'.
-            if let Compute::Image(_) = t.compute {
-                assert!(!t.reads_light, "{}", t.name);
-            }
         }
         // Eq. 5's weights are the paper's; the other terms are off by default.
         let w = LossWeights::default();

@@ -16,7 +16,6 @@ pub const TERM: Term = Term {
     default_weight: 1e4,
     logged_at_zero: true,
     written_when_zero: true,
-    reads_light: false,
     stages: &[StageKind::Pretrain, StageKind::Joint],
     compute: Compute::Prediction(on_prediction),
 };

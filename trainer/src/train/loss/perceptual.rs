@@ -27,7 +27,6 @@ pub const TERM: Term = Term {
     default_weight: 1.0,
     logged_at_zero: true,
     written_when_zero: true,
-    reads_light: false,
     stages: &[StageKind::Joint, StageKind::EncoderDecoder],
     compute: Compute::Image(on_image),
 };

@@ -17,7 +17,6 @@ pub const TERM: Term = Term {
     default_weight: 0.0,
     logged_at_zero: false,
     written_when_zero: true,
-    reads_light: false,
     stages: &[StageKind::Joint, StageKind::EncoderDecoder],
     compute: Compute::Image(on_image),
 };

@@ -662,3 +662,10 @@ fn an_exr_photo_is_read_from_its_r_g_b_and_a_whatever_else_it_holds() {
     let e = format!("{:#}", load_photo(&no_g).unwrap_err());
     assert!(e.contains("no G channel"), "{e}");
 }
+
+mod inputs;
+mod light;
+mod normals;
+mod photo;
+mod range;
+mod relight;
