@@ -21,6 +21,7 @@ pub mod jobs;
 pub mod library;
 mod lifecycle;
 pub mod rate;
+mod submit;
 #[cfg(test)]
 mod tests;
 pub mod upload;
@@ -28,11 +29,11 @@ pub mod upload;
 use crate::Model;
 use anyhow::{Context, Result};
 use axum::Router;
-use axum::extract::{DefaultBodyLimit, Multipart, Path as UrlPath, Query, State};
+use axum::extract::{DefaultBodyLimit, Path as UrlPath, Query, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
-use jobs::{Job, Queue};
+use jobs::Queue;
 pub use lifecycle::CANCEL_WAIT;
 use lifecycle::{Interrupt, WorkFolder, accept};
 use matedit_trainer::post_optimisation::Eq6Config;
@@ -41,7 +42,7 @@ use std::collections::HashMap;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::AtomicU64;
 
 /// The page: HTML, style and script in one file, served as is.
 pub const PAGE: &str = include_str!("page.html");
@@ -151,6 +152,32 @@ struct App {
 }
 
 impl App {
+    /// The server's state for `cfg`, with the model's description and the job queue.
+    fn new(cfg: &ServeConfig, info: Value, queue: Arc<Queue>, work: &std::path::Path) -> Self {
+        Self {
+            queue,
+            library: library::Library::default(),
+            info,
+            work: work.to_path_buf(),
+            max_pixels: cfg.max_pixels,
+            eq6: cfg.eq6.clone(),
+            counter: AtomicU64::new(0),
+            checking: Arc::new(tokio::sync::Semaphore::new(2)),
+            // Eight uploads of the largest size at once; stalled ones hold what they sent, which is
+            // next to nothing, and are closed within seconds.
+            receiving: Arc::new(tokio::sync::Semaphore::new(
+                (8 * cfg.max_upload_bytes.div_ceil(1024)).min(tokio::sync::Semaphore::MAX_PERMITS),
+            )),
+            min_rate: cfg.deadlines.min_rate,
+            upload_deadline: cfg.deadlines.upload,
+            memory: Arc::new(tokio::sync::Semaphore::new(
+                cfg.max_memory_mb.min(tokio::sync::Semaphore::MAX_PERMITS as u64) as usize,
+            )),
+            max_memory_mb: cfg.max_memory_mb,
+            secret: *blake3::hash(format!("{}:{}:{:?}", std::process::id(), nanos(), work).as_bytes()).as_bytes(),
+        }
+    }
+
     /// A message as a client may see it: no path of the server's (the work folder's name holds
     /// the process id and the start time), uploads named as the browser named them.
     fn scrub(&self, message: &str, job: &std::path::Path) -> String {
@@ -246,6 +273,21 @@ fn load_measured(path: &std::path::Path) -> Result<Model> {
     Ok(model)
 }
 
+/// What `GET /api/info` says of the model: the run's own part of its path
+/// (run/checkpoints/stage; where the server keeps it is nobody else's business), its stage and
+/// the sizes it works at.
+fn describe(model: &Model) -> Value {
+    let s = &model.state;
+    let parts: Vec<_> = model.dir.components().rev().take(3).collect();
+    let checkpoint: PathBuf = parts.into_iter().rev().collect();
+    json!({
+        "checkpoint": checkpoint.display().to_string(),
+        "stage": s.stage_name,
+        "input_size": s.net.input_size,
+        "env_height": s.net.env_height,
+    })
+}
+
 /// [`start`] once the work folder exists.
 async fn serve_from(cfg: ServeConfig, work: WorkFolder) -> Result<Server> {
     // Bound first: a port in use is refused before the model is loaded and a worker started.
@@ -260,25 +302,7 @@ async fn serve_from(cfg: ServeConfig, work: WorkFolder) -> Result<Server> {
         .name("matedit-edit".into())
         .spawn(move || match load_measured(&path) {
             Ok(model) => {
-                let s = &model.state;
-                let _ = tx.send(Ok(json!({
-                    // The run's own part of the path (run/checkpoints/stage): where the server
-                    // keeps it is nobody else's business.
-                    "checkpoint": model
-                        .dir
-                        .components()
-                        .rev()
-                        .take(3)
-                        .collect::<Vec<_>>()
-                        .into_iter()
-                        .rev()
-                        .collect::<std::path::PathBuf>()
-                        .display()
-                        .to_string(),
-                    "stage": s.stage_name,
-                    "input_size": s.net.input_size,
-                    "env_height": s.net.env_height,
-                })));
+                let _ = tx.send(Ok(describe(&model)));
                 jobs::work(&q, &model);
             }
             Err(e) => {
@@ -294,28 +318,7 @@ async fn serve_from(cfg: ServeConfig, work: WorkFolder) -> Result<Server> {
     info["max_megapixels"] = json!(cfg.max_pixels as f64 / 1e6);
     info["queue"] = json!(queue.capacity());
     info["eq6"] = json!(cfg.eq6);
-    let app = Arc::new(App {
-        queue: queue.clone(),
-        library: library::Library::default(),
-        info,
-        work: work.path.clone(),
-        max_pixels: cfg.max_pixels,
-        eq6: cfg.eq6.clone(),
-        counter: AtomicU64::new(0),
-        checking: Arc::new(tokio::sync::Semaphore::new(2)),
-        // Eight uploads of the largest size at once; stalled ones hold what they sent, which is
-        // next to nothing, and are closed within seconds.
-        receiving: Arc::new(tokio::sync::Semaphore::new(
-            (8 * cfg.max_upload_bytes.div_ceil(1024)).min(tokio::sync::Semaphore::MAX_PERMITS),
-        )),
-        min_rate: cfg.deadlines.min_rate,
-        upload_deadline: cfg.deadlines.upload,
-        memory: Arc::new(tokio::sync::Semaphore::new(
-            cfg.max_memory_mb.min(tokio::sync::Semaphore::MAX_PERMITS as u64) as usize,
-        )),
-        max_memory_mb: cfg.max_memory_mb,
-        secret: *blake3::hash(format!("{}:{}:{:?}", std::process::id(), nanos(), work.path).as_bytes()).as_bytes(),
-    });
+    let app = Arc::new(App::new(&cfg, info, queue.clone(), &work.path));
     let hosts = guard::Hosts {
         names: cfg.allow_hosts.iter().map(|h| h.to_ascii_lowercase()).collect(),
     };
@@ -346,7 +349,7 @@ fn router(app: Arc<App>, max_upload: usize, hosts: guard::Hosts) -> Router {
         .route("/api/info", get(info))
         .route("/api/library", get(|| async { axum::Json(library::Library::list()) }))
         .route("/api/library/{name}/sphere.png", get(thumbnail))
-        .route("/api/edit", post(submit))
+        .route("/api/edit", post(submit::submit))
         .route("/api/jobs/{id}", get(status))
         .route("/api/jobs/{id}/cancel", post(cancel))
         .route("/api/jobs/{id}/files/{name}", get(file))
@@ -379,126 +382,6 @@ async fn thumbnail(State(app): State<Arc<App>>, UrlPath(name): UrlPath<String>) 
         Ok(Some(Err(e))) => error(StatusCode::INTERNAL_SERVER_ERROR, e),
         Ok(None) => error(StatusCode::NOT_FOUND, "no such library material"),
         Err(_) => error(StatusCode::INTERNAL_SERVER_ERROR, "the thumbnail could not be rendered"),
-    }
-}
-
-async fn submit(State(app): State<Arc<App>>, request: axum::extract::Request) -> Response {
-    use axum::extract::FromRequest as _;
-    if let Some(r) = from_the_page(request.headers()) {
-        return r;
-    }
-    if let Err(full) = app.queue.has_room() {
-        return error(StatusCode::SERVICE_UNAVAILABLE, full.to_string());
-    }
-    // No turns: an upload is admitted by the memory its bytes take as they arrive and read at a
-    // minimum rate ([`rate`]), so clients that stall cost a connection each for a few seconds
-    // and delay nobody. The whole upload still has its deadline.
-    let deadline = tokio::time::Instant::now() + app.upload_deadline;
-    let held = rate::Held::default();
-    let (parts, body) = request.into_parts();
-    let body = rate::limited(body, app.min_rate, app.receiving.clone(), held.clone());
-    let mp = match Multipart::from_request(axum::extract::Request::from_parts(parts, body), &()).await {
-        Ok(mp) => mp,
-        Err(r) => return r.into_response(),
-    };
-    let read = tokio::time::timeout_at(deadline, form::read_fields(mp)).await;
-    let slow = |why: String| {
-        error(
-            StatusCode::REQUEST_TIMEOUT,
-            format!("{why}; try again (or on a faster connection)"),
-        )
-    };
-    let fields = match read {
-        _ if held.too_slow() => {
-            return slow(format!(
-                "the upload arrived slower than {:.0} KiB/s after its first {} s, so it was closed",
-                app.min_rate.bytes_per_second / 1024.0,
-                app.min_rate.grace.as_secs()
-            ));
-        }
-        Ok(Ok(f)) => f,
-        Ok(Err(r)) => return r,
-        Err(_) => {
-            return slow(format!(
-                "the upload did not arrive whole within {} s",
-                app.upload_deadline.as_secs()
-            ));
-        }
-    };
-    // Admitted by what its photos will need in memory, told by their headers before anything is
-    // decoded; the reservation lasts until the edit ends.
-    // Masks and normal maps count too, as photos do (an upper bound): they are decoded at the
-    // photo's size before the edit starts.
-    let need = upload::memory_mb(
-        ["photo", "source", "mask", "source_mask", "normals"]
-            .iter()
-            .filter_map(|role| fields.files.get(role).map(|p| p.bytes.as_ref())),
-        app.max_pixels,
-    );
-    if need > app.max_memory_mb {
-        return error(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            format!(
-                "editing these photos needs about {need} MB of memory, more than this server allows ({} MB); send a smaller photo",
-                app.max_memory_mb
-            ),
-        );
-    }
-    let reservation = match tokio::time::timeout_at(deadline, app.memory.clone().acquire_many_owned(need as u32)).await
-    {
-        Ok(Ok(r)) => r,
-        Ok(Err(_)) => return error(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping"),
-        Err(_) => {
-            return error(
-                StatusCode::SERVICE_UNAVAILABLE,
-                "the edits in progress use the memory this server allows; try again in a minute",
-            );
-        }
-    };
-    let Ok(permit) = app.checking.clone().acquire_owned().await else {
-        return error(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping");
-    };
-    let n = app.counter.fetch_add(1, Ordering::Relaxed);
-    let mut h = blake3::Hasher::new_keyed(&app.secret);
-    h.update(&n.to_le_bytes());
-    let id = h.finalize().to_hex()[..24].to_string();
-    // Checking and queueing finish even if the client goes away meanwhile: the permit and the
-    // clean-up live in the blocking task, not in this future.
-    let app2 = app.clone();
-    let done = tokio::task::spawn_blocking(move || {
-        let _permit = permit;
-        let dir = app2.work.join(&id);
-        let prepared = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| form::prepare(&app2, &dir, fields)));
-        // The uploads are on disk (or refused): their bytes no longer count against the budget.
-        held.release();
-        let answer = match prepared {
-            Ok(Ok((work, names))) => match app2
-                .queue
-                .submit(Job::new(id.clone(), dir.clone(), work, names).holding(reservation))
-            {
-                Ok((_, place)) => Ok((id.clone(), place)),
-                Err(full) => Err((StatusCode::SERVICE_UNAVAILABLE, full.to_string())),
-            },
-            Ok(Err(e)) => Err((StatusCode::UNPROCESSABLE_ENTITY, app2.scrub(&format!("{e:#}"), &dir))),
-            Err(_) => Err((
-                StatusCode::UNPROCESSABLE_ENTITY,
-                "the upload could not be read (its decoder failed)".to_string(),
-            )),
-        };
-        if answer.is_err() {
-            let _ = std::fs::remove_dir_all(&dir);
-        }
-        answer
-    })
-    .await;
-    match done {
-        Ok(Ok((id, place))) => (
-            StatusCode::ACCEPTED,
-            axum::Json(json!({ "id": id, "place": place, "url": format!("/api/jobs/{id}") })),
-        )
-            .into_response(),
-        Ok(Err((status, msg))) => error(status, msg),
-        Err(_) => error(StatusCode::INTERNAL_SERVER_ERROR, "the upload could not be checked"),
     }
 }
 
