@@ -315,7 +315,8 @@ fn bench_ranks(widths: &str, size: usize, runs: usize) -> Result<()> {
     Ok(())
 }
 
-/// `trainer gpu-info`: every adapter, the one the wgpu device takes, and with
+/// `trainer gpu-info`: every adapter, the one the wgpu device takes, its runtime (the compiler,
+/// f16, tensor cores: [`crate::device::runtime`]), and with
 /// `require_hardware` an error unless that one is a hardware GPU.
 #[cfg(feature = "wgpu")]
 fn gpu_info(require_hardware: bool) -> Result<()> {
@@ -334,8 +335,11 @@ fn gpu_info(require_hardware: bool) -> Result<()> {
         Some(a) => println!("the wgpu device takes: {a}"),
         None => anyhow::bail!("wgpu found no adapter: no Vulkan, DX12 or OpenGL driver is installed"),
     }
-    // Burn's reductions at the sizes of the quickstart, bench and paper configurations.
     let device = crate::device::wgpu_device().map_err(|e| anyhow::anyhow!(e))?;
+    if let Some(r) = crate::device::runtime::Runtime::of(&device) {
+        println!("{r}");
+    }
+    // Burn's reductions at the sizes of the quickstart, bench and paper configurations.
     for (batch, size) in [(8, 64), (16, 128), (16, 256)] {
         let wrong = adapter::inexact_reductions(&device, batch, size);
         if wrong.is_empty() {

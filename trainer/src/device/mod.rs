@@ -1,9 +1,12 @@
 //! The device a run trains on: its name in manifests ([`DeviceName`]), opening it (one
 //! process, or one rank of a data-parallel run: [`device_for`], [`device_for_rank`]), whether
-//! it is a GPU ([`on_cube`]), and what wgpu sees of the machine ([`adapter`]).
+//! it is a GPU ([`on_cube`]), what wgpu sees of the machine ([`adapter`]) and what the runtime
+//! on a GPU compiles to and offers ([`runtime`]).
 
 #[cfg(feature = "wgpu")]
 pub mod adapter;
+#[cfg(feature = "wgpu")]
+pub mod runtime;
 
 use crate::parallel::Ranks;
 use anyhow::Result;
