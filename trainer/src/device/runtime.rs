@@ -1,6 +1,5 @@
 //! What the wgpu runtime on a device compiles kernels to, and what that device offers the
-//! network beyond f32: `trainer gpu-info` prints it, and a run in f16 is refused by name where
-//! the device has no f16 arithmetic.
+//! network beyond f32 (f16 arithmetic, tensor cores): `trainer gpu-info` prints it.
 //!
 //! The compiler is CubeCL's choice (cubecl-wgpu 0.11): SPIR-V on a Vulkan adapter when the
 //! trainer is built with the `vulkan` feature and the adapter has the device-scope memory
@@ -26,10 +25,10 @@ pub struct Runtime {
 impl Runtime {
     /// The runtime of `device`; `None` for a device that is not a CubeCL device (the CPU).
     pub fn of(device: &Device) -> Option<Self> {
-        let burn::backend::DispatchDevice::Cube(cube) = device.clone().inner().as_dispatch().clone() else {
-            return None;
+        let client = match device.clone().inner().as_dispatch() {
+            burn::backend::DispatchDevice::Cube(cube) => cube.client(),
+            _ => return None,
         };
-        let client = cube.client();
         let props = client.properties();
         let f16 = ElemType::Float(FloatKind::F16);
         Some(Self {
@@ -53,11 +52,6 @@ impl Runtime {
     /// Whether kernels reach this device as SPIR-V.
     pub fn is_spirv(&self) -> bool {
         self.name == "wgpu<spirv>"
-    }
-
-    /// Whether the device has cooperative-matrix (tensor-core) matmul with f16 inputs.
-    pub fn has_f16_tensor_cores(&self) -> bool {
-        self.cmma.iter().any(|c| c.starts_with("f16×f16→"))
     }
 }
 
