@@ -101,6 +101,41 @@ mod tests {
         assert!(r.to_string().starts_with(&format!("runtime {}", r.name)));
     }
 
+    /// Each of the line's cases, with no device: the shapes listed, or why there are none.
+    #[test]
+    fn the_gpu_runtime_line_names_each_tensor_core_shape_or_why_there_is_none() {
+        let with = Runtime {
+            name: "wgpu<spirv>",
+            f16: true,
+            cmma: vec!["f16×f16→f32 16×16×16".into(), "bf16×bf16→f32 16×8×16".into()],
+        };
+        assert_eq!(
+            with.to_string(),
+            "runtime wgpu<spirv>; f16 arithmetic: yes; cooperative-matrix (tensor-core) matmul: \
+             f16×f16→f32 16×16×16, bf16×bf16→f32 16×8×16"
+        );
+        let spirv_none = Runtime {
+            cmma: Vec::new(),
+            ..with.clone()
+        };
+        assert!(
+            spirv_none
+                .to_string()
+                .ends_with("none (the driver lists no cooperative-matrix type)")
+        );
+        let wgsl = Runtime {
+            name: "wgpu<wgsl>",
+            f16: false,
+            cmma: Vec::new(),
+        };
+        assert!(!wgsl.is_spirv() && with.is_spirv());
+        assert_eq!(
+            wgsl.to_string(),
+            "runtime wgpu<wgsl>; f16 arithmetic: no; cooperative-matrix (tensor-core) matmul: none \
+             (only the SPIR-V path emits them)"
+        );
+    }
+
     #[test]
     fn the_cpu_device_has_no_gpu_runtime() {
         assert_eq!(Runtime::of(&Device::flex()), None);
